@@ -1,0 +1,1 @@
+"""a3d export: trained checkpoint -> self-contained model.onnx."""

@@ -1,0 +1,1 @@
+"""The dual-trunk VGG16 RoI network: trunks, RoI pooling, heads."""
