@@ -40,3 +40,26 @@ def class_index(name: str) -> int:
         return _INDEX[name]
     except KeyError:
         raise ValueError(f"unknown class name {name!r} (expected one of: {', '.join(CLASSES)})") from None
+
+# One colour per class (RGB, tab20-like, distinct at a glance), shared by every view and plot.
+CLASS_COLORS_RGB: tuple[tuple[int, int, int], ...] = (
+    (31, 119, 180),
+    (255, 127, 14),
+    (44, 160, 44),
+    (214, 39, 40),
+    (148, 103, 189),
+    (140, 86, 75),
+    (227, 119, 194),
+    (127, 127, 127),
+    (188, 189, 34),
+    (23, 190, 207),
+    (174, 199, 232),
+    (255, 187, 120),
+    (152, 223, 138),
+    (255, 152, 150),
+    (197, 176, 213),
+    (196, 156, 148),
+    (247, 182, 210),
+    (219, 219, 141),
+    (158, 218, 229),
+)

@@ -1,0 +1,224 @@
+"""The detections file (README "Detections format"): one JSON line per frame, validated on read.
+
+``a3d-run`` writes it and ``a3d-eval`` reads it. A line::
+
+    {"frame": "NAME", "color": "path", "depth": "path", "R_tilt": [[3x3]],
+     "detections": [{"class": "chair", "score": 0.93, "box2d": [x1, y1, x2, y2],
+                     "box3d": [x, y, z, l, w, h, theta], "corners": [[x, y, z], ... 8 ...]}],
+     "timing": {"stage": seconds, ...}}
+
+``box3d`` is in the camera frame (metres) with ``theta`` in the tilt frame of the line's
+``R_tilt``; ``corners`` are its 8 corners in the camera frame (``geometry.box_corners_camera``),
+written for other tools' convenience. Reading requires ``frame``, ``R_tilt`` (a proper rotation)
+and ``detections`` (each with a known class, a finite score, ``box2d`` with x2 >= x1 and y2 >= y1,
+and ``box3d`` with positive sizes); ``color``, ``depth``, ``corners`` and ``timing`` are optional
+(scoring uses ``box3d`` and ``R_tilt`` only). Blank lines are skipped; a frame may appear once.
+Every problem is an ``InputError`` "FILE:LINE: what is wrong".
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import uuid
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from a3d.runtime.classes import CLASSES
+from a3d.runtime.errors import InputError
+from a3d.runtime.geometry import box_corners_camera, check_rotation
+
+_CLASS_INDEX = {name: i for i, name in enumerate(CLASSES)}
+
+
+@dataclass(frozen=True)
+class FrameDetections:
+    """One line of the detections file: a frame's detections, as arrays."""
+
+    frame: str
+    R_tilt: np.ndarray  # (3, 3), p_tilt = R_tilt p_cam
+    class_ids: np.ndarray  # (N,) int64, 0-based CLASSES index
+    scores: np.ndarray  # (N,) float64
+    boxes2d: np.ndarray  # (N, 4) [x1, y1, x2, y2], README pixel convention
+    boxes3d: np.ndarray  # (N, 7) [x, y, z, l, w, h, theta], camera frame, theta in the R_tilt frame
+    corners: np.ndarray | None = None  # (N, 8, 3) camera frame; computed from boxes3d on write if None
+    color: str | None = None
+    depth: str | None = None
+    timing: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def classes(self) -> list[str]:
+        return [CLASSES[i] for i in self.class_ids]
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
+    """Write a file so that readers see the old content or the new one, never a partial file.
+
+    The temporary file is opened like any new file (mode 0666 less the umask, unlike mkstemp's
+    0600) next to the target, then renamed over it.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
+    try:
+        with open(tmp, "xb") as f:
+            f.write(data)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def format_line(det: FrameDetections) -> str:
+    """The JSON line of one frame (no trailing newline); floats round-trip exactly."""
+    corners = det.corners if det.corners is not None else box_corners_camera(det.boxes3d, det.R_tilt)
+    line: dict = {"frame": det.frame}
+    if det.color is not None:
+        line["color"] = det.color
+    if det.depth is not None:
+        line["depth"] = det.depth
+    line["R_tilt"] = np.asarray(det.R_tilt, dtype=np.float64).tolist()
+    line["detections"] = [
+        {"class": CLASSES[int(c)], "score": float(s), "box2d": b2, "box3d": b3, "corners": cn}
+        for c, s, b2, b3, cn in zip(
+            det.class_ids,
+            det.scores,
+            np.asarray(det.boxes2d, dtype=np.float64).tolist(),
+            np.asarray(det.boxes3d, dtype=np.float64).tolist(),
+            np.asarray(corners, dtype=np.float64).reshape(-1, 8, 3).tolist(),
+            strict=True,
+        )
+    ]
+    line["timing"] = {k: float(v) for k, v in det.timing.items()}
+    return json.dumps(line, separators=(",", ":"))
+
+
+def write_detections(path: str | os.PathLike, frames: Iterable[FrameDetections]) -> None:
+    """Write a whole detections file atomically (``format_line`` per frame, for streaming writers)."""
+    text = "".join(format_line(det) + "\n" for det in frames)
+    atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def read_detections(path: str | os.PathLike) -> list[FrameDetections]:
+    """All lines of a detections file, in file order, validated (InputError "FILE:LINE: ...")."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such detections file") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise InputError(f"{path}: cannot read detections file ({e})") from None
+    frames: list[FrameDetections] = []
+    seen: dict[str, int] = {}
+    for number, raw in enumerate(text.splitlines(), start=1):
+        if not raw.strip():
+            continue
+        where = f"{path}:{number}"
+        det = parse_line(raw, where)
+        if det.frame in seen:
+            raise InputError(f"{where}: frame {det.frame!r} already given on line {seen[det.frame]}")
+        seen[det.frame] = number
+        frames.append(det)
+    return frames
+
+
+def parse_line(text: str, where: str) -> FrameDetections:
+    """One validated line; ``where`` ("FILE:LINE") starts every error message."""
+    try:
+        obj = json.loads(text)
+    except json.JSONDecodeError as e:
+        raise InputError(f"{where}: not valid JSON ({e.msg} at column {e.colno})") from None
+    if not isinstance(obj, dict):
+        raise InputError(f"{where}: expected a JSON object, got {type(obj).__name__}")
+    frame = obj.get("frame")
+    if not isinstance(frame, str) or not frame:
+        raise InputError(f"{where}: 'frame' must be a non-empty string")
+    R_tilt = _array(obj.get("R_tilt"), (3, 3), where, "R_tilt")
+    try:
+        if not np.isfinite(R_tilt).all():
+            raise ValueError("R_tilt: not finite")
+        check_rotation(R_tilt, "R_tilt")
+    except ValueError as e:
+        raise InputError(f"{where}: {e}") from None
+    dets = obj.get("detections")
+    if not isinstance(dets, list):
+        raise InputError(f"{where}: 'detections' must be a list")
+    for i, d in enumerate(dets):
+        if not isinstance(d, dict):
+            raise InputError(f"{where}: detection {i} is not an object")
+        absent = [k for k in ("class", "score", "box2d", "box3d") if k not in d]
+        if absent:
+            raise InputError(f"{where}: detection {i} has no {', '.join(repr(k) for k in absent)}")
+    class_ids = np.empty(len(dets), dtype=np.int64)
+    for i, d in enumerate(dets):
+        if d["class"] not in _CLASS_INDEX:
+            raise InputError(f"{where}: detection {i}: unknown class {d['class']!r}")
+        class_ids[i] = _CLASS_INDEX[d["class"]]
+    scores = _array([d["score"] for d in dets], (len(dets),), where, "score")
+    boxes2d = _array([d["box2d"] for d in dets], (len(dets), 4), where, "box2d")
+    boxes3d = _array([d["box3d"] for d in dets], (len(dets), 7), where, "box3d")
+    for name, values in (("score", scores), ("box2d", boxes2d), ("box3d", boxes3d)):
+        _require(np.isfinite(values), where, f"'{name}' is not finite")
+    _require(boxes2d[:, 2:] >= boxes2d[:, :2], where, "box2d has x2 < x1 or y2 < y1")
+    _require(boxes3d[:, 3:6] > 0, where, "box3d has a size l, w or h <= 0")
+    corners = None
+    if any("corners" in d for d in dets):
+        if not all("corners" in d for d in dets):
+            raise InputError(f"{where}: 'corners' given for some detections but not all")
+        corners = _array([d["corners"] for d in dets], (len(dets), 8, 3), where, "corners")
+        _require(np.isfinite(corners), where, "'corners' is not finite")
+    return FrameDetections(
+        frame=frame,
+        R_tilt=R_tilt,
+        class_ids=class_ids,
+        scores=scores,
+        boxes2d=boxes2d,
+        boxes3d=boxes3d,
+        corners=corners,
+        color=_optional_str(obj, "color", where),
+        depth=_optional_str(obj, "depth", where),
+        timing=_timing(obj.get("timing", {}), where),
+    )
+
+
+def _array(value, shape: tuple[int, ...], where: str, what: str) -> np.ndarray:
+    """A float64 array of exactly ``shape``; for per-detection fields ``shape[0]`` is N, rows finite."""
+    try:
+        arr = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        arr = None
+    if arr is not None and arr.size == 0 and shape[0] == 0:
+        arr = arr.reshape(shape)
+    if arr is None or arr.shape != shape:
+        got = "ragged or non-numeric values" if arr is None else f"shape {arr.shape}"
+        if what == "R_tilt":
+            raise InputError(f"{where}: 'R_tilt' must be a 3x3 matrix, got {got}")
+        expect = "x".join(map(str, shape[1:])) or "a number"
+        raise InputError(f"{where}: every detection's '{what}' must be {expect}, got {got}")
+    return arr
+
+
+def _require(ok: np.ndarray, where: str, problem: str) -> None:
+    """Raise naming the first detection (row) where ``ok`` fails."""
+    ok = ok.all(axis=tuple(range(1, ok.ndim)))
+    bad = np.flatnonzero(~ok)
+    if len(bad):
+        raise InputError(f"{where}: detection {bad[0]}: {problem}")
+
+
+def _optional_str(obj: dict, key: str, where: str) -> str | None:
+    value = obj.get(key)
+    if value is not None and not isinstance(value, str):
+        raise InputError(f"{where}: '{key}' must be a string")
+    return value
+
+
+def _timing(value, where: str) -> dict[str, float]:
+    ok = isinstance(value, dict) and all(
+        isinstance(v, int | float) and not isinstance(v, bool) for v in value.values()
+    )
+    if not ok:
+        raise InputError(f"{where}: 'timing' must map stage names to seconds")
+    return {str(k): float(v) for k, v in value.items()}

@@ -1,0 +1,211 @@
+"""Live rerun view of a3d's frames and detections.
+
+One entity tree per recording, on a ``frame`` sequence timeline:
+
+- ``world``: the gravity-aligned tilt frame (x right, y down along gravity, z forward; RDF),
+  with the annotation context that gives every class its name and colour.
+- ``world/points``: the coloured point cloud, back-projected and rotated into the world frame.
+- ``world/detections``: the detected amodal 3D boxes, labelled with class and score.
+- ``world/ground_truth``: the ground-truth 3D boxes when the frame has them.
+- ``world/camera``: the camera pose (``p_world = R_tilt p_cam``), and under it
+  ``world/camera/image`` the pinhole with the colour image, the depth image, the 2D boxes
+  and the 3D boxes projected into the image as line strips.
+
+The default blueprint opens on the 3D view beside the camera's 2D view.
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from a3d.runtime.classes import CLASS_COLORS_RGB, CLASSES
+from a3d.runtime.geometry import Intrinsics, backproject_depth, box_corners_camera
+
+APPLICATION_ID = "a3d"
+# The 12 edges of a box from geometry's corner order (0-3 one horizontal face, 4-7 the other).
+BOX_EDGES = np.array(
+    [(0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7), (7, 4), (0, 4), (1, 5), (2, 6), (3, 7)]
+)
+NEAR_PLANE_M = 0.05
+
+
+@dataclass(frozen=True)
+class ViewOptions:
+    """What to draw besides the detections; the cloud stride trades detail for viewer load."""
+
+    cloud_stride: int = 2
+    show_ground_truth: bool = True
+    max_proposals: int = 0
+
+
+def add_viewer_args(parser: argparse.ArgumentParser) -> None:
+    """The rerun SDK's standard script flags: --headless, --connect, --serve, --url, --save, --stdout."""
+    rr.script_add_args(parser)
+
+
+def viewer_requested(args: argparse.Namespace) -> bool:
+    """False for --headless with no sink: then nothing is logged (and nothing buffered in memory)."""
+    return not args.headless or bool(args.save or args.connect or args.serve or args.stdout)
+
+
+def default_blueprint() -> rrb.Blueprint:
+    """3D view of the world beside the camera's 2D view with the boxes drawn on the image."""
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial3DView(name="3D", origin="world"),
+            rrb.Vertical(
+                rrb.Spatial2DView(
+                    name="camera",
+                    origin="world/camera/image",
+                    contents=["world/camera/image/**"],
+                ),
+                rrb.TextLogView(name="log", origin="log"),
+                row_shares=[4, 1],
+            ),
+            column_shares=[3, 2],
+        ),
+        rrb.TimePanel(state="collapsed"),
+    )
+
+
+def open_recording(args: argparse.Namespace) -> rr.RecordingStream:
+    """Start the recording on the sink the flags name, with the default blueprint."""
+    return rr.script_setup(args, APPLICATION_ID, default_blueprint=default_blueprint())
+
+
+def log_static(rec: rr.RecordingStream) -> None:
+    """World axes and the class annotation context (class id = softmax index = CLASSES index + 1)."""
+    rec.log("world", rr.ViewCoordinates.RDF, static=True)
+    rec.log(
+        "world",
+        rr.AnnotationContext(
+            [rr.AnnotationInfo(id=i + 1, label=name, color=CLASS_COLORS_RGB[i]) for i, name in enumerate(CLASSES)]
+        ),
+        static=True,
+    )
+
+
+def _yaw_rotations(theta: np.ndarray) -> list[rr.RotationAxisAngle]:
+    # Corners are rotated about +y by theta with the right-handed R_y (SPEC.md): the same axis-angle.
+    return [rr.RotationAxisAngle(axis=[0.0, 1.0, 0.0], radians=float(t)) for t in theta]
+
+
+def boxes3d_archetype(
+    boxes: np.ndarray, R_tilt: np.ndarray, class_ids: np.ndarray, labels: list[str]
+) -> rr.Boxes3D:
+    """Boxes3D in the world (tilt) frame: centre R_tilt c, half sizes (l, h, w)/2, yaw about y."""
+    boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 7)
+    return rr.Boxes3D(
+        centers=boxes[:, :3] @ np.asarray(R_tilt).T,
+        half_sizes=boxes[:, [3, 5, 4]] / 2.0,
+        rotation_axis_angles=_yaw_rotations(boxes[:, 6]),
+        class_ids=np.asarray(class_ids, dtype=np.uint16) + 1,
+        labels=labels,
+        show_labels=True,
+    )
+
+
+def projected_box_edges(boxes: np.ndarray, R_tilt: np.ndarray, K: Intrinsics) -> np.ndarray:
+    """Image-space segments (N*12, 2, 2) of the boxes' edges, clipped at the near plane.
+
+    Edges wholly behind the near plane come back as NaN segments and are dropped by the caller.
+    """
+    corners = box_corners_camera(np.asarray(boxes, dtype=np.float64).reshape(-1, 7), R_tilt)
+    a = corners[:, BOX_EDGES[:, 0]].reshape(-1, 3)
+    b = corners[:, BOX_EDGES[:, 1]].reshape(-1, 3)
+    za, zb = a[:, 2:3], b[:, 2:3]
+    # An edge with one end behind the near plane is cut where it crosses the plane.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        crossing = a + (NEAR_PLANE_M - za) / (zb - za) * (b - a)
+    a = np.where(za < NEAR_PLANE_M, crossing, a)
+    b = np.where(zb < NEAR_PLANE_M, crossing, b)
+    both_behind = (za < NEAR_PLANE_M) & (zb < NEAR_PLANE_M)
+    seg = np.stack([a, b], axis=1)
+    uv = np.stack([K.fx * seg[..., 0] / seg[..., 2] + K.cx, K.fy * seg[..., 1] / seg[..., 2] + K.cy], axis=-1)
+    uv[both_behind[:, 0]] = np.nan
+    return uv
+
+
+def _box_labels(class_ids: np.ndarray, scores: np.ndarray | None) -> list[str]:
+    if scores is None:
+        return [CLASSES[c] for c in class_ids]
+    return [f"{CLASSES[c]} {s:.2f}" for c, s in zip(class_ids, scores, strict=True)]
+
+
+def log_frame(
+    rec: rr.RecordingStream,
+    index: int,
+    *,
+    color: np.ndarray,
+    depth_m: np.ndarray,
+    K: Intrinsics,
+    R_tilt: np.ndarray,
+    class_ids: np.ndarray,
+    scores: np.ndarray,
+    boxes2d: np.ndarray,
+    boxes3d: np.ndarray,
+    gt_class_ids: np.ndarray | None = None,
+    gt_boxes3d: np.ndarray | None = None,
+    proposals: np.ndarray | None = None,
+    options: ViewOptions = ViewOptions(),
+) -> None:
+    """Log one processed frame at sequence ``index`` of the ``frame`` timeline.
+
+    ``color`` is BGR uint8, ``depth_m`` raw depth in metres (0 = missing), ``class_ids`` 0-based
+    indices into CLASSES, ``boxes2d`` in the README's pixel coordinates, ``boxes3d`` 7-vectors in
+    the camera frame with yaw in the tilt frame of ``R_tilt``.
+    """
+    height, width = depth_m.shape
+    R_tilt = np.asarray(R_tilt, dtype=np.float64)
+    class_ids = np.asarray(class_ids, dtype=np.int64).reshape(-1)
+    rec.set_time("frame", sequence=index)
+
+    rec.log("world/camera", rr.Transform3D(mat3x3=R_tilt))
+    rec.log(
+        "world/camera/image",
+        rr.Pinhole(image_from_camera=K.matrix(), resolution=[width, height], camera_xyz=rr.ViewCoordinates.RDF),
+    )
+    rec.log("world/camera/image/color", rr.Image(color, color_model="BGR"))
+    rec.log("world/camera/image/depth", rr.DepthImage(depth_m.astype(np.float32), meter=1.0))
+
+    s = max(1, options.cloud_stride)
+    points = backproject_depth(depth_m[::s, ::s], _strided_intrinsics(K, s))
+    valid = depth_m[::s, ::s] > 0
+    rgb = color[::s, ::s, ::-1][valid]
+    rec.log("world/points", rr.Points3D(points[valid] @ R_tilt.T, colors=rgb, radii=0.008))
+
+    labels = _box_labels(class_ids, scores)
+    rec.log("world/detections", boxes3d_archetype(boxes3d, R_tilt, class_ids, labels))
+    rec.log(
+        "world/camera/image/detections",
+        rr.Boxes2D(
+            array=np.asarray(boxes2d, dtype=np.float64).reshape(-1, 4),
+            array_format=rr.Box2DFormat.XYXY,
+            class_ids=class_ids + 1,
+            labels=labels,
+        ),
+    )
+    segments = projected_box_edges(boxes3d, R_tilt, K)
+    keep = np.isfinite(segments).all(axis=(1, 2))
+    rec.log(
+        "world/camera/image/boxes3d",
+        rr.LineStrips2D(segments[keep], class_ids=np.repeat(class_ids + 1, len(BOX_EDGES))[keep]),
+    )
+    if options.show_ground_truth and gt_boxes3d is not None and gt_class_ids is not None:
+        gt_ids = np.asarray(gt_class_ids, dtype=np.int64).reshape(-1)
+        rec.log("world/ground_truth", boxes3d_archetype(gt_boxes3d, R_tilt, gt_ids, _box_labels(gt_ids, None)))
+    if options.max_proposals and proposals is not None:
+        rec.log(
+            "world/camera/image/proposals",
+            rr.Boxes2D(array=np.asarray(proposals)[: options.max_proposals], array_format=rr.Box2DFormat.XYXY),
+        )
+
+
+def _strided_intrinsics(K: Intrinsics, stride: int) -> Intrinsics:
+    # Pixel (u', v') of the strided image is pixel (stride u', stride v') of the full one.
+    return Intrinsics(fx=K.fx / stride, fy=K.fy / stride, cx=K.cx / stride, cy=K.cy / stride)

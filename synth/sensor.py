@@ -1,0 +1,117 @@
+"""Kinect-v1-like sensor models: structured-light depth and a consumer colour camera.
+
+Depth (metres, 0 = missing), from the exact z-depth of the rendered scene:
+
+* axial noise, Gaussian with sigma(z) = 0.0012 + 0.0019 (z - 0.4)^2 (Nguyen et al. 2012), partly
+  correlated over a few pixels (the sensor matches 9x9 speckle windows);
+* disparity quantisation: the depth is snapped to the 1/8-pixel disparity steps of a
+  7.5 cm-baseline stereo pair at the colour camera's focal length, d = f b / z;
+* missing depth: outside the 0.45-8 m range; in the projector's shadow beside occluding edges
+  (the band of background pixels a nearer surface hides from a projector 7.5 cm to the right);
+  randomly at depth discontinuities (a 1-2 pixel band); on dark surfaces (low IR return) and at
+  glancing incidence; and in a few small random blobs (specular spots).
+
+Colour: auto exposure, camera gamma, per-channel gain (white balance), vignetting, occasional
+hand-shake motion blur, optics blur, signal-dependent noise, 8-bit quantisation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+
+@dataclass(frozen=True)
+class DepthSensor:
+    """Depth-sensor parameters (metres, pixels)."""
+
+    baseline: float = 0.075
+    subpixel: float = 8.0
+    min_depth: float = 0.45
+    max_depth: float = 8.0
+    sigma0: float = 0.0012
+    sigma2: float = 0.0019
+    edge_drop: float = 0.5  # dropout probability in the band along depth discontinuities
+    dark_albedo: float = 0.04  # albedo luminance below which IR return is unreliable
+    glancing_cos: float = 0.12  # |cos incidence| below which depth is often lost
+
+
+def depth_sigma(z: np.ndarray, s: DepthSensor = DepthSensor()) -> np.ndarray:
+    """Axial noise standard deviation (metres) at depth z (metres)."""
+    return s.sigma0 + s.sigma2 * (z - 0.4) ** 2
+
+
+def sense_depth(rng: np.random.Generator, z: np.ndarray, fx: float, albedo_lum: np.ndarray, cos_inc: np.ndarray,
+                s: DepthSensor = DepthSensor()) -> np.ndarray:
+    """Noisy, quantised, holey float32 depth from the exact depth z (H, W)."""
+    H, W = z.shape
+    fb = fx * s.baseline
+    white = rng.standard_normal((H, W)).astype(np.float32)
+    smooth = cv2.GaussianBlur(rng.standard_normal((H, W)).astype(np.float32), (0, 0), 2.0) * 3.0
+    noisy = z + depth_sigma(z, s).astype(np.float32) * (0.7 * white + 0.7 * smooth)
+    disp = np.round(fb / np.maximum(noisy, 0.1) * s.subpixel) / s.subpixel
+    out = (fb / np.maximum(disp, 1e-3)).astype(np.float32)
+    drop = (z < s.min_depth) | (z > s.max_depth)
+    drop |= projector_shadow(z, fb)
+    # depth discontinuities: compare with the 4-neighbours
+    zp = np.pad(z, 1, mode="edge")
+    jump = np.maximum.reduce([np.abs(zp[1:-1, 2:] - z), np.abs(zp[1:-1, :-2] - z), np.abs(zp[2:, 1:-1] - z),
+                              np.abs(zp[:-2, 1:-1] - z)])
+    edges = (jump > 0.04 * z).astype(np.uint8)
+    band = cv2.dilate(edges, np.ones((3, 3), np.uint8)).astype(bool)
+    drop |= band & (rng.random((H, W)) < s.edge_drop)
+    dark = np.clip((s.dark_albedo - albedo_lum) / s.dark_albedo, 0, 1) * 0.9
+    glancing = np.clip((s.glancing_cos - np.abs(cos_inc)) / s.glancing_cos, 0, 1) * 0.8
+    p = 1 - (1 - dark) * (1 - glancing)
+    p = cv2.GaussianBlur(p.astype(np.float32), (0, 0), 1.5)  # holes come in clumps
+    drop |= rng.random((H, W)) < p
+    drop |= _blobs(rng, H, W)
+    out[drop] = 0.0
+    return out
+
+
+def projector_shadow(z: np.ndarray, fb: float, max_shift: int = 64) -> np.ndarray:
+    """Pixels the projector cannot see, (H, W) bool; it sits fb / f to the camera's right (+x).
+
+    The projector sees the point of pixel u at projector column u - d(u), d = fb / z; a pixel
+    is shadowed when a pixel u + k to its right maps at or before it there, d(u + k) - d(u) >= k:
+    shadows lie left of foreground objects, as in Kinect v1 images.
+    """
+    d = fb / np.maximum(z, 1e-3)
+    shadow = np.zeros(z.shape, bool)
+    for k in range(1, min(max_shift, int(np.ceil(d.max() - d.min())) + 1)):
+        shadow[:, :-k] |= d[:, k:] - d[:, :-k] >= k
+    return shadow
+
+
+def _blobs(rng: np.random.Generator, H: int, W: int) -> np.ndarray:
+    mask = np.zeros((H, W), np.uint8)
+    for _ in range(int(rng.poisson(3))):
+        c = (int(rng.integers(W)), int(rng.integers(H)))
+        axes = (int(rng.integers(2, 12)), int(rng.integers(2, 10)))
+        cv2.ellipse(mask, c, axes, float(rng.uniform(0, 180)), 0, 360, 1, -1)
+    return mask.astype(bool)
+
+
+def sense_colour(rng: np.random.Generator, radiance: np.ndarray) -> np.ndarray:
+    """uint8 BGR image from linear RGB radiance (H, W, 3)."""
+    H, W, _ = radiance.shape
+    lum = radiance @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    exposure = float(rng.uniform(0.5, 0.8)) / max(float(np.percentile(lum, 95)), 1e-4)
+    img = radiance * exposure * rng.uniform(0.9, 1.1, 3).astype(np.float32)
+    yy, xx = np.mgrid[0:H, 0:W].astype(np.float32)
+    r2 = ((xx - W / 2) ** 2 + (yy - H / 2) ** 2) / (W * W / 4 + H * H / 4)
+    img *= (1 - float(rng.uniform(0.1, 0.35)) * r2)[..., None]
+    img = np.clip(img, 0, 1) ** (1 / 2.2)
+    if rng.random() < 0.3:  # hand shake
+        n = int(rng.integers(3, 8))
+        k = np.zeros((n, n), np.float32)
+        cv2.line(k, (0, int(rng.integers(n))), (n - 1, int(rng.integers(n))), 1.0, 1)
+        img = cv2.filter2D(img, -1, k / k.sum())
+    img = cv2.GaussianBlur(img, (0, 0), float(rng.uniform(0.5, 0.9)))
+    sigma = float(rng.uniform(0.004, 0.015))
+    img = img + rng.standard_normal(img.shape).astype(np.float32) * (sigma * np.sqrt(img + 0.02))
+    bgr = np.clip(img[..., ::-1] * 255 + 0.5, 0, 255).astype(np.uint8)
+    return np.ascontiguousarray(bgr)

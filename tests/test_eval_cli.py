@@ -1,0 +1,273 @@
+"""a3d-eval end to end on a frame folder written here (README frame format), and the detections file.
+
+The folder has three frames: f0 and f1 with ground truth, f2 without. Unit cubes at theta = 0 with
+R_tilt = I: cubes whose centres differ by d along x have 3D IoU (1 - d) / (1 + d).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from a3d.runtime.classes import class_index
+from a3d.runtime.cli.eval import main
+from a3d.runtime.detections_io import FrameDetections, parse_line, read_detections, write_detections
+from a3d.runtime.errors import InputError
+from a3d.runtime.geometry import box_corners_camera, rtilt_from_pitch_roll
+
+H, W = 24, 32
+EYE = np.eye(3).tolist()
+
+
+def cube(x: float, z: float = 3.0) -> list[float]:
+    return [x, 0.0, z, 1.0, 1.0, 1.0, 0.0]
+
+
+def _gt_object(name: str, box3d: list[float], instance: int) -> dict:
+    return {
+        "class": name,
+        "box3d": box3d,
+        "box2d_visible": [2.5, 2.5, 10.5, 12.5],
+        "box2d_amodal": [1.5, 1.5, 12.5, 14.5],
+        "instance": instance,
+    }
+
+
+def write_folder(folder: Path, ground_truth: dict[str, list[dict] | None]) -> None:
+    """Frames in the README format; ``None`` ground truth: a frame without NAME.gt.json."""
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "intrinsics.json").write_text(json.dumps({"fx": 30.0, "fy": 30.0, "cx": 15.5, "cy": 11.5}))
+    for name, objects in ground_truth.items():
+        cv2.imwrite(str(folder / f"{name}.color.png"), np.full((H, W, 3), 90, np.uint8))
+        cv2.imwrite(str(folder / f"{name}.depth.png"), np.full((H, W), 3000, np.uint16))
+        if objects is not None:
+            (folder / f"{name}.meta.json").write_text(json.dumps({"R_tilt": EYE}))
+            (folder / f"{name}.gt.json").write_text(json.dumps({"objects": objects}))
+
+
+def det_line(frame: str, items: list[tuple[str, float, list[float]]]) -> FrameDetections:
+    n = len(items)
+    return FrameDetections(
+        frame=frame,
+        R_tilt=np.eye(3),
+        class_ids=np.array([class_index(c) for c, _, _ in items], dtype=np.int64),
+        scores=np.array([s for _, s, _ in items], float),
+        boxes2d=np.array([[10.0 * i, 0.0, 10.0 * i + 5.0, 5.0] for i in range(n)]).reshape(n, 4),
+        boxes3d=np.array([b for _, _, b in items], float).reshape(n, 7),
+        color=f"{frame}.color.png",
+        depth=f"{frame}.depth.png",
+        timing={"network": 0.5},
+    )
+
+
+@pytest.fixture
+def scene(tmp_path: Path) -> tuple[Path, Path]:
+    folder = tmp_path / "frames"
+    write_folder(
+        folder,
+        {
+            "f0": [_gt_object("chair", cube(0), 1), _gt_object("table", cube(3), 2)],
+            "f1": [_gt_object("chair", cube(0), 1), _gt_object("bed", cube(-3), 2)],
+            "f2": None,
+        },
+    )
+    detections = tmp_path / "detections.jsonl"
+    write_detections(
+        detections,
+        [
+            det_line("f0", [("chair", 0.9, cube(0)), ("chair", 0.4, cube(0.5)), ("table", 0.8, cube(3.5))]),
+            det_line("f1", [("chair", 0.7, cube(10))]),
+            det_line("f2", [("lamp", 0.9, cube(0))]),
+        ],
+    )
+    return folder, detections
+
+
+def test_cli_end_to_end_prints_the_table_and_writes_eval_json_and_the_png(scene, tmp_path, capsys) -> None:
+    folder, detections = scene
+    out = tmp_path / "out"
+    assert main([str(folder), "--detections", str(detections), "--out", str(out)]) == 0
+    captured = capsys.readouterr()
+    # chair: 2 GT; ranked f0 0.9 TP, f1 0.7 FP (x=10), f0 0.4 FP (duplicate of the matched chair)
+    #   -> precision 1, 1/2, 1/3 at recall 1/2: t = 0 ... 0.5 -> 1, t = 0.6 ... 1 -> 0: AP = 6/11 = 54.5%
+    #   at both thresholds.
+    # table: 1 GT, one detection at IoU 1/3: AP 1 at 0.25, 0 at 0.5. bed: 1 GT, missed: AP 0.
+    lines = {line.split("  ")[0]: line.split() for line in captured.out.splitlines()}
+    assert lines["chair"] == ["chair", "2", "3", "54.5", "54.5"]
+    assert lines["table"] == ["table", "1", "1", "100.0", "0.0"]
+    assert lines["bed"] == ["bed", "1", "0", "0.0", "0.0"]
+    assert lines["lamp"] == ["lamp", "0", "0", "-", "-"]  # its only line is for f2, which has no GT
+    map_all = (6 / 11 + 1 + 0) / 19
+    map_present = (6 / 11 + 1 + 0) / 3
+    assert f"{100 * map_all:.1f}" in captured.out and f"{100 * map_present:.1f}" in captured.out
+    assert "f2" in captured.err and "warning" in captured.err
+
+    report = json.loads((out / "eval.json").read_text())
+    assert report["classes"]["chair"]["ap"] == pytest.approx({"0.25": 6 / 11, "0.5": 6 / 11})
+    assert report["classes"]["table"]["ap"] == {"0.25": 1.0, "0.5": 0.0}
+    assert report["classes"]["lamp"] == {
+        "num_gt": 0,
+        "num_det": 0,
+        "present": False,
+        "ap": {"0.25": 0.0, "0.5": 0.0},
+        "curve": {
+            "0.25": {"recall": [], "precision": [], "score": []},
+            "0.5": {"recall": [], "precision": [], "score": []},
+        },
+    }
+    chair_curve = report["classes"]["chair"]["curve"]["0.25"]
+    assert chair_curve == {"recall": [0.5, 0.5], "precision": [1.0, 0.333333], "score": [0.9, 0.4]}
+    assert report["map"]["0.25"] == pytest.approx({"all_classes": map_all, "present_classes": map_present})
+    assert report["map"]["0.5"] == pytest.approx({"all_classes": 6 / 11 / 19, "present_classes": 6 / 11 / 3})
+    assert report["present_classes"] == ["bed", "chair", "table"]
+    assert report["protocol"]["iou_thresholds"] == [0.25, 0.5] and report["protocol"]["nms_iou"] == 0.3
+    assert report["inputs"]["frames_with_gt"] == 2 and report["inputs"]["skipped_frames_without_gt"] == ["f2"]
+
+    png = cv2.imread(str(out / "pr_curves.png"))
+    assert png is not None and png.shape == (1000, 1500, 3)
+    assert len(np.unique(png.reshape(-1, 3), axis=0)) > 10  # drawn, not blank
+    assert sorted(p.name for p in out.iterdir()) == ["eval.json", "pr_curves.png"]  # no temp files left
+
+
+def test_cli_thresholds_and_no_nms(scene, tmp_path) -> None:
+    folder, detections = scene
+    out = tmp_path / "out"
+    assert (
+        main([str(folder), "--detections", str(detections), "--out", str(out), "--no-nms", "--iou", "0.3"])
+        == 0
+    )
+    report = json.loads((out / "eval.json").read_text())
+    assert report["protocol"] == {**report["protocol"], "iou_thresholds": [0.3], "nms_iou": None}
+    assert report["classes"]["table"]["ap"] == {"0.3": 1.0}  # IoU 1/3 >= 0.3
+
+
+@pytest.mark.parametrize(
+    ("line", "message"),
+    [
+        ("{not json", "not valid JSON"),
+        (
+            '{"frame": "f0", "R_tilt": [[1,0,0],[0,1,0],[0,0,1]], "detections": [{"class": "sofa bed", '
+            '"score": 1, "box2d": [0,0,1,1], "box3d": [0,0,3,1,1,1,0]}]}',
+            "unknown class 'sofa bed'",
+        ),
+        ('{"frame": "nowhere", "R_tilt": [[1,0,0],[0,1,0],[0,0,1]], "detections": []}', "not a frame of"),
+    ],
+)
+def test_cli_bad_detections_exit_2_with_a_one_line_message_naming_the_file(
+    scene, capsys, line, message
+) -> None:
+    folder, detections = scene
+    text = detections.read_text().splitlines()
+    detections.write_text("\n".join([text[0], line, *text[1:]]) + "\n")
+    assert main([str(folder), "--detections", str(detections)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and str(detections) in err and message in err
+    if message != "not a frame of":
+        assert f"{detections}:2:" in err
+
+
+def test_cli_missing_inputs_exit_2(scene, tmp_path, capsys) -> None:
+    folder, detections = scene
+    assert main([str(folder), "--detections", str(tmp_path / "none.jsonl")]) == 2
+    assert "none.jsonl" in capsys.readouterr().err
+    empty = tmp_path / "empty"
+    write_folder(empty, {"x": None})
+    assert main([str(empty), "--detections", str(detections)]) == 2
+    assert str(empty) in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:
+        main([str(folder)])  # --detections is required
+    assert exit_.value.code == 2
+
+
+def test_installed_command_exits_2_on_a_bad_file(scene) -> None:
+    folder, detections = scene
+    detections.write_text(detections.read_text() + '{"frame": "f1"}\n')
+    command = Path(sys.executable).with_name("a3d-eval")
+    result = subprocess.run(
+        [str(command), str(folder), "--detections", str(detections)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert result.returncode == 2
+    assert f"{detections}:4:" in result.stderr and result.stdout == ""
+
+
+def test_empty_detections_file_scores_zero(scene, capsys) -> None:
+    folder, detections = scene
+    detections.write_text("")
+    assert main([str(folder), "--detections", str(detections)]) == 0
+    rows = [line.split() for line in capsys.readouterr().out.splitlines() if line.startswith("mAP")]
+    assert [row[-2:] for row in rows] == [["0.0", "0.0"], ["0.0", "0.0"]]
+
+
+# --- the detections file -------------------------------------------------------------------------
+
+
+def test_detections_round_trip_exactly_and_corners_follow_the_boxes(tmp_path) -> None:
+    R = rtilt_from_pitch_roll(0.2, -0.05)
+    rng = np.random.default_rng(3)
+    boxes3d = np.column_stack(
+        [
+            rng.normal(size=(5, 3)) + np.array([0, 0, 4]),
+            rng.uniform(0.2, 2, (5, 3)),
+            rng.uniform(-1.5, 1.5, 5),
+        ]
+    )
+    original = FrameDetections(
+        frame="0001",
+        R_tilt=R,
+        class_ids=np.array([0, 4, 4, 18, 9]),
+        scores=rng.uniform(size=5),
+        boxes2d=np.sort(rng.uniform(0, 400, (5, 2, 2)), axis=1).reshape(5, 4),
+        boxes3d=boxes3d,
+        timing={"proposals": 0.25, "network": 1.5},
+    )
+    path = tmp_path / "d.jsonl"
+    write_detections(path, [original, det_line("0002", [])])
+    (back, empty) = read_detections(path)
+    for name in ("R_tilt", "class_ids", "scores", "boxes2d", "boxes3d"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(original, name))
+    np.testing.assert_allclose(back.corners, box_corners_camera(boxes3d, R))
+    assert back.timing == original.timing and back.classes[1] == "chair"
+    assert empty.frame == "0002" and empty.boxes3d.shape == (0, 7) and empty.boxes2d.shape == (0, 4)
+
+
+_GOOD = {"class": "chair", "score": 0.5, "box2d": [0, 0, 5, 5], "box3d": [0, 0, 3, 1, 1, 1, 0]}
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"frame": ""}, "'frame' must be a non-empty string"),
+        ({"R_tilt": [[1, 0], [0, 1]]}, "'R_tilt' must be a 3x3 matrix"),
+        ({"R_tilt": [[2, 0, 0], [0, 1, 0], [0, 0, 1]]}, "R_tilt"),
+        ({"detections": {}}, "'detections' must be a list"),
+        ({"detections": [{**_GOOD, "box3d": [0, 0, 3, 1, 1, 1]}]}, "'box3d' must be 7, got shape (1, 6)"),
+        (
+            {"detections": [_GOOD, {**_GOOD, "box3d": [0, 0, 3, 1, -1, 1, 0]}]},
+            "detection 1: box3d has a size",
+        ),
+        ({"detections": [{**_GOOD, "score": float("nan")}]}, "detection 0: 'score' is not finite"),
+        ({"detections": [{**_GOOD, "box2d": [5, 0, 0, 5]}]}, "x2 < x1"),
+        ({"detections": [{k: v for k, v in _GOOD.items() if k != "score"}]}, "detection 0 has no 'score'"),
+        ({"timing": {"a": "slow"}}, "'timing'"),
+    ],
+)
+def test_bad_lines_are_one_line_errors_naming_file_and_line(change, message) -> None:
+    line = {"frame": "f", "R_tilt": EYE, "detections": [_GOOD], **change}
+    with pytest.raises(InputError) as error:
+        parse_line(json.dumps(line), "d.jsonl:7")
+    assert str(error.value).startswith("d.jsonl:7: ") and message in str(error.value)
+
+
+def test_a_frame_given_twice_is_an_error(tmp_path) -> None:
+    path = tmp_path / "d.jsonl"
+    write_detections(path, [det_line("a", []), det_line("b", []), det_line("a", [])])
+    with pytest.raises(InputError, match=r"d\.jsonl:3: frame 'a' already given on line 1"):
+        read_detections(path)

@@ -1,0 +1,225 @@
+"""Segment proposals: superpixels, hierarchical grouping and the public propose() contract,
+on small scenes drawn here (rectangles at known depths and colours in front of a wall and floor)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from a3d.runtime.geometry import Intrinsics, iou_2d
+from a3d.runtime.grouping import BoundaryScales, Strategy, build_graph, group
+from a3d.runtime.proposals import ProposalConfig, Proposals, propose
+from a3d.runtime.superpixels import SuperpixelConfig, geometric_edges, oversegment
+
+H, W = 120, 160
+K = Intrinsics(fx=150.0, fy=150.0, cx=79.5, cy=59.5)
+# (u0, v0, u1, v1) inclusive pixel rectangles, BGR colour, depth (m), drawn far to near.
+OBJECTS = [
+    ((10, 20, 55, 70), (40, 160, 40), 2.0),
+    ((90, 15, 140, 60), (200, 60, 30), 2.5),
+    ((60, 55, 105, 100), (30, 40, 190), 1.5),
+    # Same colour as the wall: only depth tells it apart.
+    ((20, 80, 45, 110), (150, 150, 150), 1.2),
+]
+
+
+def draw_scene(seed: int = 0) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
+    """Grey wall at 3 m (upper part) over a brown floor, the OBJECTS in front; mild noise."""
+    rng = np.random.default_rng(seed)
+    color = np.empty((H, W, 3), np.float32)
+    color[:] = (150, 150, 150)
+    color[90:] = (60, 90, 120)
+    depth = np.full((H, W), 3.0, np.float32)
+    depth[90:] = np.linspace(2.9, 2.0, H - 90)[:, None]
+    masks = []
+    for (u0, v0, u1, v1), bgr, z in OBJECTS:
+        m = np.zeros((H, W), bool)
+        m[v0 : v1 + 1, u0 : u1 + 1] = True
+        color[m] = bgr
+        depth[m] = z
+        masks.append(m)
+    visible = []
+    for k, m in enumerate(masks):
+        later = np.zeros_like(m)
+        for m2 in masks[k + 1 :]:
+            later |= m2
+        visible.append(m & ~later)
+    color += rng.normal(0.0, 2.0, color.shape).astype(np.float32)
+    depth *= 1.0 + rng.normal(0.0, 0.002, depth.shape).astype(np.float32)
+    return np.clip(color, 0, 255).astype(np.uint8), depth, visible
+
+
+def mask_box(mask: np.ndarray) -> np.ndarray:
+    ys, xs = np.nonzero(mask)
+    return np.array([xs.min() - 0.5, ys.min() - 0.5, xs.max() + 0.5, ys.max() + 0.5])
+
+
+@pytest.fixture(scope="module")
+def scene() -> tuple[np.ndarray, np.ndarray, list[np.ndarray], Proposals]:
+    color, depth, visible = draw_scene()
+    return color, depth, visible, propose(color, depth, K, ProposalConfig(min_area=20))
+
+
+def test_every_object_is_recovered(scene) -> None:
+    color, depth, visible, props = scene
+    gt = np.stack([mask_box(m) for m in visible])
+    best = iou_2d(gt, props.boxes).max(axis=1)
+    assert (best >= 0.7).all(), best
+    # ... and as a segment, not only as a box.
+    for m in visible:
+        mask_iou = max(
+            (props.mask(i) & m).sum() / (props.mask(i) | m).sum() for i in range(len(props))
+        )
+        assert mask_iou >= 0.7
+
+
+def test_boxes_are_the_exact_extent_of_the_masks(scene) -> None:
+    props = scene[3]
+    for i in range(len(props)):
+        np.testing.assert_array_equal(props.boxes[i], mask_box(props.mask(i)))
+    np.testing.assert_array_equal(props.areas(), [props.mask(i).sum() for i in range(len(props))])
+
+
+def test_csr_form_and_ranking(scene) -> None:
+    props = scene[3]
+    n_sp = int(props.superpixels.max()) + 1
+    assert props.superpixels.shape == (H, W) and props.superpixels.dtype == np.int32
+    assert np.array_equal(np.unique(props.superpixels), np.arange(n_sp))
+    assert props.indptr[0] == 0 and props.indptr[-1] == props.indices.size
+    assert (np.diff(props.indptr) > 0).all()
+    for i in range(len(props)):
+        members = props.members(i)
+        assert (np.diff(members) > 0).all()  # sorted, no repeats
+    assert np.isfinite(props.scores).all()
+    assert (np.diff(props.scores) <= 0).all()
+
+
+def test_no_duplicates(scene) -> None:
+    props = scene[3]
+    sets = {tuple(props.members(i)) for i in range(len(props))}
+    assert len(sets) == len(props)
+    iou = iou_2d(props.boxes, props.boxes)
+    np.fill_diagonal(iou, 0.0)
+    assert iou.max() <= 0.95
+
+
+def test_area_filter_and_cap(scene) -> None:
+    color, depth, _, props = scene
+    assert props.areas().min() >= 20
+    big = propose(color, depth, K, ProposalConfig(min_area=500))
+    assert len(big) > 0 and big.areas().min() >= 500
+    # A capped run is the head of the uncapped ranking.
+    capped = propose(color, depth, K, ProposalConfig(min_area=20, max_proposals=7))
+    assert len(capped) == 7
+    np.testing.assert_array_equal(capped.boxes, props.boxes[:7])
+    np.testing.assert_array_equal(capped.scores, props.scores[:7])
+
+
+def test_ranking_is_deterministic(scene) -> None:
+    color, depth, _, props = scene
+    again = propose(color, depth, K, ProposalConfig(min_area=20))
+    np.testing.assert_array_equal(again.superpixels, props.superpixels)
+    np.testing.assert_array_equal(again.indptr, props.indptr)
+    np.testing.assert_array_equal(again.indices, props.indices)
+    np.testing.assert_array_equal(again.scores, props.scores)
+
+
+@pytest.mark.parametrize("shape", [(1, 1), (2, 3), (3, 3), (5, 4), (9, 1)])
+@pytest.mark.parametrize("zero_depth", [False, True])
+def test_tiny_images_and_missing_depth_never_crash(shape, zero_depth) -> None:
+    rng = np.random.default_rng(1)
+    color = rng.integers(0, 256, (*shape, 3), dtype=np.uint8)
+    depth = np.zeros(shape, np.float32) if zero_depth else rng.uniform(0.5, 4.0, shape).astype(np.float32)
+    props = propose(color, depth, K, ProposalConfig(min_area=1))
+    assert len(props) >= 1
+    assert props.superpixels.shape == shape
+    assert np.isfinite(props.boxes).all() and np.isfinite(props.scores).all()
+    # The whole image is one of them (every hierarchy ends there) or it is a single superpixel.
+    assert any(props.mask(i).all() for i in range(len(props)))
+
+
+def test_all_zero_depth_and_single_pixel_segments() -> None:
+    color, _, _ = draw_scene()
+    color[5, 5] = (0, 0, 255)  # a one-pixel spot
+    props = propose(color, np.zeros((H, W), np.float32), K, ProposalConfig(min_area=1))
+    assert len(props) > 0
+    assert np.isfinite(props.boxes).all() and np.isfinite(props.scores).all()
+    # Without depth, colour alone still finds the coloured objects.
+    gt = np.stack([mask_box(draw_scene()[2][k]) for k in range(3)])
+    assert (iou_2d(gt, props.boxes).max(axis=1) >= 0.7).all()
+
+
+def test_bad_input_is_rejected() -> None:
+    color, depth, _ = draw_scene()
+    with pytest.raises(ValueError, match="depth"):
+        propose(color, depth[:-1], K)
+    with pytest.raises(ValueError, match="depth"):
+        propose(color, np.where(depth > 2.5, np.nan, depth).astype(np.float32), K)
+    with pytest.raises(ValueError, match="colour"):
+        propose(color.astype(np.float32), depth, K)
+
+
+def test_superpixels_are_connected_and_respect_depth_edges() -> None:
+    # Flat grey everywhere: only the depth step (a square 1 m in front) separates the regions.
+    lab = np.full((60, 80, 3), 128, np.uint8)
+    log_depth = np.full((60, 80), np.log(3.0), np.float32)
+    log_depth[20:40, 30:55] = np.log(2.0)
+    normals = np.zeros((60, 80, 3), np.float32)
+    normals[..., 2] = -1.0
+    valid = np.ones((60, 80), bool)
+    config = SuperpixelConfig(n_segments=40)
+    barrier = geometric_edges(log_depth, valid, normals, valid, config)
+    labels = oversegment(lab, log_depth, barrier, config)
+    n = int(labels.max()) + 1
+    assert np.array_equal(np.unique(labels), np.arange(n)) and 20 <= n <= 60
+    near = log_depth < np.log(2.5)
+    for k in range(n):
+        m = labels == k
+        assert cv2.connectedComponents(m.view(np.uint8), connectivity=4)[0] == 2
+        # No superpixel reaches more than one pixel across the step (barrier pixels are split).
+        inner = cv2.erode(near.view(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+        outer = ~cv2.dilate(near.view(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+        assert not ((m & inner).any() and (m & outer).any())
+
+
+def two_tone_graph() -> tuple[np.ndarray, object]:
+    """A 40x60 image, left half dark, right half light, cut into 6x8 superpixel blocks."""
+    h, w = 40, 60
+    labels = (np.arange(h)[:, None] // 8) * 8 + np.arange(w)[None, :] // 8
+    labels = np.unique(labels, return_inverse=True)[1].reshape(h, w).astype(np.int32)
+    lab = np.full((h, w, 3), 128, np.int32)
+    lab[:, 32:, 0] = 230
+    lab[:, :32, 0] = 20
+    bins = (lab * 8) >> 8
+    bins += np.arange(3) * 8
+    grad = np.zeros((h, w, 3), np.float32)
+    grad[:, 31:33, 0] = 100.0
+    normals = np.zeros((h, w, 3), np.float32)
+    normals[..., 2] = -1
+    graph = build_graph(labels, bins, 24, grad, normals, np.ones((h, w), bool))
+    return labels, graph
+
+
+@pytest.mark.parametrize(
+    "strategy", [Strategy(color=1.0, size=1.0, fill=1.0), Strategy(boundary_color=1.0, size=1.0)]
+)
+def test_hierarchy_is_a_binary_tree_that_finds_the_two_halves(strategy) -> None:
+    labels, graph = two_tone_graph()
+    hier = group(graph, strategy, BoundaryScales(), float(labels.size))
+    n = graph.n
+    regions = [frozenset([k]) for k in range(n)]
+    regions += [frozenset(hier.indices[hier.indptr[i] : hier.indptr[i + 1]]) for i in range(hier.indptr.size - 1)]
+    assert len(regions) == 2 * n - 1  # a connected graph merges down to one region
+    assert regions[-1] == frozenset(range(n))
+    # Every merge joins two earlier, disjoint regions.
+    for k in range(n, len(regions)):
+        parts = [r for r in regions[:k] if r < regions[k]]
+        maximal = [r for r in parts if not any(r < q for q in parts)]
+        assert len(maximal) == 2 and maximal[0].isdisjoint(maximal[1])
+        assert maximal[0] | maximal[1] == regions[k]
+    # The dark and the light half each appear as a region before they are joined.
+    left = frozenset(np.unique(labels[:, :32]).tolist())
+    right = frozenset(np.unique(labels[:, 32:]).tolist())
+    assert left in regions and right in regions
+    assert regions.index(frozenset(range(n))) > max(regions.index(left), regions.index(right))

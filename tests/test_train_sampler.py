@@ -1,0 +1,59 @@
+"""Mini-batch sampling: foreground fractions, reproducibility from (seed, iteration), epochs, ranks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from a3d.train.sampler import plan_batch, sample_rois, slot_images
+
+
+@pytest.mark.parametrize(
+    ("num_fg", "num_bg", "want_fg", "want_bg"),
+    [(100, 1000, 32, 96), (5, 1000, 5, 123), (3, 10, 3, 10), (0, 500, 0, 128), (40, 0, 32, 0)],
+)
+def test_fast_rcnn_fractions(num_fg, num_bg, want_fg, want_bg):
+    labels = np.concatenate([np.full(num_fg, 5), np.zeros(num_bg, np.int64)])
+    np.random.default_rng(0).shuffle(labels)
+    rois, n_fg = sample_rois(labels, np.random.default_rng(1), rois_per_image=128, fg_fraction=0.25)
+    assert n_fg == want_fg and len(rois) == want_fg + want_bg
+    assert len(np.unique(rois)) == len(rois)  # without replacement
+    assert (labels[rois[:n_fg]] > 0).all() and (labels[rois[n_fg:]] == 0).all()  # foreground first
+
+
+def test_fractions_over_many_draws_are_uniform():
+    labels = np.array([1] * 50 + [0] * 50)
+    counts = np.zeros(100)
+    for i in range(400):
+        rois, _ = sample_rois(labels, np.random.default_rng(i), 20, 0.25)
+        counts[rois] += 1
+    assert counts[:50].sum() == 400 * 5 and counts[50:].sum() == 400 * 15
+    assert counts[:50].min() > 20 and counts[50:].min() > 80  # every RoI gets drawn (40 and 120 expected)
+
+
+def _plan(iteration, rank=0, world_size=1, seed=3, labels=None):
+    labels = labels or [np.array([1] * 10 + [0] * 90)] * 7
+    return plan_batch(labels, seed=seed, iteration=iteration, images_per_batch=2, rois_per_image=16,
+                      fg_fraction=0.25, flip=True, rank=rank, world_size=world_size)  # fmt: skip
+
+
+def test_plans_are_a_function_of_seed_and_iteration():
+    a, b = _plan(11), _plan(11)
+    assert [(p.image, p.flip, p.rois.tolist()) for p in a] == [(p.image, p.flip, p.rois.tolist()) for p in b]
+    others = [_plan(12), _plan(11, seed=4)]
+    assert all([(p.image, p.rois.tolist()) for p in a] != [(p.image, p.rois.tolist()) for p in o] for o in others)
+    flips = [p.flip for it in range(200) for p in _plan(it)]
+    assert 0.4 < np.mean(flips) < 0.6
+
+
+def test_each_epoch_visits_every_image_once_and_ranks_differ():
+    n = 10
+    seen = [img for it in range(5) for _, img in slot_images(0, it, n, 2)]
+    assert sorted(seen[:n]) == list(range(n))  # iterations 0..4 are exactly epoch 0
+    epoch1 = [img for it in range(5, 10) for _, img in slot_images(0, it, n, 2)]
+    assert sorted(epoch1) == list(range(n)) and epoch1 != seen
+    n = 12  # two ranks x 2 images: 3 iterations per epoch, all images distinct across the ranks
+    for start in (0, 3, 6):
+        r0 = [img for it in range(start, start + 3) for _, img in slot_images(0, it, n, 2, rank=0, world_size=2)]
+        r1 = [img for it in range(start, start + 3) for _, img in slot_images(0, it, n, 2, rank=1, world_size=2)]
+        assert sorted(r0 + r1) == list(range(n))

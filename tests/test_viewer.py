@@ -1,0 +1,107 @@
+"""The rerun view logs what a3d computed: read the .rrd back and compare values."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import rerun as rr
+
+from a3d.runtime import viewer
+from a3d.runtime.geometry import NYU_CROP_INTRINSICS, box_corners_camera, project_points, rtilt_from_pitch_roll
+from tests.rrd_reader import as_array, read_columns
+
+K = NYU_CROP_INTRINSICS
+H, W = 427, 561
+
+
+def _frame(rng: np.random.Generator) -> dict:
+    boxes3d = np.array([[0.3, 0.4, 3.0, 1.2, 0.6, 0.8, 0.4], [-0.8, 0.2, 4.5, 0.5, 0.5, 0.9, -1.1]])
+    return dict(
+        color=rng.integers(0, 255, (H, W, 3), dtype=np.uint8),
+        depth_m=rng.uniform(0.5, 6.0, (H, W)).astype(np.float32),
+        K=K,
+        R_tilt=rtilt_from_pitch_roll(np.radians(-20.0), np.radians(3.0)),
+        class_ids=np.array([4, 16]),
+        scores=np.array([0.9, 0.55]),
+        boxes2d=np.array([[10.5, 20.5, 100.5, 200.5], [300.0, 50.0, 400.0, 250.0]]),
+        boxes3d=boxes3d,
+    )
+
+
+def _record(path: Path, frames: list[dict]) -> None:
+    args = argparse.Namespace(headless=True, connect=False, serve=False, url=None, save=str(path), stdout=False)
+    rec = viewer.open_recording(args)
+    rr.set_strict_mode(True)
+    viewer.log_static(rec)
+    for i, frame in enumerate(frames):
+        viewer.log_frame(rec, i, **frame)
+    rec.flush()
+    rr.disconnect(rec)
+
+
+def test_logged_boxes_read_back_equal(tmp_path: Path) -> None:
+    rng = np.random.default_rng(0)
+    frames = [_frame(rng), _frame(rng)]
+    frames[1]["boxes3d"] = frames[1]["boxes3d"] + [0.1, 0.0, 0.2, 0, 0, 0, 0.1]
+    path = tmp_path / "run.rrd"
+    _record(path, frames)
+
+    boxes3d = read_columns(path, "/world/detections")
+    boxes2d = read_columns(path, "/world/camera/image/detections")
+    assert sorted(boxes3d) == [0, 1]
+    for i, frame in enumerate(frames):
+        logged = boxes3d[i]
+        R = frame["R_tilt"]
+        b = frame["boxes3d"]
+        np.testing.assert_allclose(as_array(logged["Boxes3D:centers"]), b[:, :3] @ R.T, atol=1e-5)
+        np.testing.assert_allclose(as_array(logged["Boxes3D:half_sizes"]), b[:, [3, 5, 4]] / 2, atol=1e-6)
+        angles = [r["angle"] for r in logged["Boxes3D:rotation_axis_angles"]]
+        np.testing.assert_allclose(angles, b[:, 6], atol=1e-6)
+        assert logged["Boxes3D:class_ids"] == [5, 17]
+        assert logged["Boxes3D:labels"] == ["chair 0.90", "table 0.55"]
+        centres = as_array(boxes2d[i]["Boxes2D:centers"])
+        np.testing.assert_allclose(centres, (frame["boxes2d"][:, :2] + frame["boxes2d"][:, 2:]) / 2, atol=1e-5)
+
+
+def test_logged_box_pose_reproduces_the_corners() -> None:
+    """Rebuild the corners from what Boxes3D holds (world frame) and compare with geometry's."""
+    frame = _frame(np.random.default_rng(1))
+    R = frame["R_tilt"]
+    arche = viewer.boxes3d_archetype(frame["boxes3d"], R, frame["class_ids"], ["a", "b"])
+    centres = arche.centers.as_arrow_array().to_numpy(zero_copy_only=False)
+    centres = np.stack(centres) if centres.dtype == object else centres.reshape(-1, 3)
+    half = np.asarray(arche.half_sizes.as_arrow_array().to_pylist())
+    theta = frame["boxes3d"][:, 6]
+    signs = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], dtype=float)
+    for k in range(2):
+        c, s = np.cos(theta[k]), np.sin(theta[k])
+        Ry = np.array([[c, 0, s], [0, 1, 0], [-s, 0, c]])
+        world = np.asarray(centres[k]) + (signs * half[k]) @ Ry.T
+        expected = box_corners_camera(frame["boxes3d"][k : k + 1], R)[0] @ R.T
+        assert np.allclose(np.sort(world, axis=0), np.sort(expected, axis=0), atol=1e-5)
+
+
+def test_projected_edges_match_projected_corners_and_clip_behind_camera() -> None:
+    frame = _frame(np.random.default_rng(2))
+    R = frame["R_tilt"]
+    seg = viewer.projected_box_edges(frame["boxes3d"], R, K)
+    assert seg.shape == (24, 2, 2)
+    corners_uv = project_points(box_corners_camera(frame["boxes3d"], R), K).reshape(-1, 2)
+    # In front of the camera nothing is clipped: every segment end is a projected corner.
+    ends = seg.reshape(-1, 2)
+    d = np.linalg.norm(ends[:, None, :] - corners_uv[None], axis=-1).min(axis=1)
+    assert d.max() < 1e-6
+
+    straddling = np.array([[0.0, 0.0, 0.3, 2.0, 1.0, 1.0, 0.0]])  # extends from z=-0.2 to 0.8
+    seg = viewer.projected_box_edges(straddling, np.eye(3), K)
+    assert np.isfinite(seg).all()
+    behind = np.array([[0.0, 0.0, -3.0, 1.0, 1.0, 1.0, 0.0]])
+    assert np.isnan(viewer.projected_box_edges(behind, np.eye(3), K)).all()
+
+
+def test_headless_without_sink_logs_nothing() -> None:
+    none = argparse.Namespace(headless=True, connect=False, serve=False, url=None, save=None, stdout=False)
+    assert not viewer.viewer_requested(none)
+    assert viewer.viewer_requested(argparse.Namespace(**{**vars(none), "save": "x.rrd"}))

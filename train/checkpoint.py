@@ -1,0 +1,116 @@
+"""Training checkpoints: atomic writes, weights-only reads, clear refusals.
+
+A checkpoint is a plain ``dict`` written with ``torch.save`` and read back with
+``torch.load(weights_only=True)``: only tensors, dicts, lists, tuples, strings, numbers, booleans
+and None, so loading one can never run code. The training loop stores (see ``a3d.train.loop``)::
+
+    format "a3d-checkpoint", version, iteration, config (TrainConfig JSON string),
+    model (state dict), optimizer (state dict), target_stats {mean3d, std3d, mean2d, std2d},
+    mean_sizes (19, 3) [l, w, h], classes (list of names)
+
+Writes go to a temporary file in the same folder, are fsync'ed, then ``os.replace``'d over the
+old checkpoint (and the folder fsync'ed), so a crash or ``kill -9`` at any moment leaves either
+the previous checkpoint or the new one, never a torn file.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import re
+import warnings
+import zipfile
+from pathlib import Path
+
+import torch
+from a3d.runtime.errors import ModelError
+
+FORMAT = "a3d-checkpoint"
+VERSION = 1
+REQUIRED_KEYS = ("format", "version", "iteration", "config", "model")
+_PLAIN_TYPES = (str, int, float, bool, type(None))
+
+
+class CheckpointError(ModelError):
+    """A file that is not a readable a3d checkpoint; the message starts with the file's path."""
+
+
+def save_checkpoint(path: str | os.PathLike, payload: dict) -> None:
+    """Atomically write ``payload`` (plain data and tensors only) to ``path``."""
+    path = Path(path)
+    _check_plain(payload, "checkpoint")
+    payload = {"format": FORMAT, "version": VERSION, **payload}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        with open(tmp, "wb") as f:
+            torch.save(payload, f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    _fsync_dir(path.parent)
+
+
+def load_checkpoint(path: str | os.PathLike) -> dict:
+    """Read a checkpoint weights-only onto the CPU; CheckpointError "PATH: why" if it is not one."""
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointError(f"{path}: no such checkpoint file")
+    try:
+        with warnings.catch_warnings():  # torch warns about foreign pickles before refusing them
+            warnings.simplefilter("ignore", UserWarning)
+            data = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as e:
+        text = str(e)
+        culprit = re.search(r"GLOBAL (\S+)", text)
+        if culprit:
+            raise CheckpointError(
+                f"{path}: refused, not a weights-only checkpoint (loading it would import {culprit.group(1)})"
+            ) from None
+        detail = re.search(r"WeightsUnpickler error:\s*(.+)", text)
+        raise CheckpointError(
+            f"{path}: corrupted, truncated or not a checkpoint ({detail.group(1) if detail else 'unpickling failed'})"
+        ) from None
+    except (RuntimeError, EOFError, OSError, zipfile.BadZipFile, ValueError, KeyError) as e:
+        first = (str(e).strip().splitlines() or [type(e).__name__])[0]
+        raise CheckpointError(f"{path}: corrupted, truncated or not a checkpoint ({first})") from None
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise CheckpointError(f"{path}: not an a3d checkpoint (no 'format': '{FORMAT}' entry)")
+    if data.get("version") != VERSION:
+        raise CheckpointError(f"{path}: a3d checkpoint version {data.get('version')!r}, expected {VERSION}")
+    missing = [k for k in REQUIRED_KEYS if k not in data]
+    if missing:
+        raise CheckpointError(f"{path}: a3d checkpoint without {', '.join(missing)}")
+    return data
+
+
+def _check_plain(obj, where: str) -> None:
+    """Refuse anything torch.load(weights_only=True) could not read back (before writing it)."""
+    if isinstance(obj, torch.Tensor) or isinstance(obj, _PLAIN_TYPES):
+        return
+    if isinstance(obj, dict):
+        for key, value in obj.items():
+            if not isinstance(key, (str, int)):
+                raise TypeError(f"{where}: key {key!r} is not a str or int")
+            _check_plain(value, f"{where}.{key}")
+        return
+    if isinstance(obj, (list, tuple)):
+        for i, value in enumerate(obj):
+            _check_plain(value, f"{where}[{i}]")
+        return
+    raise TypeError(f"{where}: {type(obj).__name__} cannot go in a weights-only checkpoint")
+
+
+def _fsync_dir(folder: Path) -> None:
+    """Make the rename itself durable (POSIX; a no-op where folders cannot be opened)."""
+    try:
+        fd = os.open(folder, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)

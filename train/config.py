@@ -1,0 +1,271 @@
+"""Training configuration: one typed dataclass tree, named presets, config files and overrides.
+
+A run is described by ``TrainConfig``: the network (``NetConfig`` of a3d.train.model), the
+proposal stage (``ProposalConfig`` of a3d.runtime.proposals), RoI sampling and augmentation,
+the solver, logging/validation, and inference post-processing. It is built by
+
+    preset (``vgg16`` or a CPU preset)  ->  config file (JSON or TOML)  ->  ``--set a.b=value``
+
+each layer overriding the previous one key by key. A config file may name its base preset with a
+top-level ``"preset"`` key. Values are checked against the dataclass field types; an unknown key
+or a wrong type is a one-line ``ValueError`` naming the key (and the file).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import types
+import typing
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from a3d.runtime.proposals import ProposalConfig
+from a3d.train.model import NetConfig
+
+
+@dataclass
+class DataConfig:
+    """RoI database, mini-batch sampling (SPEC.md "Training") and input preparation.
+
+    ``scale`` resizes colour and depth (and every 2D box) before the network: 1.0 is the native
+    frame size, as in the paper; CPU presets train at a reduced scale. Proposals, lifting and all
+    3D geometry always work at native resolution.
+    """
+
+    scale: float = 1.0
+    flip: bool = True
+    images_per_batch: int = 2
+    rois_per_image: int = 128
+    fg_fraction: float = 0.25
+    fg_iou: float = 0.5  # foreground: 2D IoU >= fg_iou with a visible (gt2d_sel) box
+    bg_iou_low: float = 0.1  # background: IoU in [bg_iou_low, fg_iou)
+    depth_truncation: float = 10.0  # metres mapped to 255 in the depth trunk's input
+    workers: int = 1  # DataLoader worker processes (0: load in the training process)
+    cache_dir: str = ""  # per-frame proposal cache; "" = RUN_DIR/cache
+
+
+@dataclass
+class SolverConfig:
+    """SGD with momentum and Caffe "step" decay (SPEC.md "Training")."""
+
+    iterations: int = 40000
+    lr: float = 0.005
+    momentum: float = 0.9
+    weight_decay: float = 0.0005
+    lr_steps: tuple[int, ...] = (30000,)  # lr *= gamma at each of these iterations
+    gamma: float = 0.1
+    lambda_3d: float = 1.0
+    lambda_2d: float = 1.0
+    seed: int = 0
+    pretrained: str = ""  # torchvision-layout VGG16 ImageNet state dict; "" = random initialisation
+
+
+@dataclass
+class LogConfig:
+    """Progress, metrics, checkpoints and periodic validation."""
+
+    log_every: int = 20  # iterations per metrics.jsonl line
+    checkpoint_every: int = 1000
+    val_every: int = 0  # 0: validate only at the end (when validation data is given)
+    val_frames: int = 0  # 0: all validation frames
+    progress: bool = True  # tqdm bar on stderr
+
+
+@dataclass
+class InferenceConfig:
+    """Post-processing (SPEC.md "Inference and post-processing")."""
+
+    top_k: int = 100  # detections kept per class and image before NMS
+    nms_iou: float = 0.3  # 2D NMS on the proposal boxes, per class
+    min_score: float = 0.0  # detections below this score are dropped (0: none, as the release)
+    regress_3d: bool = True  # False: report the initial (lifted) boxes, the "-3dreg" ablation
+
+
+@dataclass
+class TrainConfig:
+    net: NetConfig = field(default_factory=NetConfig)
+    proposals: ProposalConfig = field(default_factory=ProposalConfig)
+    data: DataConfig = field(default_factory=DataConfig)
+    solver: SolverConfig = field(default_factory=SolverConfig)
+    log: LogConfig = field(default_factory=LogConfig)
+    inference: InferenceConfig = field(default_factory=InferenceConfig)
+
+    def to_dict(self) -> dict:
+        return _to_plain(self)
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=2, sort_keys=True)
+
+    @classmethod
+    def from_dict(cls, values: Mapping, where: str = "config") -> TrainConfig:
+        return apply_values(cls(), values, where)
+
+    @classmethod
+    def from_json(cls, text: str, where: str = "config") -> TrainConfig:
+        return cls.from_dict(json.loads(text), where)
+
+
+def _vgg16() -> TrainConfig:
+    """The paper's model and schedule: full VGG16 trunks at native size, 40k iterations."""
+    return TrainConfig(net=NetConfig(width=1.0))
+
+
+def _cpu_small() -> TrainConfig:
+    """A quarter-width model at 0.5 scale that trains on 2 CPU cores within an hour (synthetic data)."""
+    return apply_values(
+        TrainConfig(),
+        {
+            "net": {"width": 0.25, "fuse_channels": 128, "fc6": 512, "fc7": 512},
+            "data": {"scale": 0.5, "workers": 1},
+            "solver": {"iterations": 3000, "lr_steps": [2200]},
+            "log": {"log_every": 10, "checkpoint_every": 250, "val_every": 1000},
+        },
+        "preset cpu-small",
+    )
+
+
+PRESETS: dict[str, Callable[[], TrainConfig]] = {"vgg16": _vgg16, "cpu-small": _cpu_small}
+
+
+def load_config(source: str | None = None, overrides: list[str] | tuple[str, ...] = ()) -> TrainConfig:
+    """Build a config from a preset name or a JSON/TOML file (default: ``vgg16``), then ``k=v`` overrides."""
+    config = _load_source(source or "vgg16")
+    return apply_overrides(config, overrides)
+
+
+def apply_overrides(config: TrainConfig, overrides: list[str] | tuple[str, ...]) -> TrainConfig:
+    """Apply ``a.b=value`` strings; value is JSON when it parses (numbers, true, [1, 2]) else a string."""
+    for item in overrides:
+        key, sep, raw = item.partition("=")
+        if not sep or not key.strip():
+            raise ValueError(f"--set {item!r}: expected KEY=VALUE, e.g. solver.lr=0.001")
+        try:
+            value = json.loads(raw)
+        except json.JSONDecodeError:
+            value = raw
+        nested: dict = {}
+        node = nested
+        parts = key.strip().split(".")
+        for part in parts[:-1]:
+            node = node.setdefault(part, {})
+        node[parts[-1]] = value
+        config = apply_values(config, nested, f"--set {item}")
+    return config
+
+
+def _load_source(source: str) -> TrainConfig:
+    if source in PRESETS:
+        return PRESETS[source]()
+    path = Path(source)
+    if not path.is_file():
+        raise ValueError(f"{source}: not a config file nor a preset ({', '.join(PRESETS)})")
+    try:
+        text = path.read_text(encoding="utf-8")
+        values = _parse_toml(text) if path.suffix == ".toml" else json.loads(text)
+    except (OSError, UnicodeDecodeError, ValueError) as e:  # JSON and TOML errors are ValueErrors
+        raise ValueError(f"{path}: cannot read config ({e})") from None
+    if not isinstance(values, dict):
+        raise ValueError(f"{path}: a config file must hold an object/table at the top level")
+    values = dict(values)
+    base = values.pop("preset", "vgg16")
+    if base not in PRESETS:
+        raise ValueError(f"{path}: unknown preset {base!r} (known: {', '.join(PRESETS)})")
+    return apply_values(PRESETS[base](), values, str(path))
+
+
+def _parse_toml(text: str) -> dict:
+    try:
+        import tomllib  # Python >= 3.11
+    except ImportError:
+        raise ValueError("TOML config files need Python 3.11 or newer; use JSON") from None
+    return tomllib.loads(text)
+
+
+def apply_values(obj, values: Mapping, where: str, prefix: str = ""):
+    """A copy of dataclass ``obj`` with ``values`` (nested mappings) applied, type-checked per field."""
+    if not isinstance(values, Mapping):
+        raise ValueError(f"{where}: {prefix.rstrip('.') or 'config'} must be a table of settings")
+    hints = typing.get_type_hints(type(obj))
+    names = {f.name for f in dataclasses.fields(obj)}
+    changes = {}
+    for key, value in values.items():
+        if key not in names:
+            raise ValueError(f"{where}: unknown setting {prefix}{key} (known: {', '.join(sorted(names))})")
+        current = getattr(obj, key)
+        if dataclasses.is_dataclass(current):
+            changes[key] = apply_values(current, value, where, f"{prefix}{key}.")
+        else:
+            changes[key] = _coerce(value, hints[key], f"{where}: {prefix}{key}")
+    return dataclasses.replace(obj, **changes)
+
+
+def _coerce(value, hint, what: str):
+    """``value`` converted to type ``hint`` (bool/int/float/str, tuples and lists of those, optionals)."""
+    origin = typing.get_origin(hint)
+    args = typing.get_args(hint)
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return None
+        errors = []
+        for arg in (a for a in args if a is not type(None)):
+            try:
+                return _coerce(value, arg, what)
+            except ValueError as e:
+                errors.append(str(e))
+        raise ValueError(errors[0] if errors else f"{what}: cannot be {value!r}")
+    if origin in (tuple, list):
+        if isinstance(value, str):
+            value = [v for v in value.split(",") if v.strip()]
+        if not isinstance(value, (list, tuple)):
+            raise ValueError(f"{what}: expected a list, got {value!r}")
+        item = args[0] if args else typing.Any
+        return origin(_coerce(v, item, what) for v in value)
+    if hint is typing.Any:
+        return value
+    if dataclasses.is_dataclass(hint):
+        if isinstance(value, hint):
+            return value
+        return apply_values(hint(), value, what.split(": ")[0], what.split(": ", 1)[-1] + ".")
+    if typing.get_origin(hint) is typing.Literal:
+        if value not in args:
+            raise ValueError(f"{what}: expected one of {args}, got {value!r}")
+        return value
+    if hint is bool:
+        if isinstance(value, bool):
+            return value
+        if isinstance(value, str) and value.lower() in ("true", "false", "1", "0", "yes", "no"):
+            return value.lower() in ("true", "1", "yes")
+        raise ValueError(f"{what}: expected true or false, got {value!r}")
+    if hint is int:
+        if isinstance(value, bool) or not isinstance(value, (int, float, str)):
+            raise ValueError(f"{what}: expected an integer, got {value!r}")
+        try:
+            number = float(value)
+        except ValueError:
+            raise ValueError(f"{what}: expected an integer, got {value!r}") from None
+        if not number.is_integer():
+            raise ValueError(f"{what}: expected an integer, got {value!r}")
+        return int(number)
+    if hint is float:
+        if isinstance(value, bool):
+            raise ValueError(f"{what}: expected a number, got {value!r}")
+        try:
+            return float(value)
+        except (TypeError, ValueError):
+            raise ValueError(f"{what}: expected a number, got {value!r}") from None
+    if hint is str:
+        if not isinstance(value, (str, int, float)) or isinstance(value, bool):
+            raise ValueError(f"{what}: expected a string, got {value!r}")
+        return str(value)
+    raise ValueError(f"{what}: settings of type {hint} cannot be set from a config")
+
+
+def _to_plain(obj):
+    """Dataclass tree -> JSON-ready dicts (tuples as lists)."""
+    if dataclasses.is_dataclass(obj):
+        return {f.name: _to_plain(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    if isinstance(obj, (list, tuple)):
+        return [_to_plain(v) for v in obj]
+    return obj

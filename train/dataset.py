@@ -1,0 +1,258 @@
+"""Ready-to-train mini-batches, built in DataLoader worker processes.
+
+``BatchDataset[iteration]`` is this rank's whole mini-batch of that iteration (the sampler's plan
+is a pure function of the seed and the iteration, see a3d.train.sampler), so the DataLoader
+iterates over iteration numbers and a resumed run simply starts at a later one. Per image:
+read the frame, fill the depth holes (a3d.runtime.depth), flip when the plan says so, compute
+the regression targets of the sampled foreground RoIs and normalise them per class, build the
+network inputs (a3d.runtime.preprocess) at the configured scale.
+
+Flip (README "Pixels and 2D boxes"): image and depth columns reversed, 2D boxes through
+``flip_boxes_2d`` (u -> W - 1 - u), 3D boxes through ``flip_boxes_3d`` (x -> -x, theta -> -theta),
+which is the mirror image under the flipped intrinsics (cx -> W - 1 - cx) and tilt
+(R_tilt -> F R_tilt F). Targets are encoded from the flipped boxes, never patched by hand.
+
+Target normalisation: per class (softmax index) mean and standard deviation of the raw targets
+over all training foreground RoIs, in both flips when flipping is on (``TargetStats``); they are
+saved in the checkpoint and undone at inference (``TargetStats.denormalise_*``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import cv2
+import numpy as np
+import torch
+from a3d.runtime.box_coder import encode_2d, encode_3d
+from a3d.runtime.classes import NUM_OUTPUTS
+from a3d.runtime.depth import fill_depth
+from a3d.runtime.frames import read_frame
+from a3d.runtime.geometry import Intrinsics, context_boxes, flip_boxes_2d, flip_boxes_3d
+from a3d.runtime.preprocess import color_input, depth_input
+from a3d.train.roidb import FrameRois
+from a3d.train.sampler import plan_batch
+
+CONTEXT_SCALE = 1.5  # SPEC.md: the context box is the RoI scaled 1.5x about its centre
+MIN_STD = 1e-3  # floor of a normalisation std (a class whose targets are all equal)
+
+
+@dataclass
+class TargetStats:
+    """Per-class (softmax index, row 0 = background, unused) target means and stds."""
+
+    mean3d: np.ndarray  # (20, 7)
+    std3d: np.ndarray  # (20, 7)
+    mean2d: np.ndarray  # (20, 4)
+    std2d: np.ndarray  # (20, 4)
+
+    @classmethod
+    def identity(cls) -> TargetStats:
+        return cls(np.zeros((NUM_OUTPUTS, 7)), np.ones((NUM_OUTPUTS, 7)), np.zeros((NUM_OUTPUTS, 4)),
+                   np.ones((NUM_OUTPUTS, 4)))  # fmt: skip
+
+    def normalise_3d(self, labels: np.ndarray, targets: np.ndarray) -> np.ndarray:
+        return (targets - self.mean3d[labels]) / self.std3d[labels]
+
+    def normalise_2d(self, labels: np.ndarray, targets: np.ndarray) -> np.ndarray:
+        return (targets - self.mean2d[labels]) / self.std2d[labels]
+
+    def denormalise_3d(self, deltas: np.ndarray) -> np.ndarray:
+        """(..., 20, 7) normalised network deltas of every class -> raw deltas."""
+        return deltas * self.std3d + self.mean3d
+
+    def denormalise_2d(self, deltas: np.ndarray) -> np.ndarray:
+        """(..., 20, 4) normalised network deltas of every class -> raw deltas."""
+        return deltas * self.std2d + self.mean2d
+
+    def to_tensors(self) -> dict[str, torch.Tensor]:
+        return {f.name: torch.from_numpy(np.asarray(getattr(self, f.name), np.float64)) for f in fields(self)}
+
+    @classmethod
+    def from_tensors(cls, data: dict) -> TargetStats:
+        return cls(**{f.name: np.asarray(data[f.name], dtype=np.float64) for f in fields(cls)})
+
+
+def raw_targets(record: FrameRois, rows: np.ndarray, flip: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unnormalised 3D (n, 7) and 2D (n, 4) targets of ``rows`` and the 3D mask (n,).
+
+    Rows that are background (or have no initial 3D box) get zeros and mask False.
+    """
+    width = record.image_size[1]
+    labels = record.labels[rows]
+    fg = labels > 0
+    has_3d = record.has_3d[rows]
+    boxes, gt2d = record.boxes[rows].astype(np.float64), record.gt_boxes2d[rows]
+    init, gt3d = record.init_boxes[rows], record.gt_boxes3d[rows]
+    if flip:
+        boxes, gt2d = flip_boxes_2d(boxes, width), flip_boxes_2d(gt2d, width)
+        init, gt3d = flip_boxes_3d(init), flip_boxes_3d(gt3d)
+    t3d = np.zeros((len(rows), 7))
+    t2d = np.zeros((len(rows), 4))
+    if has_3d.any():
+        t3d[has_3d] = encode_3d(init[has_3d], gt3d[has_3d])
+    if fg.any():
+        t2d[fg] = encode_2d(boxes[fg], gt2d[fg])
+    return t3d, t2d, has_3d
+
+
+def compute_target_stats(records: list[FrameRois], flip: bool) -> TargetStats:
+    """Per-class mean and std of the raw targets over every foreground RoI (and its mirror image)."""
+    labels3d, labels2d, all3d, all2d = [], [], [], []
+    for record in records:
+        rows = np.flatnonzero(record.labels > 0)
+        for flipped in (False, True) if flip else (False,):
+            t3d, t2d, has_3d = raw_targets(record, rows, flipped)
+            labels3d.append(record.labels[rows][has_3d])
+            all3d.append(t3d[has_3d])
+            labels2d.append(record.labels[rows])
+            all2d.append(t2d)
+    stats = TargetStats.identity()
+    for labels, targets, mean, std in (
+        (labels3d, all3d, stats.mean3d, stats.std3d),
+        (labels2d, all2d, stats.mean2d, stats.std2d),
+    ):
+        if not labels:
+            continue
+        labels, targets = np.concatenate(labels), np.concatenate(targets)
+        for c in np.unique(labels):
+            rows = targets[labels == c]
+            mean[c] = rows.mean(axis=0)
+            std[c] = np.maximum(rows.std(axis=0), MIN_STD)
+    return stats
+
+
+def network_inputs(
+    color_bgr: np.ndarray, depth_filled: np.ndarray, scale: float, truncation: float
+) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
+    """Colour and depth trunk inputs (3, h, w) at ``scale`` and the exact (sx, sy) box scaling.
+
+    Down-scaling uses area averaging (no aliasing), up-scaling bilinear interpolation.
+    """
+    h, w = depth_filled.shape
+    size = (max(1, round(w * scale)), max(1, round(h * scale)))
+    if size != (w, h):
+        interp = cv2.INTER_AREA if scale < 1.0 else cv2.INTER_LINEAR
+        color_bgr = cv2.resize(color_bgr, size, interpolation=interp)
+        depth_filled = cv2.resize(depth_filled, size, interpolation=interp)
+    return color_input(color_bgr), depth_input(depth_filled, truncation), (size[0] / w, size[1] / h)
+
+
+def scale_boxes(boxes: np.ndarray, sx: float, sy: float) -> np.ndarray:
+    """Boxes in native pixel coordinates -> the resized image's (the image spans [-0.5, W - 0.5])."""
+    factors = np.array([sx, sy, sx, sy])
+    return (np.asarray(boxes, np.float64) + 0.5) * factors - 0.5
+
+
+def with_batch_index(boxes: np.ndarray, index: int) -> np.ndarray:
+    """(n, 4) -> (n, 5) rows [index, x1, y1, x2, y2] as the network takes them."""
+    return np.concatenate([np.full((len(boxes), 1), float(index)), boxes], axis=1)
+
+
+def pad_stack(images: list[np.ndarray]) -> np.ndarray:
+    """(3, h_i, w_i) arrays -> (B, 3, max h, max w), zero-padded at the bottom and right (= the mean)."""
+    h = max(i.shape[1] for i in images)
+    w = max(i.shape[2] for i in images)
+    out = np.zeros((len(images), images[0].shape[0], h, w), dtype=np.float32)
+    for b, image in enumerate(images):
+        out[b, :, : image.shape[1], : image.shape[2]] = image
+    return out
+
+
+class BatchDataset(torch.utils.data.Dataset):
+    """Item ``i`` is the mini-batch of iteration ``i`` for one rank, as a dict of tensors."""
+
+    def __init__(
+        self,
+        records: list[FrameRois],
+        intrinsics: Intrinsics | None,
+        stats: TargetStats,
+        config,
+        iterations: int,
+        rank: int = 0,
+        world_size: int = 1,
+    ) -> None:
+        self.records = records
+        self.intrinsics = intrinsics
+        self.stats = stats
+        self.data = config.data
+        self.seed = config.solver.seed
+        self.iterations = iterations
+        self.rank, self.world_size = rank, world_size
+        self.labels = [r.labels for r in records]
+
+    def __len__(self) -> int:
+        return self.iterations
+
+    def __getitem__(self, iteration: int) -> dict:
+        d = self.data
+        plans = plan_batch(
+            self.labels,
+            seed=self.seed,
+            iteration=int(iteration),
+            images_per_batch=d.images_per_batch,
+            rois_per_image=d.rois_per_image,
+            fg_fraction=d.fg_fraction,
+            flip=d.flip,
+            rank=self.rank,
+            world_size=self.world_size,
+        )
+        colors, depths, rois, contexts, labels, t3ds, t2ds, w3ds = ([] for _ in range(8))
+        for b, plan in enumerate(plans):
+            record = self.records[plan.image]
+            frame = read_frame(record.ref, self.intrinsics)
+            color, depth = frame.color, fill_depth(frame.depth)
+            boxes = record.boxes[plan.rois].astype(np.float64)
+            if plan.flip:
+                color, depth = color[:, ::-1], depth[:, ::-1]
+                boxes = flip_boxes_2d(boxes, record.image_size[1])
+            color_in, depth_in, (sx, sy) = network_inputs(
+                np.ascontiguousarray(color), np.ascontiguousarray(depth), d.scale, d.depth_truncation
+            )
+            context = context_boxes(boxes, record.image_size, CONTEXT_SCALE)
+            t3d, t2d, has_3d = raw_targets(record, plan.rois, plan.flip)
+            roi_labels = record.labels[plan.rois]
+            colors.append(color_in)
+            depths.append(depth_in)
+            rois.append(with_batch_index(scale_boxes(boxes, sx, sy), b))
+            contexts.append(with_batch_index(scale_boxes(context, sx, sy), b))
+            labels.append(roi_labels)
+            t3ds.append(np.where(has_3d[:, None], self.stats.normalise_3d(roi_labels, t3d), 0.0))
+            t2ds.append(np.where(roi_labels[:, None] > 0, self.stats.normalise_2d(roi_labels, t2d), 0.0))
+            w3ds.append(has_3d.astype(np.float32))
+        return {
+            "color": torch.from_numpy(pad_stack(colors)),
+            "depth": torch.from_numpy(pad_stack(depths)),
+            "rois": torch.from_numpy(np.concatenate(rois).astype(np.float32)),
+            "context_rois": torch.from_numpy(np.concatenate(contexts).astype(np.float32)),
+            "labels": torch.from_numpy(np.concatenate(labels).astype(np.int64)),
+            "targets3d": torch.from_numpy(np.concatenate(t3ds).astype(np.float32)),
+            "targets2d": torch.from_numpy(np.concatenate(t2ds).astype(np.float32)),
+            "weights3d": torch.from_numpy(np.concatenate(w3ds)),
+            "frames": [self.records[p.image].name for p in plans],
+            "flips": [p.flip for p in plans],
+        }
+
+
+def batch_loader(dataset: BatchDataset, start: int, workers: int, pin_memory: bool = False):
+    """Batches of iterations start .. len(dataset) - 1, in order, from ``workers`` processes.
+
+    The loader gets its own torch.Generator so creating it never draws from the global RNG
+    (which the training loop reseeds per iteration for dropout).
+    """
+    return torch.utils.data.DataLoader(
+        dataset,
+        batch_size=None,
+        sampler=range(start, len(dataset)),
+        num_workers=workers,
+        pin_memory=pin_memory,
+        prefetch_factor=2 if workers > 0 else None,
+        generator=torch.Generator().manual_seed(0),
+        worker_init_fn=_single_threaded,
+    )
+
+
+def _single_threaded(_worker_id: int) -> None:
+    """Workers leave the cores to the training process: one thread each for OpenCV and torch."""
+    cv2.setNumThreads(1)
+    torch.set_num_threads(1)

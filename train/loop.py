@@ -1,0 +1,320 @@
+"""The SGD training loop: data, model, optimisation, metrics, checkpoints, validation, resume.
+
+SPEC.md "Training": SGD with momentum 0.9, weight decay 0.0005 (on weights; biases and
+BatchNorm parameters are not decayed, as in the Caffe VGG16 models), base lr 0.005, the lr
+times ``gamma`` at each of ``lr_steps`` (Caffe "multistep"); 2 images x 128 RoIs, 25% foreground.
+
+Reproducibility: the model is initialised from ``solver.seed``; the mini-batch of iteration i
+(images, flips, RoIs) is a pure function of (seed, i, rank) (a3d.train.sampler), and the global
+torch RNG (dropout) is reseeded from (seed, i, rank) at every iteration. A checkpoint therefore
+needs no RNG state: weights, optimizer state (momentum) and the iteration determine the rest,
+and a run resumed from any checkpoint ends with weights bit-identical to an uninterrupted run
+(on CPU, with the same thread count; CUDA kernels may be non-deterministic).
+
+Outputs in the run folder: ``config.json`` (the resolved TrainConfig), ``checkpoint.pt``
+(a3d.train.checkpoint, every ``log.checkpoint_every`` iterations and at the end),
+``metrics.jsonl`` (one JSON object per line: ``kind`` "data", "train" or "val", with ``iter``),
+``loss.png`` (loss curves and validation mAP), and ``cache/`` (per-frame proposals) unless
+``data.cache_dir`` points elsewhere.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from a3d.runtime.classes import CLASSES
+from a3d.runtime.detections_io import atomic_write_bytes
+from a3d.runtime.frames import read_folder_intrinsics
+from a3d.train.checkpoint import load_checkpoint, save_checkpoint
+from a3d.train.config import SolverConfig, TrainConfig
+from a3d.train.dataset import BatchDataset, TargetStats, batch_loader, compute_target_stats
+from a3d.train.distributed import (
+    DistInfo,
+    barrier,
+    check_in_sync,
+    init_distributed,
+    local_device,
+    mean_over_ranks,
+    shutdown,
+    unwrap,
+    wrap_model,
+)
+from a3d.train.inference import TorchDetector, validate
+from a3d.train.losses import detection_loss
+from a3d.train.model import A3DNet, load_vgg16_imagenet
+from a3d.train.roidb import build_roidb, describe
+
+logger = logging.getLogger(__name__)
+
+CHECKPOINT_NAME = "checkpoint.pt"
+METRICS_NAME = "metrics.jsonl"
+PLOT_NAME = "loss.png"
+CONFIG_NAME = "config.json"
+_DROPOUT_STREAM = 2  # seed stream (see sampler's 0 and 1)
+
+
+@dataclass
+class TrainResult:
+    run_dir: Path
+    iteration: int
+    last_loss: float | None
+    val_map: float | None  # mAP@0.25 over the 19 classes at the last validation (None: none run)
+
+
+def resolve_device(name: str | None) -> torch.device:
+    """``None``: CUDA when available, else CPU."""
+    if name is None:
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    device = torch.device(name)
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"--device {name}: CUDA is not available on this machine")
+    return device
+
+
+def lr_at(iteration: int, solver: SolverConfig) -> float:
+    """Learning rate of (0-based) ``iteration``: lr * gamma ** (number of steps passed)."""
+    return solver.lr * solver.gamma ** sum(iteration >= s for s in solver.lr_steps)
+
+
+def iteration_seed(seed: int, iteration: int, rank: int) -> int:
+    """The torch seed of one iteration on one rank (dropout masks)."""
+    return int(np.random.SeedSequence([seed, _DROPOUT_STREAM, iteration, rank]).generate_state(1)[0])
+
+
+def param_groups(model: torch.nn.Module, weight_decay: float) -> list[dict]:
+    """Weights decayed; biases and BatchNorm scales/shifts (1-D parameters) not."""
+    params = [p for p in model.parameters() if p.requires_grad]
+    decay = [p for p in params if p.ndim > 1]
+    no_decay = [p for p in params if p.ndim <= 1]
+    return [{"params": decay, "weight_decay": weight_decay}, {"params": no_decay, "weight_decay": 0.0}]
+
+
+class MetricsLog:
+    """metrics.jsonl, append-only; a resumed run first drops the lines past its checkpoint."""
+
+    def __init__(self, path: Path, keep_until: int | None) -> None:
+        self.path = path
+        kept = [r for r in read_metrics(path) if keep_until is not None and r.get("iter", 0) <= keep_until]
+        atomic_write_bytes(path, "".join(json.dumps(r) + "\n" for r in kept).encode())
+
+    def write(self, record: dict) -> None:
+        with open(self.path, "a", encoding="utf-8") as f:
+            f.write(json.dumps(record) + "\n")
+
+
+def read_metrics(path: str | os.PathLike) -> list[dict]:
+    """The records of a metrics.jsonl (a torn last line, from a kill, is ignored)."""
+    path = Path(path)
+    if not path.is_file():
+        return []
+    records = []
+    for line in path.read_text(encoding="utf-8").splitlines():
+        try:
+            records.append(json.loads(line))
+        except json.JSONDecodeError:
+            continue
+    return records
+
+
+def plot_losses(metrics_path: Path, png_path: Path) -> None:
+    """Loss terms (log scale) against iterations, validation mAP@0.25 on a second axis."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    records = read_metrics(metrics_path)
+    train = [r for r in records if r.get("kind") == "train"]
+    val = [r for r in records if r.get("kind") == "val"]
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    for key in ("loss", "loss_cls", "loss_3d", "loss_2d"):
+        points = [(r["iter"], r[key]) for r in train if r.get(key, 0) > 0]
+        if points:
+            ax.plot(*zip(*points, strict=True), label=key, linewidth=1.5 if key == "loss" else 1.0)
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("loss")
+    if train:
+        ax.set_yscale("log")
+    ax.grid(True, alpha=0.3)
+    handles, labels = ax.get_legend_handles_labels()
+    if val:
+        ax2 = ax.twinx()
+        ax2.plot([r["iter"] for r in val], [100 * r["map25"] for r in val], "k.--", label="val mAP@0.25")
+        ax2.set_ylabel("mAP@0.25 (%)")
+        h2, l2 = ax2.get_legend_handles_labels()
+        handles, labels = handles + h2, labels + l2
+    if handles:
+        ax.legend(handles, labels, loc="upper right", fontsize=8)
+    fig.tight_layout()
+    tmp = png_path.with_name(f".{png_path.name}.tmp.png")
+    fig.savefig(tmp, dpi=100)
+    plt.close(fig)
+    os.replace(tmp, png_path)
+
+
+def _to_device(batch: dict, device: torch.device) -> dict:
+    return {k: v.to(device, non_blocking=True) if isinstance(v, torch.Tensor) else v for k, v in batch.items()}
+
+
+def train(
+    data: str | os.PathLike,
+    run_dir: str | os.PathLike,
+    config: TrainConfig,
+    *,
+    device: str | None = None,
+    resume: bool = False,
+    val_data: str | os.PathLike | None = None,
+) -> TrainResult:
+    """Train on the annotated frames of ``data`` into ``run_dir`` (see the module docstring).
+
+    ``resume``: continue from ``run_dir/checkpoint.pt`` (``config`` should be the checkpoint's,
+    see a3d.train.cli). Without it, an existing checkpoint in ``run_dir`` is an error.
+    """
+    run = Path(run_dir)
+    dev = resolve_device(device)
+    info = init_distributed(dev)
+    dev = local_device(dev, info)
+    try:
+        return _train(Path(data), run, config, dev, info, resume, val_data)
+    finally:
+        shutdown(info)
+
+
+def _train(
+    data: Path, run: Path, config: TrainConfig, dev: torch.device, info: DistInfo, resume: bool, val_data
+) -> TrainResult:
+    solver, log = config.solver, config.log
+    ckpt_path = run / CHECKPOINT_NAME
+    state = load_checkpoint(ckpt_path) if resume else None
+    if not resume and ckpt_path.exists():
+        raise ValueError(f"{ckpt_path}: a run already exists here; pass --resume to continue it or pick another --out")
+    if info.is_main:
+        run.mkdir(parents=True, exist_ok=True)
+        atomic_write_bytes(run / CONFIG_NAME, (config.to_json() + "\n").encode())
+    start = int(state["iteration"]) if state else 0
+
+    cache = Path(config.data.cache_dir) if config.data.cache_dir else run / "cache"
+    mean_sizes = state["mean_sizes"].numpy() if state else None
+    if not info.is_main:
+        barrier(info)  # rank 0 fills the proposal cache first
+    roidb = build_roidb(data, config, cache, mean_sizes, progress=info.is_main and log.progress)
+    if info.is_main:
+        barrier(info)
+    stats = TargetStats.from_tensors(state["target_stats"]) if state else compute_target_stats(roidb.records,
+                                                                                               config.data.flip)  # fmt: skip
+
+    torch.manual_seed(solver.seed)
+    model = A3DNet(config.net)
+    if solver.pretrained and not state:
+        load_vgg16_imagenet(model, solver.pretrained)
+    model.to(dev)
+    optimizer = torch.optim.SGD(param_groups(model, solver.weight_decay), lr=solver.lr, momentum=solver.momentum)
+    if state:
+        model.load_state_dict(state["model"])
+        optimizer.load_state_dict(state["optimizer"])
+    net = wrap_model(model, info)
+
+    metrics = MetricsLog(run / METRICS_NAME, start if state else None) if info.is_main else None
+    if metrics:
+        metrics.write({"kind": "data", "iter": start, "world_size": info.world_size, **describe(roidb)})
+        for line in roidb.skipped:
+            logger.info("skipped %s", line)
+
+    def payload(iteration: int) -> dict:
+        return {
+            "iteration": iteration,
+            "config": config.to_json(),
+            "model": unwrap(net).state_dict(),
+            "optimizer": optimizer.state_dict(),
+            "target_stats": stats.to_tensors(),
+            "mean_sizes": torch.from_numpy(np.asarray(roidb.mean_sizes, np.float64)),
+            "classes": list(CLASSES),
+        }
+
+    dataset = BatchDataset(
+        roidb.records, read_folder_intrinsics(data), stats, config, solver.iterations, info.rank, info.world_size
+    )
+    loader = batch_loader(dataset, start, config.data.workers, pin_memory=dev.type == "cuda")
+    bar = tqdm(total=solver.iterations, initial=start, disable=not (info.is_main and log.progress),
+               unit="it", dynamic_ncols=True, desc="train")  # fmt: skip
+    window: dict[str, float] = {}
+    window_n, window_start = 0, time.perf_counter()
+    last_loss, val_map = None, None
+    net.train()
+    for iteration, batch in zip(range(start, solver.iterations), loader, strict=False):
+        lr = lr_at(iteration, solver)
+        for group in optimizer.param_groups:
+            group["lr"] = lr
+        torch.manual_seed(iteration_seed(solver.seed, iteration, info.rank))
+        b = _to_device(batch, dev)
+        logits, deltas3d, deltas2d = net(b["color"], b["depth"], b["rois"], b["context_rois"])
+        terms = detection_loss(logits, deltas3d, deltas2d, b["labels"], b["targets3d"], b["targets2d"],
+                               b["weights3d"], solver.lambda_3d, solver.lambda_2d)  # fmt: skip
+        if not torch.isfinite(terms.total):
+            raise FloatingPointError(
+                f"iteration {iteration}: loss is {float(terms.total)} (frames {batch['frames']}); lower solver.lr"
+            )
+        optimizer.zero_grad(set_to_none=True)
+        terms.total.backward()
+        optimizer.step()
+
+        done = iteration + 1
+        values = terms.as_floats()
+        values["fg"] = float((b["labels"] > 0).sum())
+        for key, value in values.items():
+            window[key] = window.get(key, 0.0) + value
+        window_n += 1
+        bar.update(1)
+        bar.set_postfix(loss=f"{values['loss']:.3f}", cls=f"{values['loss_cls']:.3f}",
+                        l3d=f"{values['loss_3d']:.3f}", l2d=f"{values['loss_2d']:.3f}", refresh=False)  # fmt: skip
+        final = done == solver.iterations
+        if done % log.log_every == 0 or final:
+            means = mean_over_ranks({k: v / window_n for k, v in window.items()}, info, dev)
+            elapsed = time.perf_counter() - window_start
+            last_loss = means["loss"]
+            if metrics:
+                metrics.write({"kind": "train", "iter": done, "lr": lr, **means, "it_per_s": window_n / elapsed})
+            window, window_n, window_start = {}, 0, time.perf_counter()
+        if val_data is not None and ((log.val_every and done % log.val_every == 0) or final):
+            if info.is_main:
+                val_map = _validate(net, config, stats, roidb.mean_sizes, val_data, cache, dev, done, metrics)
+                bar.set_postfix(val_map25=f"{100 * val_map:.1f}", refresh=False)
+            barrier(info)
+        if done % log.checkpoint_every == 0 or final:
+            digests = check_in_sync(net, info)
+            if info.is_main:
+                save_checkpoint(ckpt_path, payload(done))
+                if info.enabled:
+                    metrics.write({"kind": "sync", "iter": done, "digests": digests})
+                plot_losses(run / METRICS_NAME, run / PLOT_NAME)
+    bar.close()
+    return TrainResult(run, max(start, solver.iterations), last_loss, val_map)
+
+
+def _validate(net, config, stats, mean_sizes, val_data, cache, dev, done, metrics) -> float:
+    """mAP of the current weights on the validation frames (rank 0), logged as a "val" line."""
+    t0 = time.perf_counter()
+    detector = TorchDetector(unwrap(net), config, stats, mean_sizes, dev)
+    result = validate(detector, val_data, config.log.val_frames, cache)
+    record = {
+        "kind": "val",
+        "iter": done,
+        "map25": result.map_all(0.25),
+        "map25_present": result.map_present(0.25),
+        "map50": result.map_all(0.5),
+        "frames": result.num_frames,
+        "seconds": time.perf_counter() - t0,
+        "ap25": {c.name: c.ap[0.25] for c in result.classes if c.present},
+    }
+    if metrics:
+        metrics.write(record)
+    return record["map25"]

@@ -1,0 +1,99 @@
+"""Typed configuration of the dual-trunk RoI network (A3DNet) and its named presets.
+
+``NetConfig()`` is the paper's network (SPEC.md "Network"): two full-width VGG16 trunks, the
+four pooled 512x7x7 blocks (RoI and context box, colour and depth) concatenated into fc6, fc6/fc7
+of 4096. Presets for CPU training scale the trunk channels and the fc sizes down and fuse the
+channels before pooling (``fuse_channels``, see a3d.train.model.net) — a departure from the
+paper that changes the head's cost, not the trunks'.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import asdict, dataclass, fields
+from types import MappingProxyType
+from typing import Any, Literal
+
+from a3d.train.model.vgg import scaled_channels
+
+
+@dataclass(frozen=True)
+class NetConfig:
+    """Architecture of A3DNet.
+
+    width: trunk channel scale; 1.0 is VGG16's exact layout (64 .. 512 channels), 0.5 / 0.25 /
+        0.125 keep the layer layout with ``round(c * width)`` channels per layer.
+    use_depth: False is the colour-only ablation (one trunk; the depth input is ignored).
+    use_context: False drops the context-box pooling (the context RoIs are ignored).
+    fuse_channels: None = the paper's plain concatenation of the pooled conv5_3 blocks; an int F =
+        a linear 1x1 conv (trunk maps concatenated -> F channels, one for the RoI, one for the
+        context box) applied before pooling, so only two F-channel maps are pooled.
+    fc6, fc7: widths of the two fully connected layers (each followed by BatchNorm, ReLU, dropout).
+    dropout: dropout probability after fc6 and fc7.
+    pool_size: RoI pooling output is pool_size x pool_size per channel (ImageNet fc6 needs 7).
+    sampling_ratio: bilinear samples per pooling bin along each axis (fixed, so pooling is
+        separable and exports with standard ONNX ops).
+    roi_pool: pooling kind; only "align" (bilinear RoIAlign, see roi_pool.py) is implemented —
+        the paper's max RoI pooling has no torch op without torchvision.
+    """
+
+    width: float = 1.0
+    use_depth: bool = True
+    use_context: bool = True
+    fuse_channels: int | None = None
+    fc6: int = 4096
+    fc7: int = 4096
+    dropout: float = 0.5
+    pool_size: int = 7
+    sampling_ratio: int = 2
+    roi_pool: Literal["align"] = "align"
+
+    def __post_init__(self) -> None:
+        if not 0.0 < self.width <= 1.0:
+            raise ValueError(f"NetConfig.width must be in (0, 1], got {self.width}")
+        for name in ("fc6", "fc7", "pool_size", "sampling_ratio"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"NetConfig.{name} must be a positive integer, got {getattr(self, name)}")
+        if self.fuse_channels is not None and self.fuse_channels < 1:
+            raise ValueError(f"NetConfig.fuse_channels must be None or positive, got {self.fuse_channels}")
+        if not 0.0 <= self.dropout < 1.0:
+            raise ValueError(f"NetConfig.dropout must be in [0, 1), got {self.dropout}")
+        if self.roi_pool != "align":
+            raise ValueError(f"NetConfig.roi_pool: only 'align' is implemented, got {self.roi_pool!r}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain JSON-able dict (for checkpoints and ONNX metadata)."""
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> NetConfig:
+        """Inverse of to_dict; unknown keys are an error (a checkpoint from another version)."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(f"NetConfig: unknown keys {unknown} (known: {sorted(known)})")
+        return cls(**data)
+
+
+def _fused_preset(width: float, fc: int) -> NetConfig:
+    """Width-scaled trunks, fused to the trunk's own conv5_3 width (halves fc6's input)."""
+    return NetConfig(width=width, fuse_channels=scaled_channels(512, width), fc6=fc, fc7=fc)
+
+
+PRESETS: Mapping[str, NetConfig] = MappingProxyType(
+    {
+        "vgg16": NetConfig(),
+        "vgg16-fused": _fused_preset(1.0, 4096),
+        "cpu-half": _fused_preset(0.5, 2048),
+        "cpu-quarter": _fused_preset(0.25, 1024),
+        "cpu-eighth": _fused_preset(0.125, 512),
+    }
+)
+
+
+def preset(name: str) -> NetConfig:
+    """The named configuration; ValueError lists the known names."""
+    try:
+        return PRESETS[name]
+    except KeyError:
+        raise ValueError(f"unknown network preset {name!r} (known: {', '.join(PRESETS)})") from None

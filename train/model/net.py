@@ -1,0 +1,135 @@
+"""A3DNet: the dual-trunk VGG16 RoI network of Deng & Latecki (SPEC.md "Network").
+
+colour (B,3,H,W) -> VGG16 trunk -> conv5_3 --+
+                                              +-> concat (B, T*C, H/16, W/16)   ("trunk features")
+depth  (B,3,H,W) -> VGG16 trunk -> conv5_3 --+
+    -> 7x7 RoIAlign of each RoI and of its context box (roi_pool.py)
+    -> fc6 -> BN -> ReLU -> dropout -> fc7 -> BN -> ReLU -> dropout
+    -> cls_score (20 logits), bbox_pred_3d (20 x 7 deltas), bbox_pred_2d (20 x 4 deltas)
+
+Pooled-feature layout (NetConfig.fuse_channels):
+- None (the default, the paper's): the RoI and the context box are each pooled from the
+  concatenated conv5_3 maps and flattened, so fc6 sees the blocks [colour RoI, depth RoI,
+  colour context, depth context] (each C x 7 x 7, flattened (C, y, x) like torchvision).
+- F (a departure, used by the CPU presets): a linear 1x1 conv maps the concatenated maps to F
+  channels for the RoI and another for the context box before pooling, and fc6 sees
+  [RoI F x 7 x 7, context F x 7 x 7]. Pooling is linear, so this equals a 1x1 conv on the pooled
+  blocks, i.e. a fc6 constrained to a low-rank channel mixing; it halves fc6's input at F = C and
+  pools F channels instead of 2C (PLATFORM.md "Compute ceilings"). The fuse convs start as the
+  average of the two trunks' leading min(F, C) channels, so ImageNet fc6 weights still apply.
+
+Heads follow the release's names; the 3D deltas are SPEC.md "Regression targets" (raw after the
+statistics are folded in), the 2D deltas are Fast R-CNN deltas toward the amodal 2D box.
+"""
+
+from __future__ import annotations
+
+import torch
+from a3d.runtime.classes import NUM_OUTPUTS
+from a3d.train.model.config import NetConfig
+from a3d.train.model.roi_pool import roi_align
+from a3d.train.model.vgg import FEATURE_STRIDE, VGG16Trunk
+from torch import nn
+
+BOX3D_SIZE = 7
+BOX2D_SIZE = 4
+
+
+class A3DNet(nn.Module):
+    """forward(color, depth, rois, context_rois) -> (class_logits, deltas3d, deltas2d).
+
+    color, depth: (B, 3, H, W) from a3d.runtime.preprocess (depth ignored without use_depth).
+    rois, context_rois: (R, 5) rows [batch_index, x1, y1, x2, y2] in the README's pixel
+    coordinates (context_rois ignored without use_context).
+    Returns class_logits (R, 20) (softmax index 0 = background), deltas3d (R, 20*7) and
+    deltas2d (R, 20*4), class k's deltas at [k*7 : k*7+7] and [k*4 : k*4+4].
+    """
+
+    def __init__(self, config: NetConfig | None = None) -> None:
+        super().__init__()
+        self.config = config = config or NetConfig()
+        self.color_trunk = VGG16Trunk(config.width)
+        self.depth_trunk = VGG16Trunk(config.width) if config.use_depth else None
+        trunk_channels = self.color_trunk.out_channels * (2 if config.use_depth else 1)
+        boxes = 2 if config.use_context else 1
+        if config.fuse_channels is None:
+            self.fuse_roi = self.fuse_context = None
+            self.block_channels = self.color_trunk.out_channels
+            self.pooled_blocks = boxes * (2 if config.use_depth else 1)
+        else:
+            self.fuse_roi = self._fuse_conv(trunk_channels, config.fuse_channels)
+            self.fuse_context = (
+                self._fuse_conv(trunk_channels, config.fuse_channels) if config.use_context else None
+            )
+            self.block_channels = config.fuse_channels
+            self.pooled_blocks = boxes
+        pooled = self.pooled_blocks * self.block_channels * config.pool_size**2
+        self.fc6 = nn.Linear(pooled, config.fc6)
+        self.bn6 = nn.BatchNorm1d(config.fc6)
+        self.fc7 = nn.Linear(config.fc6, config.fc7)
+        self.bn7 = nn.BatchNorm1d(config.fc7)
+        self.dropout = nn.Dropout(config.dropout)
+        self.cls_score = nn.Linear(config.fc7, NUM_OUTPUTS)
+        self.bbox_pred_3d = nn.Linear(config.fc7, NUM_OUTPUTS * BOX3D_SIZE)
+        self.bbox_pred_2d = nn.Linear(config.fc7, NUM_OUTPUTS * BOX2D_SIZE)
+        # torchvision's VGG classifier init for fc6/fc7, Fast R-CNN's for the heads.
+        for layer, std in ((self.fc6, 0.01), (self.fc7, 0.01), (self.cls_score, 0.01),
+                           (self.bbox_pred_3d, 0.001), (self.bbox_pred_2d, 0.001)):  # fmt: skip
+            nn.init.normal_(layer.weight, std=std)
+            nn.init.zeros_(layer.bias)
+
+    def _fuse_conv(self, in_channels: int, out_channels: int) -> nn.Conv2d:
+        """1x1 conv starting as the per-channel mean of the trunks (leading channels, zeros elsewhere)."""
+        conv = nn.Conv2d(in_channels, out_channels, 1)
+        trunk = self.color_trunk.out_channels
+        trunks = in_channels // trunk
+        with torch.no_grad():
+            conv.weight.zero_()
+            conv.bias.zero_()
+            shared = min(out_channels, trunk)
+            for t in range(trunks):
+                conv.weight[:shared, t * trunk : t * trunk + shared, 0, 0] += torch.eye(shared) / trunks
+        return conv
+
+    def trunk_features(self, color: torch.Tensor, depth: torch.Tensor | None) -> torch.Tensor:
+        """Concatenated conv5_3 maps (B, T*C, ceil(H/16), ceil(W/16)), colour channels first."""
+        color_map = self.color_trunk(color)
+        if self.depth_trunk is None:
+            return color_map
+        if depth is None:
+            raise ValueError("A3DNet: this network uses depth (use_depth=True) but no depth input was given")
+        return torch.cat([color_map, self.depth_trunk(depth)], dim=1)
+
+    def head(
+        self, features: torch.Tensor, rois: torch.Tensor, context_rois: torch.Tensor | None
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Pool the RoIs (and context boxes) from trunk_features' output and run fc6 .. heads."""
+        config = self.config
+        boxes = [(self.fuse_roi, rois)]
+        if config.use_context:
+            if context_rois is None:
+                raise ValueError("A3DNet: this network uses context (use_context=True) but no context_rois")
+            boxes.append((self.fuse_context, context_rois))
+        pooled = [
+            roi_align(
+                features if fuse is None else fuse(features),
+                box_rois,
+                config.pool_size,
+                1.0 / FEATURE_STRIDE,
+                config.sampling_ratio,
+            ).flatten(1)
+            for fuse, box_rois in boxes
+        ]
+        x = torch.cat(pooled, dim=1) if len(pooled) > 1 else pooled[0]
+        x = self.dropout(torch.relu(self.bn6(self.fc6(x))))
+        x = self.dropout(torch.relu(self.bn7(self.fc7(x))))
+        return self.cls_score(x), self.bbox_pred_3d(x), self.bbox_pred_2d(x)
+
+    def forward(
+        self,
+        color: torch.Tensor,
+        depth: torch.Tensor | None,
+        rois: torch.Tensor,
+        context_rois: torch.Tensor | None,
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        return self.head(self.trunk_features(color, depth), rois, context_rois)

@@ -1,0 +1,73 @@
+"""Bilinear RoI pooling (RoIAlign) in plain torch, as two matrix products per RoI.
+
+Departure from the paper: Deng & Latecki use Fast R-CNN's max RoI pooling (integer-rounded
+bins, max per bin). We use RoIAlign with torchvision's ``roi_align(aligned=True)`` semantics and
+a fixed ``sampling_ratio``, because (PLATFORM.md "RoI pooling without torchvision") it needs no
+custom op, is differentiable, exports to ONNX with standard ops and is the fastest of the
+measured forms in ONNX Runtime. Max RoI pooling has no torch op without torchvision.
+
+With a fixed number of samples per bin, bilinear sampling factorises by axis: for one RoI on a
+map F (C, H, W), ``pooled[c] = Wy @ F[c] @ Wx.T`` where ``Wy`` (P, H) and ``Wx`` (P, W) hold the
+bin-averaged hat-kernel weights of the sample rows and columns (coordinates clamped to the map,
+samples beyond one cell outside the map weigh 0 — torchvision's rules). The batch index is
+folded into the row weights, so all RoIs of all images are one GEMM plus one batched GEMM. The
+operation is linear in F, so it commutes with a 1x1 convolution (see net.py's channel fusion).
+
+Coordinates: RoIs are in the README's pixel coordinates (pixel (u, v) is centred at the point
+(u, v); a box is its exact extent; the image spans [-0.5, W - 0.5]). torchvision's continuous
+coordinates put pixel centres at u + 0.5, so a coordinate x maps to the feature-map coordinate
+``(x + 0.5) * spatial_scale - 0.5`` (cell j's centre is at j). Memory: the intermediate is
+R x P x C x W floats; chunk the RoIs when that is too large.
+"""
+
+from __future__ import annotations
+
+import torch
+
+
+def _axis_weights(
+    start: torch.Tensor, end: torch.Tensor, length: int, output_size: int, sampling_ratio: int
+) -> torch.Tensor:
+    """(R, output_size, length) bilinear weights of one axis, averaged over each bin's samples.
+
+    start, end: (R,) RoI extent in feature-map coordinates (cell j centred at j).
+    """
+    samples = output_size * sampling_ratio
+    # Sample k of the RoI sits at fraction (k + 0.5) / samples: bin k // S, sample k % S within it.
+    fraction = (torch.arange(samples, dtype=start.dtype, device=start.device) + 0.5) / samples
+    position = start[:, None] + (end - start)[:, None] * fraction  # (R, samples)
+    valid = (position >= -1.0) & (position <= length)
+    position = position.clamp(0.0, length - 1.0)
+    cells = torch.arange(length, dtype=start.dtype, device=start.device)
+    hat = (1.0 - (position[:, :, None] - cells).abs()).clamp(min=0.0)  # (R, samples, length)
+    hat = hat * valid[:, :, None].to(hat.dtype)
+    return hat.reshape(-1, output_size, sampling_ratio, length).mean(dim=2)
+
+
+def roi_align(
+    features: torch.Tensor,
+    rois: torch.Tensor,
+    output_size: int = 7,
+    spatial_scale: float = 1.0 / 16.0,
+    sampling_ratio: int = 2,
+) -> torch.Tensor:
+    """Pool each RoI to (C, output_size, output_size) from its image's feature map.
+
+    features: (B, C, H, W). rois: (R, 5) rows [batch_index, x1, y1, x2, y2] in image pixel
+    coordinates (README convention). spatial_scale: feature cells per image pixel (1/16 for
+    conv5_3). Returns (R, C, output_size, output_size), flattening order (C, y, x) as
+    torchvision's. Equals torchvision.ops.roi_align(features, rois + [0, .5, .5, .5, .5],
+    output_size, spatial_scale, sampling_ratio, aligned=True).
+    """
+    batch, channels, height, width = features.shape
+    rois = rois.to(features.dtype)
+    box = (rois[:, 1:5] + 0.5) * spatial_scale - 0.5
+    wy = _axis_weights(box[:, 1], box[:, 3], height, output_size, sampling_ratio)  # (R, P, H)
+    wx = _axis_weights(box[:, 0], box[:, 2], width, output_size, sampling_ratio)  # (R, P, W)
+    images = torch.arange(batch, dtype=rois.dtype, device=rois.device)
+    one_hot = (rois[:, 0:1] == images).to(features.dtype)  # (R, B)
+    wy = (one_hot[:, None, :, None] * wy[:, :, None, :]).reshape(-1, batch * height)  # (R*P, B*H)
+    rows = features.permute(0, 2, 1, 3).reshape(batch * height, channels * width)  # (B*H, C*W)
+    pooled_rows = (wy @ rows).reshape(-1, output_size * channels, width)  # (R, P*C, W)
+    pooled = pooled_rows @ wx.transpose(1, 2)  # (R, P*C, P)
+    return pooled.reshape(-1, output_size, channels, output_size).permute(0, 2, 1, 3)

@@ -1,0 +1,311 @@
+"""The RoI database: per training frame, the labelled RoIs and the 3D boxes they regress from and to.
+
+Per frame (SPEC.md "Proposals and 3D box initialisation", "Training"):
+
+- RoIs are the ground truth's visible boxes (``box2d_visible``, the paper's ``gt2d_sel``), added
+  as in Fast R-CNN, followed by the runtime's class-agnostic segment proposals (or the frame's
+  precomputed ``NAME.proposals.npz``).
+- Labels by 2D IoU with the visible boxes: foreground (the best box's class) at IoU >= fg_iou,
+  background for IoU in [bg_iou_low, fg_iou); other proposals are dropped.
+- Each RoI's segment (a ground truth's instance mask, a proposal's segment) is lifted to a 3D
+  centre by the runtime (``a3d.runtime.lifting``); a foreground RoI's initial 3D box is that
+  centre with the mean size of its ground truth's class over the training set (theta 0). Its
+  3D target is the matched ground-truth box, its 2D target the ground truth's amodal 2D box.
+
+The expensive part, proposals and lifting, depends on the frame and the proposal configuration
+only: it is cached per frame as ``CACHE/NAME-KEY.npz`` where KEY hashes the proposal config and
+the frame files' sizes and modification times. Labels and initial boxes are cheap and rebuilt
+in memory on every run (they depend on the class mean sizes of the whole training set).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+from a3d.runtime.classes import CLASSES, NUM_CLASSES
+from a3d.runtime.depth import fill_depth
+from a3d.runtime.errors import InputError
+from a3d.runtime.frames import (
+    Frame,
+    FrameRef,
+    GroundTruth,
+    list_frames,
+    read_folder_intrinsics,
+    read_frame,
+    read_ground_truth,
+    read_instances,
+    read_precomputed_proposals,
+)
+from a3d.runtime.geometry import Intrinsics, iou_2d
+from a3d.runtime.lifting import initial_boxes, lift
+from a3d.runtime.proposals import ProposalConfig, propose
+from tqdm import tqdm
+
+CACHE_VERSION = 1
+MIN_VISIBLE_AREA = 1.0  # px^2: a ground truth with a smaller visible box has no RoI
+
+
+@dataclass
+class Segments:
+    """A frame's proposal boxes (N, 4) and their lifted centres (N, 3) (valid (N,): liftable)."""
+
+    boxes: np.ndarray
+    centers: np.ndarray
+    valid: np.ndarray
+
+
+def frame_segments(frame: Frame, depth_filled: np.ndarray, config: ProposalConfig) -> Segments:
+    """Proposals of a frame, its ``NAME.proposals.npz`` when it has one, else the runtime's
+    proposal stage, each lifted to an initial 3D centre (a3d.runtime.lifting)."""
+    if frame.ref.proposals_path is not None:
+        pre = read_precomputed_proposals(frame.ref.proposals_path, frame.image_size)
+        segments = pre if pre.superpixels is not None else np.stack([pre.mask(i) for i in range(len(pre))])
+        boxes = pre.boxes
+    else:
+        segments = propose(frame.color, depth_filled, frame.intrinsics, config)
+        boxes = segments.boxes
+    if len(boxes) == 0:
+        return Segments(np.zeros((0, 4)), np.zeros((0, 3)), np.zeros(0, dtype=bool))
+    lifted = lift(segments, frame.depth, depth_filled, frame.intrinsics)
+    return Segments(np.asarray(boxes, np.float64), lifted.centers, lifted.valid)
+
+
+@dataclass
+class FrontEnd:
+    """What a training frame needs from the (slow) front end: lifted proposals and GT segments."""
+
+    image_size: tuple[int, int]
+    proposal_boxes: np.ndarray  # (N, 4)
+    proposal_centers: np.ndarray  # (N, 3)
+    proposal_valid: np.ndarray  # (N,) bool
+    gt_centers: np.ndarray  # (G, 3), one per ground-truth object
+    gt_valid: np.ndarray  # (G,) bool
+
+
+def ground_truth_masks(ref: FrameRef, gt: GroundTruth, image_size: tuple[int, int]) -> np.ndarray:
+    """(G, H, W) segment of each object: its pixels in ``NAME.instances.png``, or, where the frame
+    has no instance map or the object no pixel in it, the rectangle of its visible box."""
+    h, w = image_size
+    instances = read_instances(ref)
+    masks = np.zeros((len(gt.class_ids), h, w), dtype=bool)
+    v, u = np.arange(h)[:, None], np.arange(w)[None, :]
+    for i, (box, instance) in enumerate(zip(gt.boxes2d_visible, gt.instance_ids, strict=True)):
+        if instances is not None and instance > 0:
+            masks[i] = instances == instance
+        if not masks[i].any():  # pixel (u, v) is inside when its centre is
+            masks[i] = (u >= box[0]) & (u <= box[2]) & (v >= box[1]) & (v <= box[3])
+    return masks
+
+
+def compute_front_end(
+    ref: FrameRef, gt: GroundTruth, intrinsics: Intrinsics | None, config: ProposalConfig
+) -> FrontEnd:
+    frame = read_frame(ref, intrinsics)
+    filled = fill_depth(frame.depth)
+    segments = frame_segments(frame, filled, config)
+    if len(gt.class_ids):
+        lifted = lift(ground_truth_masks(ref, gt, frame.image_size), frame.depth, filled, frame.intrinsics)
+        gt_centers, gt_valid = lifted.centers, lifted.valid
+    else:
+        gt_centers, gt_valid = np.zeros((0, 3)), np.zeros(0, dtype=bool)
+    return FrontEnd(frame.image_size, segments.boxes, segments.centers, segments.valid, gt_centers, gt_valid)
+
+
+@dataclass
+class FrameRois:
+    """The RoIs of one training frame (ground-truth RoIs first), all at native resolution."""
+
+    name: str
+    ref: FrameRef
+    image_size: tuple[int, int]  # (H, W)
+    boxes: np.ndarray  # (R, 4) float32 RoI boxes [x1, y1, x2, y2]
+    labels: np.ndarray  # (R,) int64 softmax index: 0 background, 1 + class index foreground
+    overlaps: np.ndarray  # (R,) float32 max IoU with a visible ground-truth box
+    init_boxes: np.ndarray  # (R, 7) initial 3D box of the RoI's class (foreground rows only)
+    gt_boxes3d: np.ndarray  # (R, 7) matched ground-truth 3D box (foreground rows only)
+    gt_boxes2d: np.ndarray  # (R, 4) matched ground-truth amodal 2D box (foreground rows only)
+    has_3d: np.ndarray  # (R,) bool: foreground with a liftable segment (a 3D target exists)
+
+    @property
+    def num_fg(self) -> int:
+        return int((self.labels > 0).sum())
+
+
+@dataclass
+class RoiDB:
+    records: list[FrameRois]
+    mean_sizes: np.ndarray  # (19, 3) [l, w, h] per class, metres
+    skipped: list[str]  # "NAME: why" for frames left out
+
+
+def class_mean_sizes(truths: Sequence[GroundTruth]) -> np.ndarray:
+    """(19, 3) mean [l, w, h] per class over the training ground truth.
+
+    A class absent from the training set gets the mean over all objects (1 m cubes if there are
+    none), so every class still has an initial box.
+    """
+    ids = np.concatenate([np.asarray(t.class_ids, np.int64) for t in truths] or [np.zeros(0, np.int64)])
+    sizes = np.concatenate([np.asarray(t.boxes3d, np.float64)[:, 3:6] for t in truths] or [np.zeros((0, 3))])
+    fallback = sizes.mean(axis=0) if len(sizes) else np.ones(3)
+    counts = np.bincount(ids, minlength=NUM_CLASSES)[:, None]
+    sums = np.zeros((NUM_CLASSES, 3))
+    np.add.at(sums, ids, sizes)
+    return np.where(counts > 0, sums / np.maximum(counts, 1), fallback)
+
+
+def label_rois(
+    rois: np.ndarray, gt: GroundTruth, fg_iou: float, bg_iou_low: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Match RoIs to visible ground-truth boxes.
+
+    Returns (keep (R,) bool, labels (R,) softmax index, overlaps (R,), gt_index (R,) -1 if none):
+    foreground at IoU >= fg_iou, background at IoU in [bg_iou_low, fg_iou), the rest not kept.
+    """
+    n = len(rois)
+    if len(gt.class_ids) == 0:
+        overlaps, gt_index = np.zeros(n), np.full(n, -1, dtype=np.int64)
+    else:
+        iou = iou_2d(np.asarray(rois, np.float64), np.asarray(gt.boxes2d_visible, np.float64))
+        gt_index = np.argmax(iou, axis=1)
+        overlaps = iou[np.arange(n), gt_index]
+    fg = overlaps >= fg_iou
+    bg = (overlaps >= bg_iou_low) & ~fg
+    labels = np.where(fg, np.asarray(gt.class_ids, np.int64)[np.maximum(gt_index, 0)] + 1 if n else 0, 0)
+    gt_index = np.where(fg, gt_index, -1)
+    return fg | bg, labels.astype(np.int64), overlaps.astype(np.float32), gt_index.astype(np.int64)
+
+
+def frame_rois(
+    ref: FrameRef, gt: GroundTruth, front: FrontEnd, mean_sizes: np.ndarray, fg_iou: float, bg_iou_low: float
+) -> FrameRois:
+    """One frame's record from its ground truth and its (cached) front-end results."""
+    visible = np.asarray(gt.boxes2d_visible, np.float64)
+    has_pixels = (visible[:, 2] - visible[:, 0]) * (visible[:, 3] - visible[:, 1]) >= MIN_VISIBLE_AREA
+    gt_rows = np.flatnonzero(has_pixels)
+    boxes = np.concatenate([visible[gt_rows], np.asarray(front.proposal_boxes, np.float64)])
+    centers = np.concatenate([front.gt_centers[gt_rows], front.proposal_centers])
+    valid = np.concatenate([front.gt_valid[gt_rows], front.proposal_valid])
+    keep, labels, overlaps, gt_index = label_rois(boxes, gt, fg_iou, bg_iou_low)
+    boxes, centers, valid = boxes[keep], centers[keep], valid[keep]
+    labels, overlaps, gt_index = labels[keep], overlaps[keep], gt_index[keep]
+
+    fg = np.flatnonzero(labels > 0)
+    init = np.zeros((len(boxes), 7))
+    gt3d = np.zeros((len(boxes), 7))
+    gt2d = np.zeros((len(boxes), 4))
+    if len(fg):
+        init[fg] = initial_boxes(centers[fg], mean_sizes)[np.arange(len(fg)), labels[fg] - 1]
+        gt3d[fg] = np.asarray(gt.boxes3d, np.float64)[gt_index[fg]]
+        gt2d[fg] = np.asarray(gt.boxes2d_amodal, np.float64)[gt_index[fg]]
+    return FrameRois(
+        name=ref.name,
+        ref=ref,
+        image_size=front.image_size,
+        boxes=boxes.astype(np.float32),
+        labels=labels,
+        overlaps=overlaps,
+        init_boxes=init,
+        gt_boxes3d=gt3d,
+        gt_boxes2d=gt2d,
+        has_3d=(labels > 0) & valid.astype(bool),
+    )
+
+
+def build_roidb(
+    folder: str | os.PathLike,
+    config,
+    cache_dir: str | os.PathLike,
+    mean_sizes: np.ndarray | None = None,
+    progress: bool = False,
+) -> RoiDB:
+    """The RoI database of every annotated frame in ``folder`` (``config``: a TrainConfig).
+
+    ``mean_sizes`` (19, 3) fixes the class mean sizes (a resumed run passes its checkpoint's);
+    by default they are computed from the folder's ground truth. Frames without ground truth or
+    without any RoI are skipped and listed in ``RoiDB.skipped``.
+    """
+    refs = list_frames(folder)
+    intrinsics = read_folder_intrinsics(folder)
+    annotated, skipped = [], []
+    for ref in refs:
+        gt = read_ground_truth(ref)
+        if gt is None:
+            skipped.append(f"{ref.name}: no ground truth")
+        else:
+            annotated.append((ref, gt))
+    if not annotated:
+        raise InputError(f"{folder}: no annotated frames (NAME.gt.json) to train on")
+    if mean_sizes is None:
+        mean_sizes = class_mean_sizes([gt for _, gt in annotated])
+    records = []
+    for ref, gt in tqdm(annotated, desc="RoI database", disable=not progress, unit="frame"):
+        front = cached_front_end(ref, gt, intrinsics, config.proposals, cache_dir)
+        record = frame_rois(ref, gt, front, mean_sizes, config.data.fg_iou, config.data.bg_iou_low)
+        if len(record.labels):
+            records.append(record)
+        else:
+            skipped.append(f"{ref.name}: no foreground or background RoI")
+    if not records:
+        raise InputError(f"{folder}: no frame has a single training RoI")
+    return RoiDB(records, np.asarray(mean_sizes, np.float64), skipped)
+
+
+def cache_key(ref: FrameRef, proposal_config) -> str:
+    """Hash of the proposal configuration and the frame's files (size, mtime): stale caches miss."""
+    files = (ref.color_path, ref.depth_path, ref.meta_path, ref.gt_path, ref.instances_path,
+             ref.proposals_path)  # fmt: skip
+    stamps = [[str(p), os.stat(p).st_size, os.stat(p).st_mtime_ns] for p in files if p is not None]
+    blob = json.dumps([CACHE_VERSION, asdict(proposal_config), stamps], sort_keys=True, default=str)
+    return hashlib.sha1(blob.encode()).hexdigest()[:16]
+
+
+def cached_front_end(
+    ref: FrameRef, gt: GroundTruth, intrinsics: Intrinsics | None, proposal_config: ProposalConfig,
+    cache_dir: str | os.PathLike,
+) -> FrontEnd:
+    """Proposals and lifted centres of one frame (and of its ground-truth segments), cached on disk."""
+    path = Path(cache_dir) / f"{ref.name}-{cache_key(ref, proposal_config)}.npz"
+    if path.is_file():
+        try:
+            with np.load(path) as z:
+                arrays = {k: z[k] for k in z.files}
+            arrays["image_size"] = tuple(int(v) for v in arrays["image_size"])
+            return FrontEnd(**arrays)
+        except (OSError, ValueError, KeyError, TypeError):
+            pass  # unreadable (a file from another version): recompute
+    front = compute_front_end(ref, gt, intrinsics, proposal_config)
+    _atomic_savez(path, front)
+    return front
+
+
+def _atomic_savez(path: Path, front: FrontEnd) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".npz", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, **{k: np.asarray(v) for k, v in asdict(front).items()})
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def describe(db: RoiDB) -> dict:
+    """Counts for the log: frames, RoIs, foreground RoIs per class."""
+    fg_per_class = np.zeros(NUM_CLASSES, dtype=np.int64)
+    for r in db.records:
+        fg_per_class += np.bincount(r.labels[r.labels > 0] - 1, minlength=NUM_CLASSES)
+    return {
+        "frames": len(db.records),
+        "rois": int(sum(len(r.labels) for r in db.records)),
+        "fg_rois": int(fg_per_class.sum()),
+        "fg_per_class": {c: int(n) for c, n in zip(CLASSES, fg_per_class, strict=True) if n},
+        "skipped": len(db.skipped),
+    }
