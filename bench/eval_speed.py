@@ -106,7 +106,8 @@ def main() -> None:
     truth, detections = make_set(args.frames, args.per_class, args.seed, args.retilt)
     n_det = sum(len(d.scores) for d in detections.values())
     n_gt = sum(len(t.class_ids) for t in truth.values())
-    print(f"generated {len(truth)} frames, {n_gt} objects, {n_det} detections in {time.perf_counter() - t0:.1f} s")
+    elapsed = time.perf_counter() - t0
+    print(f"generated {len(truth)} frames, {n_gt} objects, {n_det} detections in {elapsed:.1f} s")
 
     for label, config in (("2D NMS 0.3", EvalConfig()), ("no NMS", EvalConfig(nms_iou=None))):
         t0 = time.perf_counter()
@@ -127,7 +128,10 @@ def main() -> None:
             back = read_detections(path)
             t2 = time.perf_counter()
             size = path.stat().st_size / 1e6
-        print(f"detections file: {size:.0f} MB, write {t1 - t0:.1f} s, read + validate {t2 - t1:.1f} s ({len(back)} lines)")
+        print(
+            f"detections file: {size:.0f} MB, write {t1 - t0:.1f} s, "
+            f"read + validate {t2 - t1:.1f} s ({len(back)} lines)"
+        )
 
 
 if __name__ == "__main__":

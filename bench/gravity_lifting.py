@@ -1,16 +1,21 @@
-"""Accuracy and speed of the runtime front end on frames with ground truth (e.g. a3d-synth's test split).
+"""Accuracy and speed of the runtime front end on frames with ground truth.
 
-Per frame: hole filling, surface normals, gravity (R_tilt) estimation, and lifting of the
-ground-truth instance masks to initial 3D boxes (SPEC.md "Proposals and 3D box initialisation"),
-plus the lifting of the frame's real proposals (a3d.runtime.proposals, 2000 at most) for timing.
+Frames come from a folder in the frame format (e.g. a3d-synth's test split) or are rendered on
+the fly by a3d.synth.generate_frame from held-out seeds (`--synth FIRST COUNT`), which also
+gives each object's exact visible fraction. Per frame: hole filling, surface normals, gravity
+(R_tilt) estimation, lifting of the ground-truth instance masks to initial 3D boxes (SPEC.md
+"Proposals and 3D box initialisation"), and the lifting of the frame's real proposals
+(a3d.runtime.proposals) for timing.
 
 Reports: gravity angle error vs the frame's R_tilt (median, 95th percentile; targets <= 1.5 and
-<= 5 degrees); initial-centre distance to the true amodal centre for the (nearly) fully visible
-objects (visible 2D box covering >= 90% of the amodal 2D box; target median <= 15 cm) and for
-all objects, and the 3D IoU of the initial boxes built with the class mean sizes (over the
-folder's objects); per-stage times (median and max, ms).
+<= 5 degrees); initial-centre distance to the true amodal centre (target median <= 15 cm) for
+the fully visible objects (rendered: visibility >= 0.95 and not cut by the border; folder: the
+visible 2D box covers >= 95% of the amodal 2D box, a proxy blind to occlusion inside the box)
+and for all objects; the 3D IoU of the initial boxes built with the class mean sizes (over the
+objects seen); per-stage times (median and max, ms).
 
-    .venv/bin/python bench/gravity_lifting.py /tmp/synth_small/test [--limit 50] [--no-proposals]
+    .venv/bin/python bench/gravity_lifting.py --synth 100000 30
+    .venv/bin/python bench/gravity_lifting.py --folder /tmp/synth_small/test [--limit 50]
 """
 
 from __future__ import annotations
@@ -18,26 +23,64 @@ from __future__ import annotations
 import argparse
 import time
 from collections import Counter
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 from a3d.runtime.classes import NUM_CLASSES
 from a3d.runtime.depth import fill_depth
 from a3d.runtime.frames import (
+    GroundTruth,
     list_frames,
     read_folder_intrinsics,
     read_frame,
     read_ground_truth,
     read_instances,
 )
-from a3d.runtime.geometry import iou_2d, iou_3d
+from a3d.runtime.geometry import Intrinsics, iou_2d, iou_3d
 from a3d.runtime.gravity import estimate_gravity
 from a3d.runtime.lifting import initial_boxes, lift
 from a3d.runtime.normals import surface_normals
+from a3d.runtime.proposals import propose
+
+FULLY_VISIBLE = 0.95
 
 
-def _ms(times: list[float]) -> str:
-    return f"median {1e3 * np.median(times):6.1f} ms, max {1e3 * np.max(times):6.1f} ms (n={len(times)})"
+@dataclass
+class BenchFrame:
+    color: np.ndarray
+    depth: np.ndarray
+    K: Intrinsics
+    R_tilt: np.ndarray | None
+    gt: GroundTruth | None
+    instances: np.ndarray | None
+    fully_visible: np.ndarray | None  # (N,) bool per gt object
+
+
+def folder_frames(folder: Path, limit: int) -> Iterator[BenchFrame]:
+    refs = list_frames(folder)[: limit or None]
+    folder_k = read_folder_intrinsics(folder)
+    for ref in refs:
+        frame = read_frame(ref, folder_k)
+        gt = read_ground_truth(ref)
+        full = None
+        if gt is not None and len(gt):
+            full = np.diag(iou_2d(gt.boxes2d_visible, gt.boxes2d_amodal)) >= FULLY_VISIBLE
+        yield BenchFrame(
+            frame.color, frame.depth, frame.intrinsics, frame.R_tilt, gt, read_instances(ref), full
+        )
+
+
+def synth_frames(first: int, count: int) -> Iterator[BenchFrame]:
+    from a3d.synth.scene import generate_frame
+
+    for seed in range(first, first + count):
+        f = generate_frame(seed)
+        records = [r for r in f.objects if r.annotated]  # in gt order (instance ids 1..N)
+        full = np.array([r.visibility >= FULLY_VISIBLE and not r.truncated for r in records], bool)
+        yield BenchFrame(f.color, f.depth, f.intrinsics, f.R_tilt, f.gt, f.instances, full)
 
 
 def _timed(times: dict[str, list[float]], stage: str, fn, *args):
@@ -49,73 +92,65 @@ def _timed(times: dict[str, list[float]], stage: str, fn, *args):
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("folder", type=Path, help="frame folder with NAME.meta.json R_tilt, gt and instances")
-    parser.add_argument("--limit", type=int, default=0, help="use at most this many frames (0 = all)")
-    parser.add_argument("--no-proposals", action="store_true", help="skip the real-proposal lifting timing")
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--folder", type=Path, help="frames with NAME.meta.json R_tilt, gt and instances")
+    source.add_argument("--synth", type=int, nargs=2, metavar=("FIRST", "COUNT"), help="render these seeds")
+    parser.add_argument("--limit", type=int, default=0, help="folder: at most this many frames (0 = all)")
+    parser.add_argument("--no-proposals", action="store_true", help="skip proposals and their lifting")
     args = parser.parse_args()
-
-    refs = list_frames(args.folder)
-    if args.limit:
-        refs = refs[: args.limit]
-    folder_k = read_folder_intrinsics(args.folder)
-    propose = None
-    if not args.no_proposals:
-        from a3d.runtime.proposals import propose
+    frames = synth_frames(*args.synth) if args.synth else folder_frames(args.folder, args.limit)
 
     times: dict[str, list[float]] = {}
+    n_proposals: list[int] = []
     grav_err: list[float] = []
     statuses: Counter[str] = Counter()
-    rows = []  # (class id, visible fraction, distance, initial centre, gt box, R_tilt) per object
-    for ref in refs:
-        frame = read_frame(ref, folder_k)
-        K = frame.intrinsics
-        filled = _timed(times, "fill_depth", fill_depth, frame.depth)
-        _timed(times, "surface_normals", surface_normals, frame.depth, K)
-        est = _timed(times, "gravity", estimate_gravity, frame.depth, K)
+    objects = []  # (class id, fully visible, centre distance, initial centre, gt box, R_tilt)
+    n_frames = 0
+    for fr in frames:
+        n_frames += 1
+        filled = _timed(times, "fill_depth", fill_depth, fr.depth)
+        _timed(times, "surface_normals", surface_normals, fr.depth, fr.K)
+        est = _timed(times, "gravity", estimate_gravity, fr.depth, fr.K)
         statuses[est.status] += 1
-        if frame.R_tilt is not None:
-            cos = float(np.clip(est.gravity @ frame.R_tilt[1], -1.0, 1.0))  # row 1 of R_tilt = gravity
-            grav_err.append(np.degrees(np.arccos(cos)))
-        gt, inst = read_ground_truth(ref), read_instances(ref)
-        if gt is not None and inst is not None and len(gt):
-            masks = inst[None] == gt.instance_ids[:, None, None].astype(inst.dtype)
-            present = masks.any(axis=(1, 2))
-            lifted = _timed(times, "lift_gt_masks", lift, masks[present], frame.depth, filled, K)
-            boxes = gt.boxes3d[present]
-            vis = gt.boxes2d_visible[present]
-            amodal = gt.boxes2d_amodal[present]
-            frac = np.diag(iou_2d(vis, amodal))  # the visible box lies inside the amodal one
-            dist = np.linalg.norm(lifted.centers - boxes[:, :3], axis=1)
-            for i in np.flatnonzero(lifted.valid):
-                rows.append(
-                    (gt.class_ids[present][i], frac[i], dist[i], lifted.centers[i], boxes[i], frame.R_tilt)
-                )
-        if propose is not None:
-            props = _timed(times, "propose", propose, frame.color, filled, K)
-            _timed(times, "lift_proposals", lift, props, frame.depth, filled, K)
-            times.setdefault("n_proposals", []).append(len(props) / 1e3)
+        if fr.R_tilt is not None:  # row 1 of an R_tilt is its gravity direction (camera frame)
+            grav_err.append(np.degrees(np.arccos(np.clip(est.gravity @ fr.R_tilt[1], -1.0, 1.0))))
+        if fr.gt is not None and fr.instances is not None and len(fr.gt):
+            # The instance map is a superpixel map whose superpixel k is exactly object k's mask.
+            labels = fr.instances.astype(np.int32)
+            present = np.flatnonzero(np.isin(fr.gt.instance_ids, labels))
+            masks = SimpleNamespace(
+                superpixels=labels, indptr=np.arange(len(present) + 1), indices=fr.gt.instance_ids[present]
+            )
+            lifted = _timed(times, "lift_gt_masks", lift, masks, fr.depth, filled, fr.K)
+            for j, i in enumerate(present):
+                if lifted.valid[j]:
+                    box = fr.gt.boxes3d[i]
+                    dist = float(np.linalg.norm(lifted.centers[j] - box[:3]))
+                    objects.append(
+                        (fr.gt.class_ids[i], fr.fully_visible[i], dist, lifted.centers[j], box, fr.R_tilt)
+                    )
+        if not args.no_proposals:
+            props = _timed(times, "propose", propose, fr.color, filled, fr.K)
+            _timed(times, "lift_proposals", lift, props, fr.depth, filled, fr.K)
+            n_proposals.append(len(props))
 
-    print(f"{len(refs)} frames from {args.folder}")
+    print(f"{n_frames} frames from {args.folder or f'a3d.synth seeds {args.synth[0]}+{args.synth[1]}'}")
     if grav_err:
         e = np.asarray(grav_err)
         print(
             f"gravity: angle error median {np.median(e):.2f} deg, p95 {np.percentile(e, 95):.2f} deg, "
             f"max {e.max():.2f} deg (targets <= 1.5, <= 5); status {dict(statuses)}"
         )
-    if rows:
-        cls = np.array([r[0] for r in rows])
-        frac = np.array([r[1] for r in rows])
-        dist = np.array([r[2] for r in rows])
+    if objects:
+        cls = np.array([o[0] for o in objects])
+        full = np.array([o[1] for o in objects], bool)
+        dist = np.array([o[2] for o in objects])
         mean_sizes = np.zeros((NUM_CLASSES, 3))
         for c in np.unique(cls):
-            mean_sizes[c] = np.mean([r[4][3:6] for r in rows if r[0] == c], axis=0)
+            mean_sizes[c] = np.mean([o[4][3:6] for o in objects if o[0] == c], axis=0)
         ious = np.array(
-            [
-                iou_3d(initial_boxes(r[3][None], mean_sizes)[0, r[0]][None], r[4][None], r[5])[0, 0]
-                for r in rows
-            ]
+            [iou_3d(initial_boxes(o[3][None], mean_sizes)[:, o[0]], o[4][None], o[5])[0, 0] for o in objects]
         )
-        full = frac >= 0.9
         for name, sel in (("fully visible", full), ("all objects", np.ones_like(full))):
             if sel.any():
                 print(
@@ -124,11 +159,10 @@ def main() -> None:
                     f"(target median <= 15 cm); initial-box 3D IoU median {np.median(ious[sel]):.3f}, "
                     f">= 0.25: {np.mean(ious[sel] >= 0.25):.0%}"
                 )
+    if n_proposals:
+        print(f"proposals per frame: median {np.median(n_proposals):.0f}, max {max(n_proposals)}")
     for stage, t in times.items():
-        if stage == "n_proposals":
-            print(f"proposals per frame: median {1e3 * np.median(t):.0f}, max {1e3 * np.max(t):.0f}")
-        else:
-            print(f"time {stage:16s} {_ms(t)}")
+        print(f"time {stage:16s} median {1e3 * np.median(t):6.1f} ms, max {1e3 * np.max(t):6.1f} ms")
 
 
 if __name__ == "__main__":

@@ -106,14 +106,18 @@ def fill_depth(depth: np.ndarray, config: FillConfig = FillConfig()) -> np.ndarr
 
 
 def _row_neighbours(values: np.ndarray, holes: np.ndarray) -> tuple[np.ndarray, ...]:
-    """For each hole pixel (row-major order of np.nonzero(holes)): the values of the nearest
+    """For each hole pixel (in the row-major order of values[holes]): the values of the nearest
     non-hole pixels to its left and right in the same row (0 where the row has none on that side)
-    and the length of the run of holes it lies in."""
-    w = values.shape[1]
-    cols = np.arange(w, dtype=np.int32)
-    idx_left = np.maximum.accumulate(np.where(holes, np.int32(-1), cols), axis=1)[holes]
-    idx_right = np.minimum.accumulate(np.where(holes, np.int32(w), cols)[:, ::-1], axis=1)[:, ::-1][holes]
-    rows = np.nonzero(holes)[0]
-    padded = np.pad(values, ((0, 0), (1, 1))).ravel()  # column -1 -> 0, column w -> w + 1
-    base = rows * (w + 2) + 1
-    return padded[base + idx_left], padded[base + idx_right], idx_right - idx_left - 1
+    and the length of the run of holes it lies in. Computed per run of holes, then repeated."""
+    h, w = holes.shape
+    edges = np.zeros((h, w + 2), np.int8)
+    edges[:, 1:-1] = holes
+    step = np.diff(edges, axis=1)  # +1 where a run starts at column j, -1 where one ends before j
+    rows, cols = np.nonzero(step)
+    starts, ends = cols[0::2], cols[1::2]  # runs alternate start, end within each row
+    rows = rows[0::2]
+    padded = np.zeros((h, w + 2), values.dtype)  # column j of values is column j + 1 here
+    padded[:, 1:-1] = values
+    lengths = ends - starts
+    left, right = padded[rows, starts], padded[rows, ends + 1]
+    return np.repeat(left, lengths), np.repeat(right, lengths), np.repeat(lengths, lengths)

@@ -177,14 +177,16 @@ class _Matches:
     best_iou: list[np.ndarray] = field(default_factory=list)
 
     def add_frame(self, truth: FrameTruth, gt_offset: int, class_ids, scores, boxes3d) -> None:
-        """Best ground truth (of the same class, same frame) of each detection of one frame."""
+        """Best ground truth (of the same class, same frame) of each detection of one frame.
+
+        One IoU matrix per class present in both (not one frame-wide matrix masked by class:
+        iou_3d would clip the polygons of every overlapping other-class pair, 2-3x slower).
+        """
         best_gt = np.full(len(scores), -1, dtype=np.int64)
         best_iou = np.zeros(len(scores))
-        for c in np.unique(class_ids):
-            gt_index = np.flatnonzero(truth.class_ids == c)
-            if len(gt_index) == 0:
-                continue
+        for c in np.intersect1d(class_ids, truth.class_ids):
             rows = np.flatnonzero(class_ids == c)
+            gt_index = np.flatnonzero(truth.class_ids == c)
             iou = iou_3d(boxes3d[rows], truth.boxes3d[gt_index], truth.R_tilt)
             best = np.argmax(iou, axis=1)  # first of equal maxima, as VOC's argmax
             best_iou[rows] = iou[np.arange(len(rows)), best]

@@ -35,6 +35,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
+
 from a3d.runtime.errors import InputError
 
 NEAR_PLANE_M = 0.05  # box edges are clipped at z = 0.05 m before projection
@@ -113,8 +114,9 @@ def _intrinsics(K: CameraLike) -> Intrinsics:
 
 
 def _finite_result(out: np.ndarray, what: str) -> np.ndarray:
+    """out, or InputError when NaN/inf inputs or overflow made it non-finite."""
     if not np.all(np.isfinite(out)):
-        raise InputError(f"{what}: the result overflows (values far out of range)")
+        raise InputError(f"{what}: NaN or infinite result (NaN/inf input, or values far out of range)")
     return out
 
 
@@ -122,9 +124,7 @@ def backproject(u: np.ndarray, v: np.ndarray, z: np.ndarray, K: CameraLike) -> n
     """Camera-frame points (..., 3) of pixels (u, v) at depth z (broadcast together)."""
     k = _intrinsics(K)
     u, v, z = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64) for a in (u, v, z)))
-    if not (np.all(np.isfinite(u)) and np.all(np.isfinite(v)) and np.all(np.isfinite(z))):
-        raise InputError("backproject: NaN or infinite pixel coordinates or depth")
-    with np.errstate(over="ignore"):
+    with np.errstate(over="ignore", invalid="ignore"):
         out = np.stack([(u - k.cx) * z / k.fx, (v - k.cy) * z / k.fy, z], axis=-1)
     return _finite_result(out, "backproject")
 
@@ -147,12 +147,10 @@ def project_points(points: np.ndarray, K: CameraLike) -> np.ndarray:
     p = np.asarray(points, dtype=np.float64)
     if p.shape[-1:] != (3,):
         raise InputError(f"points: expected shape (..., 3), got {p.shape}")
-    if not np.all(np.isfinite(p)):
-        raise InputError("points: NaN or infinite coordinates")
     z = p[..., 2]
     if not np.all(z > 0):
-        raise InputError(f"points: {int(np.sum(z <= 0))} point(s) with z <= 0 cannot be projected")
-    with np.errstate(over="ignore"):
+        raise InputError(f"points: {int(np.sum(~(z > 0)))} point(s) with z <= 0 or NaN cannot be projected")
+    with np.errstate(over="ignore", invalid="ignore"):
         out = np.stack([k.fx * p[..., 0] / z + k.cx, k.fy * p[..., 1] / z + k.cy], axis=-1)
     return _finite_result(out, "project_points")
 
@@ -162,6 +160,8 @@ def project_points(points: np.ndarray, K: CameraLike) -> np.ndarray:
 
 def rtilt_from_pitch_roll(pitch: float, roll: float) -> np.ndarray:
     """``R_tilt = R_x(pitch) @ R_z(roll)`` (radians; see the module docstring for signs)."""
+    if not (math.isfinite(pitch) and math.isfinite(roll)):
+        raise InputError(f"R_tilt: pitch and roll must be finite angles, got {pitch}, {roll}")
     cp, sp, cr, sr = math.cos(pitch), math.sin(pitch), math.cos(roll), math.sin(roll)
     r_x = np.array([[1.0, 0.0, 0.0], [0.0, cp, -sp], [0.0, sp, cp]])
     r_z = np.array([[cr, -sr, 0.0], [sr, cr, 0.0], [0.0, 0.0, 1.0]])
@@ -183,6 +183,8 @@ def is_rotation(R: np.ndarray, tol: float = 1e-4) -> bool:
     if R.shape != (3, 3) or not np.issubdtype(R.dtype, np.number) or not np.all(np.isfinite(R)):
         return False
     R = R.astype(np.float64)
+    if np.max(np.abs(R)) > 1.0 + tol:  # entries of a rotation are within [-1, 1]
+        return False
     return bool(np.max(np.abs(R @ R.T - np.eye(3))) <= tol and abs(np.linalg.det(R) - 1.0) <= tol)
 
 
@@ -194,10 +196,9 @@ def check_rotation(R: np.ndarray, what: str, tol: float = 1e-4) -> np.ndarray:
     if not np.issubdtype(arr.dtype, np.number) or not np.all(np.isfinite(arr)):
         raise InputError(f"{what}: rotation matrix has non-numeric, NaN or infinite entries")
     if not is_rotation(arr, tol):
-        err = np.max(np.abs(arr @ arr.T - np.eye(3)))
-        raise InputError(
-            f"{what}: not a proper rotation (max |R R^T - I| = {err:.3g}, det = {np.linalg.det(arr):.6g})"
-        )
+        with np.errstate(all="ignore"):
+            err, det = np.max(np.abs(arr @ arr.T - np.eye(3))), np.linalg.det(arr)
+        raise InputError(f"{what}: not a proper rotation (max |R R^T - I| = {err:.3g}, det = {det:.6g})")
     return arr.astype(np.float64)
 
 
@@ -245,7 +246,7 @@ def canonical_boxes(boxes: np.ndarray) -> np.ndarray:
     """The same boxes with l >= w (swapping l and w turns theta by pi/2) and theta in [-pi/2, pi/2]."""
     out = _boxes3d(boxes).copy()
     swap = out[:, 3] < out[:, 4]
-    out[swap, 3], out[swap, 4] = out[swap, 4], out[swap, 3].copy()
+    out[swap, 3:5] = out[swap][:, [4, 3]]
     out[swap, 6] += np.pi / 2
     out[:, 6] = wrap_half_pi(out[:, 6])
     return out
@@ -284,18 +285,15 @@ def boxes_from_corners_tilt(corners: np.ndarray, R_tilt: np.ndarray) -> np.ndarr
     if not np.all(np.abs(c) <= _MAX_ABS_METRES):
         raise InputError(f"corners: NaN, infinite or beyond +-{_MAX_ABS_METRES:g} coordinates")
     R = check_rotation(R_tilt, "R_tilt")
-    along_l = (c[:, [0, 3, 4, 7]] - c[:, [1, 2, 5, 6]]).mean(axis=1)  # edges 0-1 direction
-    along_w = (c[:, [0, 1, 4, 5]] - c[:, [3, 2, 7, 6]]).mean(axis=1)  # edges 0-3 direction
-    vertical = np.linalg.norm(c[:, :4] - c[:, 4:], axis=2).mean(axis=1)
-    len_l = np.linalg.norm(c[:, [0, 3, 4, 7]] - c[:, [1, 2, 5, 6]], axis=2).mean(axis=1)
-    len_w = np.linalg.norm(c[:, [0, 1, 4, 5]] - c[:, [3, 2, 7, 6]], axis=2).mean(axis=1)
-    first_long = len_l >= len_w
-    orient = np.where(first_long[:, None], along_w, along_l)
+    edges_1 = c[:, [0, 3, 4, 7]] - c[:, [1, 2, 5, 6]]  # the four edges parallel to 1 -> 0
+    edges_3 = c[:, [0, 1, 4, 5]] - c[:, [3, 2, 7, 6]]  # the four edges parallel to 3 -> 0
+    len_1 = np.linalg.norm(edges_1, axis=2).mean(axis=1)
+    len_3 = np.linalg.norm(edges_3, axis=2).mean(axis=1)
+    height = np.linalg.norm(c[:, :4] - c[:, 4:], axis=2).mean(axis=1)
+    orient = np.where((len_1 >= len_3)[:, None], edges_3.mean(axis=1), edges_1.mean(axis=1))
     theta = wrap_half_pi(np.arctan2(orient[:, 0], orient[:, 2]))
     centre = c.mean(axis=1) @ R  # R.T @ p for row vectors
-    size_l = np.maximum(len_l, len_w)
-    size_w = np.minimum(len_l, len_w)
-    return np.column_stack([centre, size_l, size_w, vertical, theta])
+    return np.column_stack([centre, np.maximum(len_1, len_3), np.minimum(len_1, len_3), height, theta])
 
 
 # ----------------------------------------------------------------------------- horizontal flip
@@ -355,6 +353,8 @@ def box_edges_clipped(
     The part of an edge behind the plane is dropped; ``valid`` (N, 12) is False for edges wholly
     behind it (their coordinates are then meaningless but finite). Valid endpoints have z >= near.
     """
+    if not (math.isfinite(near) and near > 0):
+        raise InputError(f"near plane: expected a positive distance in metres, got {near}")
     corners = box_corners_camera(boxes, R_tilt)
     a, b = corners[:, BOX_EDGES[:, 0]], corners[:, BOX_EDGES[:, 1]]
     za, zb = a[..., 2:], b[..., 2:]

@@ -75,14 +75,12 @@ class Hierarchy:
     """The regions one strategy formed by merging, in order of creation.
 
     Region k of the hierarchy has superpixels `indices[indptr[k]:indptr[k+1]]`; `similarity`
-    is the similarity of the pair whose merge made it, `contrast` the mean boundary similarity
-    (0..1, low = strong edges) to its neighbours when it was made, `level` the merge round.
+    is the similarity of the pair whose merge made it, `level` the merge round.
     """
 
     indptr: np.ndarray
     indices: np.ndarray
     similarity: np.ndarray
-    contrast: np.ndarray
     level: np.ndarray
 
 
@@ -169,111 +167,120 @@ def group(graph: RegionGraph, strategy: Strategy, scales: BoundaryScales, image_
     bbox = np.zeros((cap, 4), np.int64)
     bbox[:n0] = graph.bbox
     hist = np.zeros((cap, graph.color_hist.shape[1]), np.float32)
-    hist[:n0] = graph.color_hist
+    hist[:n0] = graph.color_hist / graph.color_hist.sum(axis=1, keepdims=True).clip(1e-12)
     normal_sum = np.zeros((cap, 3))
     normal_sum[:n0] = graph.normal_sum
+    regions = _Regions(size, bbox, hist, normal_sum, image_area)
     weights = np.array([getattr(strategy, f.name) for f in fields(Strategy)])
 
     pairs, length, strength = graph.pairs, graph.length, graph.strength
+    sim = _similarity(pairs, length, strength, regions, weights, scales)
     owner = np.arange(n0)  # superpixel -> current region
     n_total = n0
-    out_ids, out_sp, sims, contrasts, levels = [], [], [], [], []
+    out_ids, out_sp, sims, levels = [], [], [], []
     level = 0
     while pairs.shape[0] > 0:
-        a, b = pairs[:, 0], pairs[:, 1]
-        sim = _similarity(a, b, length, strength, size, bbox, hist, normal_sum, weights, scales, image_area)
-        order = np.argsort(-sim, kind="stable")
-        ends = np.stack([a[order], b[order]], axis=1).ravel()
-        nodes, first = np.unique(ends, return_index=True)
-        best = np.full(n_total, -1)
-        best[nodes] = order[first // 2]
-        edge_ids = np.arange(pairs.shape[0])
-        chosen = np.nonzero((best[a] == edge_ids) & (best[b] == edge_ids))[0]
-        ca, cb = a[chosen], b[chosen]
-        m = chosen.size
+        ca, cb, chosen_sim = _mutual_best(pairs, sim, n_total)
+        m = ca.size
         new = np.arange(n_total, n_total + m)
-        size[new] = size[ca] + size[cb]
+        wa, wb = size[ca], size[cb]
+        size[new] = wa + wb
         bbox[new, :2] = np.minimum(bbox[ca, :2], bbox[cb, :2])
         bbox[new, 2:] = np.maximum(bbox[ca, 2:], bbox[cb, 2:])
-        hist[new] = hist[ca] + hist[cb]
+        hist[new] = (hist[ca] * wa[:, None] + hist[cb] * wb[:, None]) / (wa + wb)[:, None]
         normal_sum[new] = normal_sum[ca] + normal_sum[cb]
 
         remap = np.arange(n_total + m)
         remap[ca] = new
         remap[cb] = new
         owner = remap[owner]
-        ra, rb = remap[a], remap[b]
-        keep = ra != rb
-        pairs, length, strength = _aggregate_edges(
-            np.minimum(ra, rb)[keep], np.maximum(ra, rb)[keep], length[keep], strength[keep], n_total + m
+        # Only edges at a merged region change: re-key them, drop the merged pairs' own edges,
+        # sum parallel edges and recompute their similarity; the others keep theirs.
+        ra, rb = remap[pairs[:, 0]], remap[pairs[:, 1]]
+        touched = (ra >= n_total) | (rb >= n_total)
+        moved = touched & (ra != rb)
+        new_pairs, new_length, new_strength = _aggregate_edges(
+            np.minimum(ra, rb)[moved], np.maximum(ra, rb)[moved], length[moved], strength[moved], n_total + m
         )
-        # Contrast of each new region: mean boundary similarity to all its neighbours now.
-        bsim = _boundary_similarity(length, strength, scales) @ np.array([1.0, 1.0, 1.0]) / 3.0
-        ends = pairs.ravel()
-        per_node = np.bincount(ends, weights=np.repeat(bsim * length, 2), minlength=n_total + m)
-        per_len = np.bincount(ends, weights=np.repeat(length, 2), minlength=n_total + m)
-        contrast = np.where(per_len[new] > 0, per_node[new] / np.maximum(per_len[new], 1e-12), 0.0)
+        new_sim = _similarity(new_pairs, new_length, new_strength, regions, weights, scales)
+        pairs = np.concatenate([pairs[~touched], new_pairs])
+        length = np.concatenate([length[~touched], new_length])
+        strength = np.concatenate([strength[~touched], new_strength])
+        sim = np.concatenate([sim[~touched], new_sim])
 
         sp = np.nonzero(owner >= n_total)[0]
         out_ids.append(owner[sp])
         out_sp.append(sp)
-        sims.append(sim[chosen])
-        contrasts.append(contrast)
+        sims.append(chosen_sim)
         levels.append(np.full(m, level))
         n_total += m
         level += 1
 
     n_new = n_total - n0
     if n_new == 0:
-        empty = np.zeros(0)
-        return Hierarchy(np.zeros(1, np.int64), np.zeros(0, np.int64), empty, empty, empty.astype(np.int64))
+        return Hierarchy(np.zeros(1, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.int64))
     ids = np.concatenate(out_ids) - n0
     sps = np.concatenate(out_sp)
     order = np.lexsort((sps, ids))
     indptr = np.zeros(n_new + 1, np.int64)
     indptr[1:] = np.cumsum(np.bincount(ids, minlength=n_new))
-    return Hierarchy(
-        indptr,
-        sps[order],
-        np.concatenate(sims),
-        np.concatenate(contrasts),
-        np.concatenate(levels),
-    )
+    return Hierarchy(indptr, sps[order], np.concatenate(sims), np.concatenate(levels))
+
+
+def _mutual_best(pairs: np.ndarray, sim: np.ndarray, n_nodes: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The edges that are the most similar edge of both their ends (ties go to the earlier edge):
+    a matching that always holds the globally best edge. Returns its ends and similarities."""
+    a, b = pairs[:, 0], pairs[:, 1]
+    order = np.argsort(-sim, kind="stable")
+    best = np.full(n_nodes, -1)
+    # Writing in reverse order leaves each node's first (best) edge in place.
+    rev = order[::-1]
+    best[a[rev]] = rev
+    best[b[rev]] = rev
+    edge = np.arange(sim.size)
+    chosen = np.nonzero((best[a] == edge) & (best[b] == edge))[0]
+    return a[chosen], b[chosen], sim[chosen]
+
+
+@dataclass
+class _Regions:
+    """Per-region arrays of one grouping run (rows 0..2N-1, filled as regions are formed);
+    `hist` holds normalised colour histograms."""
+
+    size: np.ndarray
+    bbox: np.ndarray
+    hist: np.ndarray
+    normal_sum: np.ndarray
+    image_area: float
 
 
 def _similarity(
-    a: np.ndarray,
-    b: np.ndarray,
+    pairs: np.ndarray,
     length: np.ndarray,
     strength: np.ndarray,
-    size: np.ndarray,
-    bbox: np.ndarray,
-    hist: np.ndarray,
-    normal_sum: np.ndarray,
+    r: _Regions,
     weights: np.ndarray,
     scales: BoundaryScales,
-    image_area: float,
 ) -> np.ndarray:
-    """Weighted sum of the similarity terms (Strategy field order) for edges (a, b)."""
+    """Weighted sum of the similarity terms (Strategy field order) for the edges `pairs`."""
+    a, b = pairs[:, 0], pairs[:, 1]
     sim = np.zeros(a.size)
     w_color, w_bc, w_bd, w_bn, w_normal, w_size, w_fill = weights
     if w_color:
-        ha, hb = hist[a], hist[b]
-        inter = np.minimum(ha / ha.sum(axis=1, keepdims=True), hb / hb.sum(axis=1, keepdims=True))
-        sim += w_color * inter.sum(axis=1)
+        sim += w_color * np.minimum(r.hist[a], r.hist[b]).sum(axis=1)
     if w_bc or w_bd or w_bn:
         bs = _boundary_similarity(length, strength, scales)
         sim += w_bc * bs[:, 0] + w_bd * bs[:, 1] + w_bn * bs[:, 2]
     if w_normal:
-        na = normal_sum[a] / np.linalg.norm(normal_sum[a], axis=1, keepdims=True).clip(1e-12)
-        nb = normal_sum[b] / np.linalg.norm(normal_sum[b], axis=1, keepdims=True).clip(1e-12)
+        na = r.normal_sum[a] / np.linalg.norm(r.normal_sum[a], axis=1, keepdims=True).clip(1e-12)
+        nb = r.normal_sum[b] / np.linalg.norm(r.normal_sum[b], axis=1, keepdims=True).clip(1e-12)
         sim += w_normal * np.clip((na * nb).sum(axis=1), 0.0, 1.0)
-    joint = size[a] + size[b]
+    joint = r.size[a] + r.size[b]
     if w_size:
-        sim += w_size * (1.0 - joint / image_area)
+        sim += w_size * (1.0 - joint / r.image_area)
     if w_fill:
-        lo = np.minimum(bbox[a, :2], bbox[b, :2])
-        hi = np.maximum(bbox[a, 2:], bbox[b, 2:])
+        lo = np.minimum(r.bbox[a, :2], r.bbox[b, :2])
+        hi = np.maximum(r.bbox[a, 2:], r.bbox[b, 2:])
         box_area = np.prod(hi - lo + 1, axis=1)
-        sim += w_fill * (1.0 - (box_area - joint) / image_area)
+        sim += w_fill * (1.0 - (box_area - joint) / r.image_area)
     return sim

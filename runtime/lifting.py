@@ -132,8 +132,12 @@ def masks_to_superpixels(masks: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.
     if masks.ndim != 3:
         raise ValueError(f"lift: expected (N, H, W) boolean masks, got shape {masks.shape}")
     n, h, w = masks.shape
-    packed = np.packbits(masks.reshape(n, h * w), axis=0).T  # (H*W, ceil(N/8)) membership bits
-    patterns, labels = np.unique(packed, axis=0, return_inverse=True)
+    if n == 0:
+        return np.zeros((h, w), np.int32), np.zeros(1, np.int64), np.zeros(0, np.int64)
+    packed = np.ascontiguousarray(np.packbits(masks.reshape(n, h * w), axis=0).T)  # (H*W, ceil(N/8))
+    rows = packed.view(np.dtype((np.void, packed.shape[1]))).ravel()  # one opaque key per pixel
+    patterns, labels = np.unique(rows, return_inverse=True)
+    patterns = patterns.view(np.uint8).reshape(len(patterns), packed.shape[1])
     member = np.unpackbits(patterns, axis=1, count=n).T.astype(bool)  # (N, S)
     proposal_of, indices = np.nonzero(member)
     indptr = np.concatenate([[0], np.cumsum(np.bincount(proposal_of, minlength=n))])

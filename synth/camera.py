@@ -52,7 +52,7 @@ class CameraRanges:
     pitch_deg: tuple[float, float] = (-35.0, -5.0)
     roll_deg: tuple[float, float] = (-5.0, 5.0)
     clearance: float = 0.4  # no furniture footprint within this distance of the camera (m)
-    candidates: int = 40
+    candidates: int = 150
 
 
 def choose_camera(layout: Layout, rng: np.random.Generator, ranges: CameraRanges, K: Intrinsics,
@@ -70,8 +70,18 @@ def choose_camera(layout: Layout, rng: np.random.Generator, ranges: CameraRanges
                         for p in layout.objects if p.render and p.item.cls is not None]).reshape(-1, 3)
     best, best_score = None, -math.inf
     for _ in range(ranges.candidates):
-        x, z = rng.uniform(0.25, room.width - 0.25), rng.uniform(0.25, room.depth - 0.25)
-        pose = CameraPose(float(x), float(z), float(rng.uniform(*ranges.height)), float(rng.uniform(0, 2 * math.pi)),
+        if rng.random() < 0.7:  # standing near a wall, looking into the room
+            k = int(rng.integers(4))
+            (x0, z0), (tx, tz), yaw, length = layout.wall(k)
+            s, d = rng.uniform(0.25, length - 0.25), rng.uniform(0.25, 1.2)
+            x, z = x0 + s * tx + d * math.sin(yaw), z0 + s * tz + d * math.cos(yaw)
+            heading = yaw + rng.uniform(-1.0, 1.0)
+            if not (0.25 <= x <= room.width - 0.25 and 0.25 <= z <= room.depth - 0.25):
+                continue
+        else:
+            x, z = rng.uniform(0.25, room.width - 0.25), rng.uniform(0.25, room.depth - 0.25)
+            heading = rng.uniform(0, 2 * math.pi)
+        pose = CameraPose(float(x), float(z), float(rng.uniform(*ranges.height)), float(heading),
                           math.radians(rng.uniform(*ranges.pitch_deg)), math.radians(rng.uniform(*ranges.roll_deg)))
         score = float(rng.uniform(0, 0.5))
         if any(point_rect_distance(pose.x, pose.z, r) < ranges.clearance for r in rects):
@@ -87,7 +97,8 @@ def choose_camera(layout: Layout, rng: np.random.Generator, ranges: CameraRanges
             score += float(np.sum(ok & (u > 0) & (u < W - 1) & (v > 0) & (v < H - 1)))
         if score > best_score:
             best, best_score = pose, score
-    assert best is not None
+    if best is None:  # only possible with no candidates at all
+        raise ValueError("choose_camera: no candidate pose (ranges.candidates must be > 0)")
     return best
 
 

@@ -100,11 +100,12 @@ class Layout:
 
     # ------------------------------------------------------------------ checks
 
-    def fits(self, p: Placed, margin: float = 0.02) -> bool:
-        """True if p stays inside the room and clear (by ``margin``) of every object but its parent."""
+    def fits(self, p: Placed, margin: float = 0.02, wall_clear: float = 0.0) -> bool:
+        """True if p stays inside the room (``wall_clear`` from the walls) and clear (by ``margin``)
+        of every object but its parent."""
         if p.h0 < -EPS or p.h1 > self.room.height - 0.02:
             return False
-        for x, z in p.footprint():
+        for x, z in p.footprint(wall_clear):
             if not (-EPS <= x <= self.room.width + EPS and -EPS <= z <= self.room.depth + EPS):
                 return False
         if not p.item.collides:
@@ -119,9 +120,9 @@ class Layout:
                 return False
         return True
 
-    def add(self, p: Placed, margin: float = 0.02) -> int | None:
+    def add(self, p: Placed, margin: float = 0.02, wall_clear: float = 0.0) -> int | None:
         """Append p if it fits; its index, or None."""
-        if not self.fits(p, margin):
+        if not self.fits(p, margin, wall_clear):
             return None
         self.objects.append(p)
         return len(self.objects) - 1
@@ -163,13 +164,14 @@ class Layout:
     # ------------------------------------------------------------------ floor and relations
 
     def place_free(self, item: Furniture, tries: int = 25, yaw: float | None = None, jitter: float = 0.0,
-                   margin: float = 0.02) -> int | None:
-        """Anywhere on the floor; random yaw unless ``yaw`` (plus up to ``jitter``) is given."""
+                   margin: float = 0.02, wall_clear: float = 0.0) -> int | None:
+        """Anywhere on the floor (``wall_clear`` from the walls, ``margin`` from other objects);
+        random yaw unless ``yaw`` (plus up to ``jitter``) is given."""
         rng = self.rng
         for _ in range(tries):
             y = float(rng.uniform(0, 2 * math.pi)) if yaw is None else yaw + float(rng.uniform(-jitter, jitter))
             p = Placed(item, float(rng.uniform(0, self.room.width)), float(rng.uniform(0, self.room.depth)), 0.0, y)
-            idx = self.add(p, margin)
+            idx = self.add(p, margin, wall_clear)
             if idx is not None:
                 return idx
         return None

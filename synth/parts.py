@@ -32,19 +32,16 @@ class Part:
     yaw: float = 0.0
     slot: int = 0
 
-    def corners(self) -> np.ndarray:
-        """(8, 3) corners (x, h, z) of the part's bounding cuboid in the object frame."""
-        sx, sh, sz = np.meshgrid([-1.0, 1.0], [-1.0, 1.0], [-1.0, 1.0], indexing="ij")
-        local = np.stack([sx.ravel() * self.half[0], sh.ravel() * self.half[1], sz.ravel() * self.half[2]], 1)
-        if self.kind == CYL:  # a rotated ellipse's bounding box (exact): rotate half axes, not corners
-            c, s = abs(math.cos(self.yaw)), abs(math.sin(self.yaw))
-            ex = math.hypot(c * self.half[0], s * self.half[2])
-            ez = math.hypot(s * self.half[0], c * self.half[2])
-            local = local * np.array([ex / self.half[0], 1.0, ez / self.half[2]])
-        else:
-            c, s = math.cos(self.yaw), math.sin(self.yaw)
-            local = np.stack([c * local[:, 0] + s * local[:, 2], local[:, 1], -s * local[:, 0] + c * local[:, 2]], 1)
-        return local + np.asarray(self.centre)
+    def extent(self) -> tuple[tuple[float, float, float], tuple[float, float, float]]:
+        """Tight (lo, hi) corners (x, h, z) of the part in the object frame (exact for both kinds)."""
+        c, s = abs(math.cos(self.yaw)), abs(math.sin(self.yaw))
+        hx, hh, hz = self.half
+        if self.kind == CYL:  # a turned ellipse's half extents
+            ex, ez = math.hypot(c * hx, s * hz), math.hypot(s * hx, c * hz)
+        else:  # a turned rectangle's half extents
+            ex, ez = c * hx + s * hz, s * hx + c * hz
+        x, h, z = self.centre
+        return (x - ex, h - hh, z - ez), (x + ex, h + hh, z + ez)
 
 
 def box(x0: float, x1: float, h0: float, h1: float, z0: float, z1: float, slot: int = 0) -> Part:
@@ -96,8 +93,9 @@ class Furniture:
     def __post_init__(self) -> None:
         if not self.parts:
             raise ValueError(f"furniture {self.cls!r} has no parts")
-        corners = np.concatenate([p.corners() for p in self.parts])
-        self.lo, self.hi = corners.min(axis=0), corners.max(axis=0)
+        ext = [p.extent() for p in self.parts]
+        self.lo = np.min([e[0] for e in ext], axis=0)
+        self.hi = np.max([e[1] for e in ext], axis=0)
 
     @property
     def size(self) -> np.ndarray:

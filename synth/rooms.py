@@ -22,9 +22,9 @@ ROOM_TYPES: dict[str, float] = {
 """Room type -> probability."""
 
 _SIZES = {  # (width range, depth range) in metres
-    "bedroom": ((3.0, 5.0), (3.0, 5.5)), "living": ((3.5, 6.0), (3.5, 6.5)), "dining": ((3.0, 5.5), (3.0, 5.5)),
-    "kitchen": ((2.6, 4.5), (3.0, 5.0)), "office": ((3.0, 6.0), (3.0, 6.5)), "bathroom": ((1.8, 3.2), (2.0, 3.5)),
-    "classroom": ((4.5, 7.0), (4.5, 7.0)),
+    "bedroom": ((3.0, 4.6), (3.0, 5.0)), "living": ((3.5, 5.5), (3.5, 6.0)), "dining": ((3.0, 5.0), (3.0, 5.0)),
+    "kitchen": ((2.6, 4.2), (3.0, 4.6)), "office": ((3.0, 5.5), (3.0, 6.0)), "bathroom": ((1.8, 3.2), (2.0, 3.5)),
+    "classroom": ((4.5, 6.5), (4.5, 6.5)),
 }
 
 
@@ -74,20 +74,23 @@ def _clutter(L: Layout, idx: int | None, n: int) -> None:
         L.place_on(item, idx, tries=4)
 
 
-def _chairs_around(L: Layout, table: int | None, n: int, jitter: float = 0.35) -> None:
-    """n matching chairs at the table's sides, facing it, pulled out by random amounts."""
+def _chairs_around(L: Layout, table: int | None, n: int, jitter: float = 0.3) -> None:
+    """Up to n matching chairs at free seats along the table's sides, facing it, pulled out at random."""
     if table is None:
         return
     rng = L.rng
     t = L.objects[table].item
     chair = fu.chair(rng, "legs" if _p(rng, 0.8) else None)  # one model (and later its materials) for the set
-    sides = [0, 2, 1, 3]
-    for i in range(n):
-        side = sides[i % 4] if i < 4 else int(rng.integers(4))
+    seats = []
+    for side in range(4):
         span = float(t.size[0] if side in (0, 2) else t.size[2])
-        for _ in range(4):
-            along = float(rng.uniform(-0.4, 0.4)) * max(span - 0.4, 0.0)
-            if L.place_facing(chair, table, side, along, float(rng.uniform(-0.02, 0.4)) + 0.05, jitter) is not None:
+        cap = max(1, int(span / 0.6))
+        seats += [(side, ((k + 0.5) / cap - 0.5) * span) for k in range(cap)]
+    for i in rng.permutation(len(seats))[:n]:
+        side, along = seats[i]
+        gap = float(rng.uniform(0.0, 0.35)) + 0.04
+        for attempt in range(4):  # pull the chair further out until it fits
+            if L.place_facing(chair, table, side, along + float(rng.uniform(-0.05, 0.05)), gap + 0.08 * attempt, jitter) is not None:
                 break
 
 
@@ -96,10 +99,10 @@ def _bed_group(L: Layout) -> None:
     bed = L.place_wall(fu.bed(rng), tries=30, gap=(0.0, 0.03))
     if bed is None:
         return
-    for _ in range(_n(rng, 1, 4)):
+    for _ in range(_n(rng, 2, 5)):
         L.place_on(fu.pillow(rng), bed, rel_yaw=0.0, jitter=0.2, back=True)
     for side in (-1.0, 1.0):
-        if _p(rng, 0.65):
+        if _p(rng, 0.75):
             ns = L.place_beside(fu.night_stand(rng), bed, side, float(rng.uniform(0.02, 0.1)))
             if ns is not None and _p(rng, 0.6):
                 L.place_on(fu.lamp(rng, floor=False), ns, back=True)
@@ -111,7 +114,7 @@ def _sofa_group(L: Layout) -> None:
     sofa = L.place_wall(fu.sofa(rng), tries=30, gap=(0.0, 0.1))
     if sofa is None:
         return
-    for _ in range(_n(rng, 0, 4)):
+    for _ in range(_n(rng, 1, 5)):
         L.place_on(fu.pillow(rng, upright=True), sofa, rel_yaw=0.0, jitter=0.35, back=True)
     table = None
     if _p(rng, 0.75):
@@ -128,7 +131,7 @@ def _sofa_group(L: Layout) -> None:
             L.place_beside(fu.lamp(rng, floor=True), sofa, side, 0.1)
     if table is not None:
         for side in (1, 3):
-            if _p(rng, 0.35):
+            if _p(rng, 0.45):
                 L.place_facing(fu.chair(rng, "armchair"), table, side, float(rng.uniform(-0.2, 0.2)), float(rng.uniform(0.25, 0.6)), 0.4)
 
 
@@ -149,7 +152,7 @@ def _desk_group(L: Layout, at_wall: bool = True) -> int | None:
     idx = L.place_wall(d, tries=20) if at_wall else L.place_free(d, yaw=float(rng.choice([0, math.pi / 2, math.pi, -math.pi / 2])), jitter=0.1)
     if idx is None:
         return None
-    for _ in range(_n(rng, 0, 2) if _p(rng, 0.8) else 0):
+    for _ in range(_n(rng, 1, 2) if _p(rng, 0.8) else 0):
         L.place_on(fu.monitor(rng), idx, rel_yaw=0.0, jitter=0.35, back=True)
     if _p(rng, 0.3):
         L.place_on(fu.lamp(rng, floor=False), idx, back=True)
@@ -165,7 +168,7 @@ def _dining_set(L: Layout, n_chairs: tuple[int, int]) -> None:
     rng = L.rng
     t = fu.table(rng, "round" if _p(rng, 0.2) else "dining")
     yaw = float(rng.uniform(0, 2 * math.pi)) if _p(rng, 0.3) else float(rng.choice([0, math.pi / 2]))
-    idx = L.place_free(t, yaw=yaw, jitter=0.15, margin=0.6)
+    idx = L.place_free(t, yaw=yaw, jitter=0.15, margin=0.6, wall_clear=0.55 if _p(rng, 0.8) else 0.0)
     _clutter(L, idx, _n(rng, 0, 4))
     _chairs_around(L, idx, _n(rng, *n_chairs))
 
@@ -185,16 +188,17 @@ def _storage(L: Layout, shelves: int, boxes: int) -> None:
 
 
 def _extras(L: Layout) -> None:
-    """What any room may hold: a garbage bin, a floor lamp, a rug, a wardrobe, a chair."""
+    """What any room may hold: garbage bins, a floor lamp, a wardrobe, loose chairs and boxes."""
     rng = L.rng
-    if _p(rng, 0.35):
+    for _ in range(_n(rng, 0, 2)):
         L.place_wall(fu.garbage_bin(rng), corner=0.5) if _p(rng, 0.6) else L.place_free(fu.garbage_bin(rng))
-    if _p(rng, 0.2):
+    if _p(rng, 0.25):
         L.place_wall(fu.lamp(rng, floor=True), corner=0.7, gap=(0.05, 0.2))
     if _p(rng, 0.3):
         L.place_wall(fu.cabinet(rng), tries=10)
-    if _p(rng, 0.25):
+    for _ in range(_n(rng, 0, 3)):
         L.place_free(fu.chair(rng), tries=10)
+    _storage(L, 0, _n(rng, 0, 2))
 
 
 # ----------------------------------------------------------------------------- rooms
@@ -203,7 +207,7 @@ def _extras(L: Layout) -> None:
 def _bedroom(L: Layout) -> None:
     rng = L.rng
     _bed_group(L)
-    if _p(rng, 0.6):
+    if _p(rng, 0.7):
         idx = L.place_wall(fu.dresser(rng), tries=15)
         if idx is not None:
             if _p(rng, 0.3):
@@ -211,11 +215,13 @@ def _bedroom(L: Layout) -> None:
             if _p(rng, 0.4):
                 L.place_on(fu.lamp(rng, floor=False), idx)
             _clutter(L, idx, _n(rng, 0, 3))
-    if _p(rng, 0.4):
+    if _p(rng, 0.5):
         _desk_group(L)
-    _storage(L, _n(rng, 0, 1), _n(rng, 0, 3))
+    _storage(L, _n(rng, 0, 1), _n(rng, 1, 5))
     if _p(rng, 0.15):
         _sofa_group(L)
+    elif _p(rng, 0.3):
+        L.place_free(fu.chair(rng, "armchair"), tries=10)
 
 
 def _living(L: Layout) -> None:
@@ -223,10 +229,10 @@ def _living(L: Layout) -> None:
     _sofa_group(L)
     if _p(rng, 0.4):
         _sofa_group(L)
-    if _p(rng, 0.7):
+    if _p(rng, 0.8):
         _tv_group(L)
-    _storage(L, _n(rng, 0, 2), _n(rng, 0, 2))
-    if _p(rng, 0.35):
+    _storage(L, _n(rng, 0, 2), _n(rng, 0, 3))
+    if _p(rng, 0.5):
         _dining_set(L, (2, 6))
     if _p(rng, 0.2):
         _desk_group(L)
@@ -235,16 +241,19 @@ def _living(L: Layout) -> None:
 def _dining(L: Layout) -> None:
     rng = L.rng
     _dining_set(L, (4, 8))
+    if _p(rng, 0.25):
+        _dining_set(L, (2, 4))
     if _p(rng, 0.5):
         idx = L.place_wall(fu.dresser(rng), tries=15)
         _clutter(L, idx, _n(rng, 0, 3))
     if _p(rng, 0.4):
         _counter(L, sink=_p(rng, 0.4))
-    _storage(L, _n(rng, 0, 1), _n(rng, 0, 2))
+    _storage(L, _n(rng, 0, 1), _n(rng, 0, 3))
 
 
-def _counter(L: Layout, sink: bool, length: tuple[float, float] = (1.2, 3.0), walls: tuple[int, ...] = (0, 1, 2, 3)) -> None:
-    """A counter at a wall (with a drop-in sink), wall cabinets above it, things on top."""
+def _counter(L: Layout, sink: bool, length: tuple[float, float] = (1.2, 3.0), stools: float = 0.0) -> int | None:
+    """A counter at a wall (with a drop-in sink), wall cabinets above it, things on top, and
+    (probability ``stools``) chairs in front of it."""
     rng = L.rng
     for _ in range(8):
         length_ = float(rng.uniform(*length))
@@ -252,39 +261,44 @@ def _counter(L: Layout, sink: bool, length: tuple[float, float] = (1.2, 3.0), wa
             c, s, (sx, sz, sbase) = fu.counter_with_sink(rng, length_)
         else:
             c = fu.counter(rng, length_, float(rng.uniform(0.55, 0.65)), float(rng.uniform(0.82, 0.94)), None, 0.0)
-        idx = L.place_wall(c, walls=walls, tries=4, gap=(0.0, 0.02), corner=0.5)
+        idx = L.place_wall(c, tries=4, gap=(0.0, 0.02), corner=0.5)
         if idx is None:
             continue
+        par = L.objects[idx]
         if sink:
-            par = L.objects[idx]
             x, z = par.to_room(sx, sz)
             L.objects.append(Placed(s, x, z, sbase, par.yaw, parent=idx))
-        for _ in range(_n(rng, 0, 3)):
-            item = fu.box_(rng) if _p(rng, 0.3) else fu.small_item(rng)
-            if _p(rng, 0.1):
+        for _ in range(_n(rng, 0, 4)):
+            item = fu.box_(rng) if _p(rng, 0.35) else fu.small_item(rng)
+            if _p(rng, 0.08):
                 item = fu.television(rng)
             L.place_on(item, idx, jitter=0.4)
         if _p(rng, 0.5):
             cab = fu.cabinet(rng, wall_hung=True)
-            par = L.objects[idx]
             for _ in range(3):
                 q = L.at_wall(cab, par.wall, 0.0, 0.0, float(rng.uniform(1.4, 1.55)))
                 lx = float(rng.uniform(c.lo[0] - cab.lo[0], c.hi[0] - cab.hi[0])) if c.size[0] > cab.size[0] else 0.0
                 q.x, q.z = par.to_room(lx, float(c.lo[2] - cab.lo[2]))
                 if L.add(q) is not None:
                     break
-        return
+        if _p(rng, stools):
+            stool = fu.chair(rng)
+            for _ in range(_n(rng, 1, 3)):
+                along = float(rng.uniform(-0.4, 0.4)) * float(c.size[0])
+                L.place_facing(stool, idx, 0, along, float(rng.uniform(0.05, 0.4)), 0.4)
+        return idx
+    return None
 
 
 def _kitchen(L: Layout) -> None:
     rng = L.rng
-    _counter(L, sink=True)
+    _counter(L, sink=True, stools=0.2)
     if _p(rng, 0.6):
-        _counter(L, sink=_p(rng, 0.15))
+        _counter(L, sink=_p(rng, 0.15), stools=0.3)
     if _p(rng, 0.4):
         L.place_wall(fu.cabinet(rng), tries=10)  # a fridge-like tall block
-    if _p(rng, 0.6):
-        _dining_set(L, (2, 5))
+    if _p(rng, 0.8):
+        _dining_set(L, (2, 6))
     if _p(rng, 0.7):
         L.place_wall(fu.garbage_bin(rng), corner=0.5)
     _storage(L, 0, _n(rng, 0, 3))
@@ -292,14 +306,14 @@ def _kitchen(L: Layout) -> None:
 
 def _office(L: Layout) -> None:
     rng = L.rng
-    for _ in range(_n(rng, 1, 3)):
+    for _ in range(_n(rng, 2, 5)):
         _desk_group(L, at_wall=_p(rng, 0.7))
-    _storage(L, _n(rng, 0, 3), _n(rng, 1, 5))
+    _storage(L, _n(rng, 1, 3), _n(rng, 1, 5))
     if _p(rng, 0.35):
         _dining_set(L, (3, 6))
-    if _p(rng, 0.2):
+    if _p(rng, 0.15):
         _sofa_group(L)
-    for _ in range(_n(rng, 0, 2)):
+    for _ in range(_n(rng, 0, 3)):
         L.place_free(fu.chair(rng), tries=8)
 
 
@@ -313,7 +327,7 @@ def _bathroom(L: Layout) -> None:
         L.place_wall(fu.pedestal_sink(rng), tries=30, gap=(0.0, 0.02))
     if _p(rng, 0.6):
         L.place_wall(fu.garbage_bin(rng), corner=0.6)
-    _storage(L, 0, _n(rng, 0, 1))
+    _storage(L, 0, _n(rng, 0, 2))
     if _p(rng, 0.3):
         L.place_wall(fu.cabinet(rng, wall_hung=True), base=float(rng.uniform(1.3, 1.6)), corner=0)
 
@@ -328,7 +342,7 @@ def _classroom(L: Layout) -> None:
     if _p(rng, 0.5):
         L.place_wall(fu.television(rng, on_stand=False), base=float(rng.uniform(1.0, 1.5)), gap=(0.02, 0.06), corner=0)
     _storage(L, _n(rng, 0, 2), _n(rng, 0, 3))
-    for _ in range(_n(rng, 0, 4)):
+    for _ in range(_n(rng, 1, 5)):
         L.place_free(fu.chair(rng), tries=8)
 
 
@@ -344,7 +358,8 @@ def furnish(rng: np.random.Generator, kind: str | None = None) -> tuple[str, Lay
     L = Layout(room, rng)
     _doors_windows(L)
     _RECIPES[kind](L)
-    _extras(L)
+    if kind != "bathroom":
+        _extras(L)
     if _p(rng, 0.4):
         L.place_free(fu.rug(rng))
     _pictures(L, _n(rng, 0, 3))

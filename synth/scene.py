@@ -53,7 +53,7 @@ class SceneConfig:
     min_visible_px: int = 50
     noise: bool = True
     depth_sensor: DepthSensor = field(default_factory=DepthSensor)
-    palette: int = 20  # object materials drawn per frame
+    palette: int = 12  # object materials drawn per frame
     room_type: str | None = None
 
 
@@ -122,11 +122,11 @@ def generate_frame(seed: int, config: SceneConfig = SceneConfig()) -> SynthFrame
     corners = pose.room_to_tilt(np.array([0, room.width, room.width, 0.0]), np.zeros(4), np.array([0, 0, room.depth, room.depth]))
     lights = shading.draw_lights(rng, pose.height - room.height, corners)
     lit = shading.shadow_factor(surf.point, lights.positions[0], parts, n_obj)
-    radiance = shading.illuminate(surf, alb, gloss, lights, np.zeros(3), t, lit)
+    radiance = shading.illuminate(surf, alb, gloss, lights, t, lit)
 
     ray = grid.d / np.linalg.norm(grid.d, axis=0, keepdims=True)
     cos_inc = np.sum(surf.normal * ray, axis=0)
-    lum = alb @ np.array([0.2126, 0.7152, 0.0722], np.float32)
+    lum = 0.2126 * alb[..., 0] + 0.7152 * alb[..., 1] + 0.0722 * alb[..., 2]
     if config.noise:
         color = sense_colour(rng, radiance)
         depth = sense_depth(rng, t, config.intrinsics.fx, lum, cos_inc, config.depth_sensor)

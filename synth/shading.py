@@ -12,7 +12,9 @@ screen-space ambient occlusion from the depth map.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
+
 
 import cv2
 import numpy as np
@@ -37,15 +39,25 @@ class Materials:
     kind: np.ndarray
 
 
-def _noise(rng: np.random.Generator, beta: float, aniso: float = 1.0) -> np.ndarray:
-    """Tileable 1/f^beta noise (TEX, TEX), zero mean, unit std; aniso > 1 stretches it along x."""
+@functools.cache
+def _noise_bank(beta: float, aniso: float) -> np.ndarray:
+    """(4, TEX, TEX) tileable 1/f^beta noise fields, zero mean, unit std, stretched ``aniso``
+    times along x; made once per process from a fixed seed (so frames stay deterministic)."""
+    rng = np.random.default_rng(round(beta * 100 + aniso))
     f = np.fft.fftfreq(TEX)
     fy, fx = np.meshgrid(f, f / aniso, indexing="ij")
     amp = (fx * fx + fy * fy + 1e-4) ** (-beta / 2)
     amp[0, 0] = 0.0
-    spec = amp * np.exp(2j * np.pi * rng.random((TEX, TEX)))
-    out = np.fft.ifft2(spec).real
-    return ((out - out.mean()) / (out.std() + 1e-9)).astype(np.float32)
+    out = np.fft.ifft2(amp * np.exp(2j * np.pi * rng.random((4, TEX, TEX))), axes=(1, 2)).real
+    out -= out.mean(axis=(1, 2), keepdims=True)
+    return (out / out.std(axis=(1, 2), keepdims=True)).astype(np.float32)
+
+
+def _noise(rng: np.random.Generator, beta: float, aniso: float = 1.0) -> np.ndarray:
+    """A random tileable noise field (TEX, TEX): a bank field, shifted and sign-flipped at random."""
+    bank = _noise_bank(beta, aniso)
+    field = np.roll(bank[int(rng.integers(len(bank)))], (int(rng.integers(TEX)), int(rng.integers(TEX))), axis=(0, 1))
+    return field if rng.random() < 0.5 else -field
 
 
 def _hsv_colour(rng: np.random.Generator, sat: tuple[float, float], val: tuple[float, float]) -> np.ndarray:
@@ -62,7 +74,7 @@ def make_texture(rng: np.random.Generator, kind: str, base: np.ndarray, other: n
         m = 1 + 0.03 * _noise(rng, 2.5)
         return base * m[..., None]
     if kind == "mottled":
-        m = 1 + float(rng.uniform(0.08, 0.2)) * _noise(rng, float(rng.uniform(1.5, 2.5)))
+        m = 1 + float(rng.uniform(0.08, 0.2)) * _noise(rng, float(rng.choice([1.5, 2.0, 2.5])))
         return base * m[..., None]
     if kind == "wood":
         n = int(rng.integers(3, 9))
@@ -136,50 +148,58 @@ class Surfaces:
 
 
 def surfaces(grid: RayGrid, t: np.ndarray, part: np.ndarray, parts: PartArrays) -> Surfaces:
-    """Normals and texture coordinates of the hit points (every pixel must hit some part)."""
+    """Normals and texture coordinates of the hit points (every pixel must hit some part).
+
+    In the part's frame the hit point q lies on its surface: on a cuboid the face is the axis
+    where |q| / half is largest (1); on a cylinder the cap if |q_y| / half_y >= the radial
+    distance, else the side; the room box (seen from inside) has inward normals.
+    """
+    f32 = np.float32
     P = grid.points(t)
-    kind = parts.kind[part]
-    ca, sa = np.cos(parts.yaw).astype(np.float32)[part], np.sin(parts.yaw).astype(np.float32)[part]
-    c = parts.centre.astype(np.float32)
-    q0, q1, q2 = P[0] - c[part, 0], P[1] - c[part, 1], P[2] - c[part, 2]
+    flat = part.ravel()
+    shape = t.shape
+
+    def per_pixel(values: np.ndarray) -> np.ndarray:
+        return np.take(np.asarray(values, f32), flat).reshape(shape)
+
+    ca, sa = per_pixel(np.cos(parts.yaw)), per_pixel(np.sin(parts.yaw))
+    q0, q1, q2 = (P[k] - per_pixel(parts.centre[:, k]) for k in range(3))
     qx, qy, qz = ca * q0 - sa * q2, q1, sa * q0 + ca * q2
-    half = parts.half.astype(np.float32)[part]  # (H, W, 3)
-    rx, ry, rz = qx / half[..., 0], qy / half[..., 1], qz / half[..., 2]
+    rx, ry, rz = qx / per_pixel(parts.half[:, 0]), qy / per_pixel(parts.half[:, 1]), qz / per_pixel(parts.half[:, 2])
+    kind = np.take(parts.kind, flat).reshape(shape)
     ax, ay, az = np.abs(rx), np.abs(ry), np.abs(rz)
-    axis = np.where((ax >= ay) & (ax >= az), 0, np.where(ay >= az, 1, 2))
     rho = np.sqrt(rx * rx + rz * rz)
     is_cyl = kind == CYL
-    axis = np.where(is_cyl, np.where(ay >= rho, 1, 3), axis)  # 3: cylinder side
-    sign = np.where(kind == ROOM, -1.0, 1.0).astype(np.float32)
-    n = np.zeros((3, *t.shape), np.float32)
-    n[0] = np.where(axis == 0, np.sign(rx), 0) * sign
-    n[1] = np.where(axis == 1, np.sign(ry), 0) * sign
-    n[2] = np.where(axis == 2, np.sign(rz), 0) * sign
-    side = axis == 3
-    if side.any():
-        gx, gz = rx / half[..., 0], rz / half[..., 2]
-        norm = np.sqrt(gx * gx + gz * gz) + 1e-12
-        n[0] = np.where(side, gx / norm, n[0])
-        n[2] = np.where(side, gz / norm, n[2])
-    nx = ca * n[0] + sa * n[2]  # back to the tilt frame: R_y(yaw)
-    nz = -sa * n[0] + ca * n[2]
-    normal = np.stack([nx, n[1], nz])
-    radius = 0.5 * (half[..., 0] + half[..., 2])
-    u = np.select([axis == 0, axis == 3], [qz, np.arctan2(rx, rz) * radius], qx)
-    v = np.where(axis == 1, qz, qy)
-    offset = (part.astype(np.float32) * 0.377) % 1.0
+    on_y = np.where(is_cyl, ay >= rho, (ay >= ax) & (ay >= az))
+    on_x = ~is_cyl & ~on_y & (ax >= az)
+    on_z = ~is_cyl & ~on_y & ~on_x
+    side = is_cyl & ~on_y
+    inward = np.where(kind == ROOM, f32(-1), f32(1))
+    inv = f32(1) / (rho + f32(1e-12))
+    nx = np.where(on_x, np.sign(rx) * inward, np.where(side, rx * inv, f32(0)))
+    nz = np.where(on_z, np.sign(rz) * inward, np.where(side, rz * inv, f32(0)))
+    ny = np.where(on_y, np.sign(ry) * inward, f32(0))
+    normal = np.stack([ca * nx + sa * nz, ny, -sa * nx + ca * nz])  # back to the tilt frame: R_y(yaw)
+    if side.any():  # arc length around the cylinder
+        radius = 0.5 * (per_pixel(parts.half[:, 0]) + per_pixel(parts.half[:, 2]))
+        qx = np.where(side, np.arctan2(rx, rz) * radius, qx)
+    u = np.where(on_x, qz, qx)
+    v = np.where(on_y, qz, qy)
+    offset = per_pixel(np.arange(len(parts)) * 0.377 % 1.0)
     uv = np.stack([u + offset, v + 2 * offset])
-    face = np.where(kind == ROOM, np.select([(axis == 1) & (ry > 0), axis == 1], [FLOOR, CEILING], WALL), -1)
+    face = np.where(kind == ROOM, np.where(on_y, np.where(ry > 0, FLOOR, CEILING), WALL), -1)
     return Surfaces(P, normal, uv, face)
 
 
 def albedo(s: Surfaces, part: np.ndarray, parts: PartArrays, mats: Materials, room_faces: np.ndarray) -> np.ndarray:
     """(H, W, 3) linear albedo: each part's material (the room's per face) sampled at its uv, tinted."""
-    m = np.where(s.face >= 0, room_faces[np.maximum(s.face, 0)], parts.material[part])
-    tile = mats.tile[m]
-    iu = (np.mod(s.uv[0] / tile, 1.0) * TEX).astype(np.int64) % TEX
-    iv = (np.mod(s.uv[1] / tile, 1.0) * TEX).astype(np.int64) % TEX
-    return mats.texture[m, iv, iu] * parts.tint.astype(np.float32)[part]
+    m = np.where(s.face >= 0, room_faces[np.maximum(s.face, 0)], np.take(parts.material, part))
+    inv_tile = (1.0 / mats.tile).astype(np.float32)[m] * TEX
+    iu = (s.uv[0] * inv_tile).astype(np.int64) % TEX
+    iv = (s.uv[1] * inv_tile).astype(np.int64) % TEX
+    flat = (m * TEX + iv) * TEX + iu
+    tex = mats.texture.reshape(-1, 3)
+    return np.take(tex, flat, axis=0) * np.take(parts.tint.astype(np.float32), part, axis=0)
 
 
 # ----------------------------------------------------------------------------- lights
@@ -248,34 +268,46 @@ def shadow_factor(points: np.ndarray, light: np.ndarray, parts: PartArrays, n_ob
     return np.where(ok, lit / 4, 1.0)
 
 
-def illuminate(s: Surfaces, alb: np.ndarray, gloss: np.ndarray, lights: Lights, origin: np.ndarray,
-               depth: np.ndarray, lit_main: np.ndarray) -> np.ndarray:
-    """(H, W, 3) linear radiance: albedo times (ambient + lights) plus highlights, with SSAO."""
-    P, N = s.point, s.normal
-    view = origin.astype(np.float32)[:, None, None] - P
-    view /= np.linalg.norm(view, axis=0, keepdims=True) + 1e-9
-    diffuse = np.zeros(alb.shape, np.float32)
-    spec = np.zeros(alb.shape[:2], np.float32)
-    sky = 0.85 - 0.15 * N[1]  # surfaces facing up (n_y = -1) get more ambient light
-    for i, (pos, power) in enumerate(zip(lights.positions, lights.powers, strict=True)):
-        L = pos.astype(np.float32)[:, None, None] - P
-        d2 = np.sum(L * L, axis=0)
-        L /= np.sqrt(d2)[None]
-        ndl = np.maximum(np.sum(N * L, axis=0), 0) / (1 + d2 / 6.0) * 3.0
+def _ssao(depth: np.ndarray) -> np.ndarray:
+    """(H, W) ambient-occlusion factor in [0.55, 1]: darker where a pixel lies behind its
+    neighbourhood (unsharp-masked depth, computed at quarter resolution)."""
+    H, W = depth.shape
+    z = np.where(np.isfinite(depth), depth, 10.0).astype(np.float32)
+    small = cv2.resize(z, (max(W // 4, 1), max(H // 4, 1)), interpolation=cv2.INTER_AREA)
+    blur = cv2.resize(cv2.GaussianBlur(small, (0, 0), 2.5), (W, H), interpolation=cv2.INTER_LINEAR)
+    return 1 - np.clip(2.5 * (z - blur) / np.maximum(blur, 0.5), 0, 0.45)
+
+
+def illuminate(s: Surfaces, alb: np.ndarray, gloss: np.ndarray, lights: Lights, depth: np.ndarray,
+               lit_main: np.ndarray) -> np.ndarray:
+    """(H, W, 3) linear radiance seen from a camera at the tilt-frame origin: albedo times
+    (occluded ambient + lights with distance falloff) plus a highlight of the main light."""
+    f32 = np.float32
+    (px, py, pz), (nx, ny, nz) = s.point, s.normal
+    inv_v = f32(1) / np.sqrt(px * px + py * py + pz * pz)
+    irradiance = []
+    spec = None
+    for i, pos in enumerate(lights.positions.astype(f32)):
+        lx, ly, lz = pos[0] - px, pos[1] - py, pos[2] - pz
+        d2 = lx * lx + ly * ly + lz * lz
+        inv_d = f32(1) / np.sqrt(d2)
+        ndl = np.maximum((nx * lx + ny * ly + nz * lz) * inv_d, f32(0)) * (f32(3) / (f32(1) + d2 / f32(6)))
         if i == 0:
             ndl *= lit_main
-        diffuse += ndl[..., None] * power.astype(np.float32)
-        h = L + view
-        h /= np.linalg.norm(h, axis=0, keepdims=True) + 1e-9
-        spec += ndl * np.maximum(np.sum(N * h, axis=0), 0) ** 40
+            hx, hy, hz = lx * inv_d - px * inv_v, ly * inv_d - py * inv_v, lz * inv_d - pz * inv_v
+            nh = np.maximum(nx * hx + ny * hy + nz * hz, f32(0)) / np.sqrt(hx * hx + hy * hy + hz * hz + f32(1e-12))
+            nh8 = ((nh * nh) ** 2) ** 2
+            spec = ndl * ((nh8 * nh8) ** 2 * nh8)  # (n.h)^40
+        irradiance.append(ndl)
+    powers = lights.powers.astype(f32)
     if lights.sun_dir is not None:
-        ndl = np.maximum(-np.tensordot(lights.sun_dir.astype(np.float32), N, axes=1), 0)
-        diffuse += ndl[..., None] * lights.sun.astype(np.float32)
-    z = np.where(np.isfinite(depth), depth, 10.0).astype(np.float32)
-    blur = cv2.GaussianBlur(z, (0, 0), 9)
-    ao = 1 - np.clip(2.5 * (z - blur) / np.maximum(blur, 0.5), 0, 0.45)
-    ambient = (lights.ambient.astype(np.float32)[None, None] * (sky * ao)[..., None])
-    return alb * (ambient + diffuse) + (gloss * spec)[..., None]
+        d = lights.sun_dir.astype(f32)
+        irradiance.append(np.maximum(-(d[0] * nx + d[1] * ny + d[2] * nz), f32(0)))
+        powers = np.vstack([powers, lights.sun.astype(f32)])
+    sky = (f32(0.85) - f32(0.15) * ny) * _ssao(depth)  # surfaces facing up (n_y = -1) get more ambient light
+    ambient = lights.ambient.astype(f32)
+    light = [sum((p[c] * e for p, e in zip(powers, irradiance, strict=True)), sky * ambient[c]) for c in range(3)]
+    return alb * np.stack(light, axis=-1) + (gloss * spec)[..., None]
 
 
 def tint_jitter(rng: np.random.Generator, n: int, spread: float = 0.06) -> np.ndarray:

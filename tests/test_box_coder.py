@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+
 from a3d.runtime.box_coder import MAX_LOG_SCALE, decode_2d, decode_3d, encode_2d, encode_3d
 from a3d.runtime.errors import InputError
 

@@ -7,6 +7,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
 from a3d.runtime import box_coder, geometry
 from a3d.runtime.errors import InputError
 from a3d.runtime.geometry import (
@@ -20,9 +24,6 @@ from a3d.runtime.geometry import (
     project_boxes_to_2d,
     rtilt_from_pitch_roll,
 )
-from hypothesis import HealthCheck, assume, given, settings
-from hypothesis import strategies as st
-from hypothesis.extra import numpy as hnp
 
 SETTINGS = settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
@@ -165,8 +166,9 @@ def _finite_or_input_error(fn, *args) -> None:
     hnp.arrays(np.float64, (3, 3), elements=any_float),
     st.tuples(st.integers(-5, 3000), st.integers(-5, 3000)),
     st.floats(allow_nan=True, allow_infinity=True),
+    hnp.arrays(np.float64, st.tuples(st.integers(0, 3), st.just(8), st.just(3)), elements=any_float),
 )
-def test_arbitrary_values_give_finite_results_or_a_clear_error(arr, R, size, x):
+def test_arbitrary_values_give_finite_results_or_a_clear_error(arr, R, size, x, corners):
     g = geometry
     calls = [
         (g.iou_3d, arr, arr, R),
@@ -181,7 +183,8 @@ def test_arbitrary_values_give_finite_results_or_a_clear_error(arr, R, size, x):
         (g.check_rotation, R, "R"),
         (g.pitch_roll_from_rtilt, R),
         (g.wrap_half_pi, arr),
-        (g.boxes_from_corners_tilt, arr.reshape(-1, 8, 3) if arr.size % 24 == 0 else arr, R),
+        (g.boxes_from_corners_tilt, corners, R),
+        (g.boxes_from_corners_tilt, corners, np.eye(3)),
         (box_coder.decode_3d, arr, arr),
         (box_coder.encode_3d, arr, arr),
         (box_coder.encode_2d, arr, arr),

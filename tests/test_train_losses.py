@@ -33,10 +33,11 @@ def _inputs():
 def test_known_answer_and_what_is_ignored():
     args = _inputs()
     terms = detection_loss(**args, lambda_3d=1.0, lambda_2d=2.0)
-    assert math.isclose(float(terms.cls), math.log(20), rel_tol=1e-6)
-    assert math.isclose(float(terms.box3d), (0.5 * 0.5**2 + (2.0 - 0.5)) / 4, rel_tol=1e-6)
-    assert math.isclose(float(terms.box2d), 2.5 / 4, rel_tol=1e-6)
-    assert math.isclose(float(terms.total), math.log(20) + 1.625 / 4 + 2 * 2.5 / 4, rel_tol=1e-6)
+    values = terms.as_floats()
+    assert math.isclose(values["loss_cls"], math.log(20), rel_tol=1e-6)
+    assert math.isclose(values["loss_3d"], (0.5 * 0.5**2 + (2.0 - 0.5)) / 4, rel_tol=1e-6)
+    assert math.isclose(values["loss_2d"], 2.5 / 4, rel_tol=1e-6)
+    assert math.isclose(values["loss"], math.log(20) + 1.625 / 4 + 2 * 2.5 / 4, rel_tol=1e-6)
     terms.total.backward()
     grad3d = args["deltas3d"].grad.view(4, 20, 7)
     assert grad3d[[0, 2, 3]].abs().sum() == 0  # background and weight-0 rows get no 3D gradient

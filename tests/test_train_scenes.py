@@ -110,6 +110,7 @@ TINY = (
     "proposals.superpixels.n_segments=120",
     "data.rois_per_image=32",
     "data.workers=0",
+    "solver.threads=1",
     "log.progress=false",
     "log.log_every=1",
 )

@@ -59,6 +59,7 @@ class SolverConfig:
     lambda_3d: float = 1.0
     lambda_2d: float = 1.0
     seed: int = 0
+    threads: int = 0  # torch intra-op threads of the training process; 0 = torch's default
     pretrained: str = ""  # torchvision-layout VGG16 ImageNet state dict; "" = random initialisation
 
 

@@ -212,6 +212,8 @@ def _train(
     stats = TargetStats.from_tensors(state["target_stats"]) if state else compute_target_stats(roidb.records,
                                                                                                config.data.flip)  # fmt: skip
 
+    if solver.threads > 0:
+        torch.set_num_threads(solver.threads)
     torch.manual_seed(solver.seed)
     model = A3DNet(config.net)
     if solver.pretrained and not state:

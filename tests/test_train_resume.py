@@ -1,0 +1,84 @@
+"""a3d-train killed with SIGKILL mid-run and resumed ends bit-identical to an uninterrupted run."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import torch
+
+from a3d.train.checkpoint import load_checkpoint
+from a3d.train.loop import read_metrics
+from tests.test_train_scenes import TINY, write_scenes
+
+ITERATIONS = 20
+
+
+def _cli(*args: str) -> list[str]:
+    return [sys.executable, "-m", "a3d.train.cli", *args]
+
+
+def _args(frames, run, cache) -> list[str]:
+    sets = [*TINY, f"solver.iterations={ITERATIONS}", "solver.lr_steps=[10]", "log.checkpoint_every=4",
+            "data.workers=1", f"data.cache_dir={cache}"]  # fmt: skip
+    return [str(frames), "--out", str(run), "--config", "vgg16", "--device", "cpu",
+            *[a for s in sets for a in ("--set", s)]]  # fmt: skip
+
+
+def _last_iter(run) -> int:
+    return max((r["iter"] for r in read_metrics(run / "metrics.jsonl") if r["kind"] == "train"), default=0)
+
+
+def test_kill_and_resume_is_bit_identical(tmp_path):
+    frames = write_scenes(tmp_path / "frames", 3, seed=6)
+    cache = tmp_path / "cache"
+    straight, killed = tmp_path / "straight", tmp_path / "killed"
+    done = subprocess.run(_cli(*_args(frames, straight, cache)), capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+
+    # Same run, SIGKILLed (with its DataLoader worker) once it is past the checkpoint at iteration 4.
+    proc = subprocess.Popen(_cli(*_args(frames, killed, cache)), stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL, start_new_session=True)  # fmt: skip
+    deadline = time.monotonic() + 120
+    while _last_iter(killed) < 6 and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert proc.poll() is None, "the run ended before it could be killed"
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    interrupted_at = load_checkpoint(killed / "checkpoint.pt")["iteration"]
+    assert 4 <= interrupted_at < ITERATIONS
+
+    resumed = subprocess.run(_cli(str(frames), "--out", str(killed), "--resume", "--device", "cpu"),
+                             capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert resumed.returncode == 0, resumed.stderr
+    a, b = load_checkpoint(straight / "checkpoint.pt"), load_checkpoint(killed / "checkpoint.pt")
+    assert a["iteration"] == b["iteration"] == ITERATIONS
+    assert a["model"].keys() == b["model"].keys()
+    assert all(torch.equal(a["model"][k], b["model"][k]) for k in a["model"])
+    momentum = [(s["momentum_buffer"], b["optimizer"]["state"][i]["momentum_buffer"])
+                for i, s in a["optimizer"]["state"].items()]  # fmt: skip
+    assert momentum and all(torch.equal(x, y) for x, y in momentum)
+    # The metrics log holds every iteration once, and the same losses as the straight run.
+    lines = {r["iter"]: r["loss"] for r in read_metrics(straight / "metrics.jsonl") if r["kind"] == "train"}
+    again = [(r["iter"], r["loss"]) for r in read_metrics(killed / "metrics.jsonl") if r["kind"] == "train"]
+    assert [i for i, _ in again] == list(range(1, ITERATIONS + 1))
+    assert all(lines[i] == loss for i, loss in again)
+
+
+def test_resume_and_overwrite_errors_are_one_line(tmp_path):
+    frames = write_scenes(tmp_path / "frames", 1)
+    missing = subprocess.run(_cli(str(frames), "--out", str(tmp_path / "nothing"), "--resume"),
+                             capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert missing.returncode == 2
+    assert missing.stderr.strip().splitlines()[-1].endswith("checkpoint.pt: no such checkpoint file")
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "checkpoint.pt").write_bytes(b"not a checkpoint")
+    exists = subprocess.run(_cli(*_args(frames, run, tmp_path / "cache")), capture_output=True, text=True, timeout=120)
+    assert exists.returncode == 2 and "a run already exists here" in exists.stderr
+    broken = subprocess.run(_cli(str(frames), "--out", str(run), "--resume"), capture_output=True, text=True,
+                            timeout=120)  # fmt: skip
+    assert broken.returncode == 2 and "corrupted, truncated or not a checkpoint" in broken.stderr
