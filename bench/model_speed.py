@@ -2,7 +2,8 @@
 
 Training step: forward + backward (softmax loss + smooth-L1 on random targets) on a mini-batch of
 2 images at 427 x 561 and 256 RoIs (SPEC.md "Training"); no optimiser update. Forward: eval mode,
-one image, trunk and head timed separately, for each RoI count. Random weights and boxes.
+one image, trunk and head timed separately, for each RoI count. Random weights and boxes. The
+fp32 GEMM rate printed before and after tells how busy the (shared) machine was.
 
     .venv/bin/python bench/model_speed.py --presets vgg16 --iterations 2 --forward-rois 300
     .venv/bin/python bench/model_speed.py --presets cpu-half cpu-quarter cpu-eighth
@@ -14,6 +15,7 @@ import argparse
 import time
 
 import torch
+
 from a3d.train.model.config import PRESETS, preset
 from a3d.train.model.net import A3DNet
 
@@ -37,6 +39,14 @@ def timed(step, iterations: int) -> list[float]:
         step()
         seconds.append(time.perf_counter() - start)
     return seconds
+
+
+def gemm_gflops() -> float:
+    """fp32 GEMM throughput right now: the yardstick for these timings on a shared machine."""
+    a, b = torch.randn(1024, 2048), torch.randn(2048, 2048)
+    a @ b
+    seconds = min(timed(lambda: a @ b, 3))
+    return 2 * 1024 * 2048 * 2048 / seconds / 1e9
 
 
 def bench(name: str, args: argparse.Namespace) -> None:
@@ -87,8 +97,10 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, {args.height} x {args.width}")
+    print(f"fp32 GEMM now: {gemm_gflops():.0f} GFLOPS (PLATFORM.md: 190-200 on an idle machine)")
     for name in args.presets:
         bench(name, args)
+    print(f"fp32 GEMM now: {gemm_gflops():.0f} GFLOPS")
 
 
 if __name__ == "__main__":

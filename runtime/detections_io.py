@@ -26,11 +26,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
 from a3d.runtime.classes import CLASSES
 from a3d.runtime.errors import InputError
 from a3d.runtime.geometry import box_corners_camera, check_rotation
 
 _CLASS_INDEX = {name: i for i, name in enumerate(CLASSES)}
+METRE_DECIMALS = 6  # box3d and corners are written to 1 micrometre
+PIXEL_DECIMALS = 4  # box2d to 1e-4 pixel
 
 
 @dataclass(frozen=True)
@@ -72,7 +75,13 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
 
 
 def format_line(det: FrameDetections) -> str:
-    """The JSON line of one frame (no trailing newline); floats round-trip exactly."""
+    """The JSON line of one frame (no trailing newline).
+
+    Box coordinates are rounded to ``METRE_DECIMALS`` (1 micrometre) and ``PIXEL_DECIMALS``,
+    far below any detector's precision: the file is about half the size and quicker to write
+    and read (1.24 M detections, the NYUv2 test set at 1900 a frame, are ~0.5 GB). Scores and
+    R_tilt are written exactly, so a line's gravity compares equal to the one it came from.
+    """
     corners = det.corners if det.corners is not None else box_corners_camera(det.boxes3d, det.R_tilt)
     line: dict = {"frame": det.frame}
     if det.color is not None:
@@ -81,18 +90,23 @@ def format_line(det: FrameDetections) -> str:
         line["depth"] = det.depth
     line["R_tilt"] = np.asarray(det.R_tilt, dtype=np.float64).tolist()
     line["detections"] = [
-        {"class": CLASSES[int(c)], "score": float(s), "box2d": b2, "box3d": b3, "corners": cn}
+        {"class": CLASSES[c], "score": s, "box2d": b2, "box3d": b3, "corners": cn}
         for c, s, b2, b3, cn in zip(
-            det.class_ids,
-            det.scores,
-            np.asarray(det.boxes2d, dtype=np.float64).tolist(),
-            np.asarray(det.boxes3d, dtype=np.float64).tolist(),
-            np.asarray(corners, dtype=np.float64).reshape(-1, 8, 3).tolist(),
+            det.class_ids.tolist(),
+            np.asarray(det.scores, dtype=np.float64).tolist(),
+            _rounded(det.boxes2d, (-1, 4), PIXEL_DECIMALS),
+            _rounded(det.boxes3d, (-1, 7), METRE_DECIMALS),
+            _rounded(corners, (-1, 8, 3), METRE_DECIMALS),
             strict=True,
         )
     ]
     line["timing"] = {k: float(v) for k, v in det.timing.items()}
     return json.dumps(line, separators=(",", ":"))
+
+
+def _rounded(values: np.ndarray, shape: tuple[int, ...], decimals: int) -> list:
+    # + 0.0 turns the -0.0 that rounding leaves into 0.0
+    return (np.round(np.asarray(values, dtype=np.float64).reshape(shape), decimals) + 0.0).tolist()
 
 
 def write_detections(path: str | os.PathLike, frames: Iterable[FrameDetections]) -> None:
@@ -104,23 +118,26 @@ def write_detections(path: str | os.PathLike, frames: Iterable[FrameDetections])
 def read_detections(path: str | os.PathLike) -> list[FrameDetections]:
     """All lines of a detections file, in file order, validated (InputError "FILE:LINE: ...")."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such detections file") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(f"{path}: cannot read detections file ({e})") from None
     frames: list[FrameDetections] = []
     seen: dict[str, int] = {}
-    for number, raw in enumerate(text.splitlines(), start=1):
-        if not raw.strip():
-            continue
-        where = f"{path}:{number}"
-        det = parse_line(raw, where)
-        if det.frame in seen:
-            raise InputError(f"{where}: frame {det.frame!r} already given on line {seen[det.frame]}")
-        seen[det.frame] = number
-        frames.append(det)
+    number = 0
+    try:
+        with open(path, encoding="utf-8") as f:  # streamed: NYUv2-size files are ~0.5 GB
+            for number, raw in enumerate(f, start=1):
+                if not raw.strip():
+                    continue
+                where = f"{path}:{number}"
+                det = parse_line(raw, where)
+                if det.frame in seen:
+                    raise InputError(f"{where}: frame {det.frame!r} already given on line {seen[det.frame]}")
+                seen[det.frame] = number
+                frames.append(det)
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such detections file") from None
+    except UnicodeDecodeError:
+        raise InputError(f"{path}:{number + 1}: not UTF-8 text") from None
+    except OSError as e:
+        raise InputError(f"{path}: cannot read detections file ({e.strerror or e})") from None
     return frames
 
 
@@ -137,8 +154,6 @@ def parse_line(text: str, where: str) -> FrameDetections:
         raise InputError(f"{where}: 'frame' must be a non-empty string")
     R_tilt = _array(obj.get("R_tilt"), (3, 3), where, "R_tilt")
     try:
-        if not np.isfinite(R_tilt).all():
-            raise ValueError("R_tilt: not finite")
         check_rotation(R_tilt, "R_tilt")
     except ValueError as e:
         raise InputError(f"{where}: {e}") from None
@@ -153,7 +168,7 @@ def parse_line(text: str, where: str) -> FrameDetections:
             raise InputError(f"{where}: detection {i} has no {', '.join(repr(k) for k in absent)}")
     class_ids = np.empty(len(dets), dtype=np.int64)
     for i, d in enumerate(dets):
-        if d["class"] not in _CLASS_INDEX:
+        if not isinstance(d["class"], str) or d["class"] not in _CLASS_INDEX:
             raise InputError(f"{where}: detection {i}: unknown class {d['class']!r}")
         class_ids[i] = _CLASS_INDEX[d["class"]]
     scores = _array([d["score"] for d in dets], (len(dets),), where, "score")

@@ -35,6 +35,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
+
 from a3d.runtime.classes import CLASSES, NUM_CLASSES
 from a3d.runtime.detections_io import FrameDetections
 from a3d.runtime.geometry import batched_nms_2d, box_corners_camera, boxes_from_corners_tilt, iou_3d
@@ -176,7 +177,14 @@ class _Matches:
     best_gt: list[np.ndarray] = field(default_factory=list)
     best_iou: list[np.ndarray] = field(default_factory=list)
 
-    def add_frame(self, truth: FrameTruth, gt_offset: int, class_ids, scores, boxes3d) -> None:
+    def add_frame(
+        self,
+        truth: FrameTruth,
+        gt_offset: int,
+        class_ids: np.ndarray,
+        scores: np.ndarray,
+        boxes3d: np.ndarray,
+    ) -> None:
         """Best ground truth (of the same class, same frame) of each detection of one frame.
 
         One IoU matrix per class present in both (not one frame-wide matrix masked by class:
@@ -198,9 +206,14 @@ class _Matches:
 
 
 def _class_result(
-    name: str, num_gt: int, scores: np.ndarray, best_gt: np.ndarray, best_iou: np.ndarray, thresholds
+    name: str,
+    num_gt: int,
+    scores: np.ndarray,
+    best_gt: np.ndarray,
+    best_iou: np.ndarray,
+    thresholds: tuple[float, ...],
 ) -> ClassResult:
-    order = np.argsort(-scores, kind="stable")  # stable: ties keep frame order, then line order
+    order = np.argsort(-scores, kind="stable")  # ties: frame name order, then order in the frame
     best_gt, best_iou = best_gt[order], best_iou[order]
     ranks = np.arange(1, len(order) + 1)
     ap, recall, precision = {}, {}, {}

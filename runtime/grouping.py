@@ -98,7 +98,7 @@ def build_graph(
     channels as disjoint bin ranges by passing (h, w, C)); `gradients` (h, w, 3) float32 colour,
     depth and normal gradient strengths; `normals` (h, w, 3); `valid` (h, w) depth validity.
     """
-    h, w = labels.shape
+    w = labels.shape[1]
     flat = labels.ravel()
     n = int(flat.max()) + 1
     size = np.bincount(flat, minlength=n).astype(np.float64)
@@ -227,18 +227,16 @@ def group(graph: RegionGraph, strategy: Strategy, scales: BoundaryScales, image_
     return Hierarchy(indptr, sps[order], np.concatenate(sims), np.concatenate(levels))
 
 
-def _mutual_best(pairs: np.ndarray, sim: np.ndarray, n_nodes: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _mutual_best(pairs: np.ndarray, sim: np.ndarray, n_nodes: int) -> tuple[np.ndarray, ...]:
     """The edges that are the most similar edge of both their ends (ties go to the earlier edge):
     a matching that always holds the globally best edge. Returns its ends and similarities."""
     a, b = pairs[:, 0], pairs[:, 1]
-    order = np.argsort(-sim, kind="stable")
-    best = np.full(n_nodes, -1)
-    # Writing in reverse order leaves each node's first (best) edge in place.
-    rev = order[::-1]
-    best[a[rev]] = rev
-    best[b[rev]] = rev
-    edge = np.arange(sim.size)
-    chosen = np.nonzero((best[a] == edge) & (best[b] == edge))[0]
+    position = np.empty(sim.size, np.int64)
+    position[np.argsort(-sim, kind="stable")] = np.arange(sim.size)
+    best = np.full(n_nodes, sim.size)
+    np.minimum.at(best, a, position)
+    np.minimum.at(best, b, position)
+    chosen = np.nonzero((best[a] == position) & (best[b] == position))[0]
     return a[chosen], b[chosen], sim[chosen]
 
 

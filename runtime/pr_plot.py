@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+
 from a3d.runtime.evaluation import ClassResult, EvalResult
 
 COLUMNS = 5

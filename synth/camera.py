@@ -55,8 +55,9 @@ class CameraRanges:
     candidates: int = 150
 
 
-def choose_camera(layout: Layout, rng: np.random.Generator, ranges: CameraRanges, K: Intrinsics,
-                  image_size: tuple[int, int]) -> CameraPose:
+def choose_camera(
+    layout: Layout, rng: np.random.Generator, ranges: CameraRanges, K: Intrinsics, image_size: tuple[int, int]
+) -> CameraPose:
     """The best of ``ranges.candidates`` random poses: most annotatable objects' centres in view.
 
     A candidate must stand clear of furniture and walls and see at least 1.2 m of room ahead; its
@@ -66,8 +67,16 @@ def choose_camera(layout: Layout, rng: np.random.Generator, ranges: CameraRanges
     H, W = image_size
     room = layout.room
     rects = [p.footprint() for p in layout.objects if p.render and p.item.collides]
-    centres = np.array([[*p.to_room(*(0.5 * (p.item.lo + p.item.hi))[[0, 2]]), p.base + 0.5 * (p.item.lo[1] + p.item.hi[1])]
-                        for p in layout.objects if p.render and p.item.cls is not None]).reshape(-1, 3)
+    centres = np.array(
+        [
+            [
+                *p.to_room(*(0.5 * (p.item.lo + p.item.hi))[[0, 2]]),
+                p.base + 0.5 * (p.item.lo[1] + p.item.hi[1]),
+            ]
+            for p in layout.objects
+            if p.render and p.item.cls is not None
+        ]
+    ).reshape(-1, 3)
     best, best_score = None, -math.inf
     for _ in range(ranges.candidates):
         if rng.random() < 0.7:  # standing near a wall, looking into the room
@@ -81,8 +90,14 @@ def choose_camera(layout: Layout, rng: np.random.Generator, ranges: CameraRanges
         else:
             x, z = rng.uniform(0.25, room.width - 0.25), rng.uniform(0.25, room.depth - 0.25)
             heading = rng.uniform(0, 2 * math.pi)
-        pose = CameraPose(float(x), float(z), float(rng.uniform(*ranges.height)), float(heading),
-                          math.radians(rng.uniform(*ranges.pitch_deg)), math.radians(rng.uniform(*ranges.roll_deg)))
+        pose = CameraPose(
+            float(x),
+            float(z),
+            float(rng.uniform(*ranges.height)),
+            float(heading),
+            math.radians(rng.uniform(*ranges.pitch_deg)),
+            math.radians(rng.uniform(*ranges.roll_deg)),
+        )
         score = float(rng.uniform(0, 0.5))
         if any(point_rect_distance(pose.x, pose.z, r) < ranges.clearance for r in rects):
             score -= 1000
@@ -105,6 +120,13 @@ def choose_camera(layout: Layout, rng: np.random.Generator, ranges: CameraRanges
 def _distance_to_wall(pose: CameraPose, width: float, depth: float) -> float:
     """Horizontal distance from the camera to the wall straight ahead."""
     dx, dz = math.sin(pose.heading), math.cos(pose.heading)
-    ts = [t for t in ((width - pose.x) / dx if dx > 1e-9 else math.inf, -pose.x / dx if dx < -1e-9 else math.inf,
-                      (depth - pose.z) / dz if dz > 1e-9 else math.inf, -pose.z / dz if dz < -1e-9 else math.inf)]
+    ts = [
+        t
+        for t in (
+            (width - pose.x) / dx if dx > 1e-9 else math.inf,
+            -pose.x / dx if dx < -1e-9 else math.inf,
+            (depth - pose.z) / dz if dz > 1e-9 else math.inf,
+            -pose.z / dz if dz < -1e-9 else math.inf,
+        )
+    ]
     return min(ts)

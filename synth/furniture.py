@@ -9,6 +9,7 @@ Wall-standing objects have their back at the lowest z. Parts name a material *sl
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Callable
 
@@ -23,7 +24,9 @@ def _u(rng: Rng, lo: float, hi: float) -> float:
     return float(rng.uniform(lo, hi))
 
 
-def _legs(rng: Rng, w: float, d: float, h: float, inset: float, t: float, slot: int, h0: float = 0.0) -> list[Part]:
+def _legs(
+    rng: Rng, w: float, d: float, h: float, inset: float, t: float, slot: int, h0: float = 0.0
+) -> list[Part]:
     """Four legs of thickness t under a w x d top, from h0 to h, round or square at random."""
     round_legs = rng.random() < 0.4
     xs, zs = w / 2 - inset - t / 2, d / 2 - inset - t / 2
@@ -52,7 +55,9 @@ def _drawer_front(
     if rng.random() < 0.5:
         parts.append(cbox(hw, 0.025, hc - 0.008, hc + 0.008, (x0 + x1) / 2, z + proud + 0.0125, handle_slot))
     else:
-        parts.append(cyl((x0 + x1) / 2, z + proud + 0.012, 0.013, hc - 0.012, hc + 0.012, handle_slot, rz=0.012))
+        parts.append(
+            cyl((x0 + x1) / 2, z + proud + 0.012, 0.013, hc - 0.012, hc + 0.012, handle_slot, rz=0.012)
+        )
     return parts
 
 
@@ -98,7 +103,10 @@ def desk(rng: Rng) -> Furniture:
     if style == "legs":
         parts += _legs(rng, w, d, h - t, _u(rng, 0.0, 0.04), _u(rng, 0.035, 0.06), 1)
     elif style == "panels":
-        parts += [box(-w / 2, -w / 2 + pt, 0, h - t, -d / 2, d / 2, 0), box(w / 2 - pt, w / 2, 0, h - t, -d / 2, d / 2, 0)]
+        parts += [
+            box(-w / 2, -w / 2 + pt, 0, h - t, -d / 2, d / 2, 0),
+            box(w / 2 - pt, w / 2, 0, h - t, -d / 2, d / 2, 0),
+        ]
     else:
         pw = _u(rng, 0.35, 0.45)
         side = rng.choice([-1.0, 1.0])
@@ -106,12 +114,14 @@ def desk(rng: Rng) -> Furniture:
         parts.append(box(x0, x1, 0.0, h - t, -d / 2, d / 2 - 0.02, 0))
         n = int(rng.integers(2, 5))
         edges = np.linspace(0.03, h - t, n + 1)
-        for a, b in zip(edges[:-1], edges[1:], strict=True):
+        for a, b in itertools.pairwise(edges):
             parts += _drawer_front(rng, x0, x1, float(a), float(b), d / 2 - 0.02, 2, 1)
         xo = -w / 2 + pt if side > 0 else w / 2 - pt
         parts.append(box(min(xo, xo - side * pt), max(xo, xo - side * pt), 0, h - t, -d / 2, d / 2, 0))
     if rng.random() < 0.5:
-        parts.append(box(-w / 2 + pt, w / 2 - pt, h * _u(rng, 0.3, 0.6), h - t, -d / 2 + 0.02, -d / 2 + 0.02 + pt, 0))
+        parts.append(
+            box(-w / 2 + pt, w / 2 - pt, h * _u(rng, 0.3, 0.6), h - t, -d / 2 + 0.02, -d / 2 + 0.02 + pt, 0)
+        )
     return Furniture("desk", parts, [_top_surface(w, d, h)])
 
 
@@ -128,7 +138,10 @@ def chair(rng: Rng, style: str | None = None) -> Furniture:
         parts = [cbox(w - 2 * aw, d - bt, lh, sh - 0.1, z=bt / 2, slot=0)]
         parts.append(cbox(w - 2 * aw, d - bt - 0.02, sh - 0.1, sh, z=bt / 2 + 0.01, slot=2))
         parts.append(box(-w / 2, w / 2, lh, bh, -d / 2, -d / 2 + bt, 0))
-        parts += [box(-w / 2, -w / 2 + aw, lh, ah, -d / 2, d / 2, 0), box(w / 2 - aw, w / 2, lh, ah, -d / 2, d / 2, 0)]
+        parts += [
+            box(-w / 2, -w / 2 + aw, lh, ah, -d / 2, d / 2, 0),
+            box(w / 2 - aw, w / 2, lh, ah, -d / 2, d / 2, 0),
+        ]
         if lh > 0.02:
             parts += _legs(rng, w, d, lh, 0.03, 0.04, 1)
         return Furniture("chair", parts)
@@ -150,7 +163,9 @@ def chair(rng: Rng, style: str | None = None) -> Furniture:
             parts.append(cyl(arm_r * math.sin(a), arm_r * math.cos(a), 0.025, 0.0, 0.05, 1))
         if rng.random() < 0.5:  # arm rests
             for sx in (-1, 1):
-                parts.append(box(sx * w / 2 - 0.025, sx * w / 2 + 0.025, sh + 0.18, sh + 0.21, -d / 3, d / 3, 1))
+                parts.append(
+                    box(sx * w / 2 - 0.025, sx * w / 2 + 0.025, sh + 0.18, sh + 0.21, -d / 3, d / 3, 1)
+                )
                 parts.append(box(sx * w / 2 - 0.015, sx * w / 2 + 0.015, sh - st, sh + 0.18, -0.03, 0.0, 1))
         return Furniture("chair", parts)
     lt = _u(rng, 0.025, 0.045)
@@ -158,16 +173,38 @@ def chair(rng: Rng, style: str | None = None) -> Furniture:
     parts += _legs(rng, w, d, sh - st, 0.01, lt, 1)
     top = sh + back
     px = w / 2 - 0.01 - lt / 2  # back posts continue the back legs
-    parts += [box(sx * px - lt / 2, sx * px + lt / 2, sh, top, -d / 2 + 0.01, -d / 2 + 0.01 + max(bt, lt), 1) for sx in (-1, 1)]
+    parts += [
+        box(sx * px - lt / 2, sx * px + lt / 2, sh, top, -d / 2 + 0.01, -d / 2 + 0.01 + max(bt, lt), 1)
+        for sx in (-1, 1)
+    ]
     if rng.random() < 0.6:
-        parts.append(box(-w / 2 + 0.01 + lt / 2, w / 2 - 0.01 - lt / 2, sh + back * _u(rng, 0.15, 0.4), top - 0.01,
-                         -d / 2 + 0.015, -d / 2 + 0.01 + bt, 0))
+        parts.append(
+            box(
+                -w / 2 + 0.01 + lt / 2,
+                w / 2 - 0.01 - lt / 2,
+                sh + back * _u(rng, 0.15, 0.4),
+                top - 0.01,
+                -d / 2 + 0.015,
+                -d / 2 + 0.01 + bt,
+                0,
+            )
+        )
     else:  # slats
         for hh in np.linspace(sh + back * 0.35, top - 0.03, int(rng.integers(2, 4))):
-            parts.append(box(-w / 2 + 0.01, w / 2 - 0.01, float(hh) - 0.025, float(hh) + 0.025, -d / 2 + 0.015, -d / 2 + bt, 0))
-    if rng.random() < 0.3:  # stretchers between the legs
-        sh2 = _u(rng, 0.1, 0.2)
-        parts.append(cbox(w - 0.04, 0.02, sh2, sh2 + 0.02, slot=1))
+            parts.append(
+                box(
+                    -w / 2 + 0.01,
+                    w / 2 - 0.01,
+                    float(hh) - 0.025,
+                    float(hh) + 0.025,
+                    -d / 2 + 0.015,
+                    -d / 2 + bt,
+                    0,
+                )
+            )
+    if rng.random() < 0.3:  # side stretchers joining the front and back legs
+        sh2, xs = _u(rng, 0.1, 0.2), w / 2 - 0.01 - lt / 2
+        parts += [cbox(lt * 0.6, d - 0.02 - lt, sh2, sh2 + 0.02, x=sx * xs, slot=1) for sx in (-1, 1)]
     return Furniture("chair", parts)
 
 
@@ -182,15 +219,30 @@ def sofa(rng: Rng) -> Furniture:
         lh = 0.0
     parts = [box(-w / 2 + aw, w / 2 - aw, lh, sh - ct, -d / 2 + bt, d / 2, 0)]
     parts.append(box(-w / 2, w / 2, lh, bh, -d / 2, -d / 2 + bt, 0))
-    parts += [box(-w / 2, -w / 2 + aw, lh, ah, -d / 2, d / 2, 0), box(w / 2 - aw, w / 2, lh, ah, -d / 2, d / 2, 0)]
+    parts += [
+        box(-w / 2, -w / 2 + aw, lh, ah, -d / 2, d / 2, 0),
+        box(w / 2 - aw, w / 2, lh, ah, -d / 2, d / 2, 0),
+    ]
     inner = np.linspace(-w / 2 + aw, w / 2 - aw, n + 1)
     ct2 = _u(rng, 0.1, 0.17)
-    for a, b in zip(inner[:-1], inner[1:], strict=True):
+    for a, b in itertools.pairwise(inner):
         parts.append(box(float(a) + 0.005, float(b) - 0.005, sh - ct, sh, -d / 2 + bt + ct2, d / 2 - 0.01, 2))
-        parts.append(box(float(a) + 0.01, float(b) - 0.01, sh, bh - _u(rng, 0.02, 0.08), -d / 2 + bt, -d / 2 + bt + ct2, 2))
+        parts.append(
+            box(
+                float(a) + 0.01,
+                float(b) - 0.01,
+                sh,
+                bh - _u(rng, 0.02, 0.08),
+                -d / 2 + bt,
+                -d / 2 + bt + ct2,
+                2,
+            )
+        )
     if lh > 0:
         parts += _legs(rng, w, d, lh, 0.04, 0.05, 1)
-    seat = Surface(-w / 2 + aw + 0.05, w / 2 - aw - 0.05, -d / 2 + bt + ct2 + 0.01, -d / 2 + bt + ct2 + 0.3, sh)
+    seat = Surface(
+        -w / 2 + aw + 0.05, w / 2 - aw - 0.05, -d / 2 + bt + ct2 + 0.01, -d / 2 + bt + ct2 + 0.3, sh
+    )
     return Furniture("sofa", parts, [seat])
 
 
@@ -212,8 +264,20 @@ def bed(rng: Rng) -> Furniture:
     pillow_end = z0 + ht + _u(rng, 0.45, 0.7)
     if rng.random() < 0.7:  # blanket over the foot part, hanging over the sides
         hang = _u(rng, 0.1, 0.25)
-        parts.append(box(-w / 2 - 0.03, w / 2 + 0.03, max(top - hang, lh + 0.02), top + 0.03, pillow_end, length / 2 - 0.01, 3))
-    return Furniture("bed", parts, [Surface(-w / 2 + 0.05, w / 2 - 0.05, z0 + ht + 0.02, pillow_end - 0.02, top)])
+        parts.append(
+            box(
+                -w / 2 - 0.03,
+                w / 2 + 0.03,
+                max(top - hang, lh + 0.02),
+                top + 0.03,
+                pillow_end,
+                length / 2 - 0.01,
+                3,
+            )
+        )
+    return Furniture(
+        "bed", parts, [Surface(-w / 2 + 0.05, w / 2 - 0.05, z0 + ht + 0.02, pillow_end - 0.02, top)]
+    )
 
 
 def pillow(rng: Rng, upright: bool = False) -> Furniture:
@@ -222,9 +286,15 @@ def pillow(rng: Rng, upright: bool = False) -> Furniture:
     if upright:
         w = min(w, 0.55)
         l_ = min(l_, w)
-        parts = [box(-w / 2, w / 2, 0, l_, -t * 0.3, t * 0.3, 0), box(-w / 2 + 0.04, w / 2 - 0.04, 0.03, l_ - 0.04, -t / 2, t / 2, 0)]
+        parts = [
+            box(-w / 2, w / 2, 0, l_, -t * 0.3, t * 0.3, 0),
+            box(-w / 2 + 0.04, w / 2 - 0.04, 0.03, l_ - 0.04, -t / 2, t / 2, 0),
+        ]
     else:
-        parts = [box(-w / 2, w / 2, 0, t * 0.6, -l_ / 2, l_ / 2, 0), box(-w / 2 + 0.04, w / 2 - 0.04, 0, t, -l_ / 2 + 0.04, l_ / 2 - 0.04, 0)]
+        parts = [
+            box(-w / 2, w / 2, 0, t * 0.6, -l_ / 2, l_ / 2, 0),
+            box(-w / 2 + 0.04, w / 2 - 0.04, 0, t, -l_ / 2 + 0.04, l_ / 2 - 0.04, 0),
+        ]
     return Furniture("pillow", parts)
 
 
@@ -236,12 +306,15 @@ def bookshelf(rng: Rng) -> Furniture:
     w, d, h, t = _u(rng, 0.6, 1.2), _u(rng, 0.25, 0.4), _u(rng, 0.8, 2.0), _u(rng, 0.015, 0.03)
     plinth = _u(rng, 0.03, 0.1)
     parts = [box(-w / 2, -w / 2 + t, 0, h, -d / 2, d / 2, 0), box(w / 2 - t, w / 2, 0, h, -d / 2, d / 2, 0)]
-    parts += [box(-w / 2 + t, w / 2 - t, h - t, h, -d / 2, d / 2, 0), box(-w / 2 + t, w / 2 - t, 0, plinth, -d / 2, d / 2, 0)]
+    parts += [
+        box(-w / 2 + t, w / 2 - t, h - t, h, -d / 2, d / 2, 0),
+        box(-w / 2 + t, w / 2 - t, 0, plinth, -d / 2, d / 2, 0),
+    ]
     if rng.random() < 0.75:
         parts.append(box(-w / 2 + t, w / 2 - t, plinth, h - t, -d / 2, -d / 2 + 0.01, 1))
     n = max(2, round((h - plinth) / _u(rng, 0.28, 0.4)))
     levels = np.linspace(plinth, h - t, n + 1)
-    for i, (a, b) in enumerate(zip(levels[:-1], levels[1:], strict=True)):
+    for i, (a, b) in enumerate(itertools.pairwise(levels)):
         a, b = float(a), float(b)
         if i > 0:
             parts.append(box(-w / 2 + t, w / 2 - t, a - t / 2, a + t / 2, -d / 2 + 0.01, d / 2 - 0.01, 0))
@@ -288,23 +361,43 @@ def _chest(rng: Rng, cls: str, w: float, d: float, h: float, rows: int, cols: in
         for c in range(cols):
             if open_shelf and r == 0:
                 continue
-            parts += _drawer_front(rng, float(xs[c]), float(xs[c + 1]), float(hs[r]), float(hs[r + 1]), fz, 2, 1)
+            parts += _drawer_front(
+                rng, float(xs[c]), float(xs[c + 1]), float(hs[r]), float(hs[r + 1]), fz, 2, 1
+            )
     if open_shelf:  # the body is hollow below the drawer: its sides and back stay
         parts[1] = box(-w / 2 + 0.01, w / 2 - 0.01, float(hs[1]), h - t, -d / 2, fz, 0)
-        parts += [box(-w / 2 + 0.01, -w / 2 + 0.03, base, float(hs[1]), -d / 2, fz, 0),
-                  box(w / 2 - 0.03, w / 2 - 0.01, base, float(hs[1]), -d / 2, fz, 0),
-                  box(-w / 2 + 0.03, w / 2 - 0.03, base, float(hs[1]), -d / 2, -d / 2 + 0.015, 0),
-                  box(-w / 2 + 0.03, w / 2 - 0.03, base, base + 0.02, -d / 2, fz, 0)]
+        parts += [
+            box(-w / 2 + 0.01, -w / 2 + 0.03, base, float(hs[1]), -d / 2, fz, 0),
+            box(w / 2 - 0.03, w / 2 - 0.01, base, float(hs[1]), -d / 2, fz, 0),
+            box(-w / 2 + 0.03, w / 2 - 0.03, base, float(hs[1]), -d / 2, -d / 2 + 0.015, 0),
+            box(-w / 2 + 0.03, w / 2 - 0.03, base, base + 0.02, -d / 2, fz, 0),
+        ]
     return Furniture(cls, parts, [_top_surface(w, d, h)])
 
 
 def dresser(rng: Rng) -> Furniture:
     w, h = _u(rng, 0.7, 1.6), _u(rng, 0.7, 1.3)
-    return _chest(rng, "dresser", w, _u(rng, 0.4, 0.55), h, int(np.clip(round(h / 0.22), 3, 6)), 1 if w < 0.9 else int(rng.integers(1, 4)))
+    return _chest(
+        rng,
+        "dresser",
+        w,
+        _u(rng, 0.4, 0.55),
+        h,
+        int(np.clip(round(h / 0.22), 3, 6)),
+        1 if w < 0.9 else int(rng.integers(1, 4)),
+    )
 
 
 def night_stand(rng: Rng) -> Furniture:
-    return _chest(rng, "night stand", _u(rng, 0.4, 0.6), _u(rng, 0.35, 0.5), _u(rng, 0.45, 0.7), int(rng.integers(1, 4)), 1)
+    return _chest(
+        rng,
+        "night stand",
+        _u(rng, 0.4, 0.6),
+        _u(rng, 0.35, 0.5),
+        _u(rng, 0.45, 0.7),
+        int(rng.integers(1, 4)),
+        1,
+    )
 
 
 def box_(rng: Rng) -> Furniture:
@@ -313,17 +406,32 @@ def box_(rng: Rng) -> Furniture:
     d, h = _u(rng, 0.2, min(w, 0.6)), _u(rng, 0.15, 0.6)
     if rng.random() < 0.25:
         t = _u(rng, 0.004, 0.012)
-        parts = [cbox(w, d, 0, t), box(-w / 2, -w / 2 + t, 0, h, -d / 2, d / 2), box(w / 2 - t, w / 2, 0, h, -d / 2, d / 2)]
-        parts += [box(-w / 2 + t, w / 2 - t, 0, h, -d / 2, -d / 2 + t), box(-w / 2 + t, w / 2 - t, 0, h, d / 2 - t, d / 2)]
+        parts = [
+            cbox(w, d, 0, t),
+            box(-w / 2, -w / 2 + t, 0, h, -d / 2, d / 2),
+            box(w / 2 - t, w / 2, 0, h, -d / 2, d / 2),
+        ]
+        parts += [
+            box(-w / 2 + t, w / 2 - t, 0, h, -d / 2, -d / 2 + t),
+            box(-w / 2 + t, w / 2 - t, 0, h, d / 2 - t, d / 2),
+        ]
         return Furniture("box", parts)
     parts = [cbox(w, d, 0, h, slot=0)]
     if rng.random() < 0.4:
-        parts.append(cbox(w + 0.01, d + 0.01, h - _u(rng, 0.03, 0.08), h + 0.004, slot=int(rng.integers(0, 2))))
+        parts.append(
+            cbox(w + 0.01, d + 0.01, h - _u(rng, 0.03, 0.08), h + 0.004, slot=int(rng.integers(0, 2)))
+        )
     return Furniture("box", parts, [_top_surface(w, d, h + 0.004 * (len(parts) - 1), 0.02)])
 
 
-def counter(rng: Rng, length: float, depth: float, height: float, hole: tuple[float, float, float, float] | None,
-            basin_bottom: float) -> Furniture:
+def counter(
+    rng: Rng,
+    length: float,
+    depth: float,
+    height: float,
+    hole: tuple[float, float, float, float] | None,
+    basin_bottom: float,
+) -> Furniture:
     """Kitchen or bathroom counter: toe kick, cabinet body, doors, top slab.
 
     ``hole = (x0, x1, z0, z1)`` is a sink opening in the top; the body under it is lowered to
@@ -334,27 +442,40 @@ def counter(rng: Rng, length: float, depth: float, height: float, hole: tuple[fl
     zf = D / 2 - over  # front plane of the body
     parts = [box(-L / 2, L / 2, 0, kick, -D / 2, zf - rec, 1)]
     if hole is None:
-        parts += [box(-L / 2, L / 2, kick, H - t, -D / 2, zf, 0), box(-L / 2, L / 2, H - t, H, -D / 2, D / 2, 1)]
+        parts += [
+            box(-L / 2, L / 2, kick, H - t, -D / 2, zf, 0),
+            box(-L / 2, L / 2, H - t, H, -D / 2, D / 2, 1),
+        ]
     else:
         x0, x1, z0, z1 = hole
         low = basin_bottom - 0.01
-        parts += [box(-L / 2, x0, kick, H - t, -D / 2, zf, 0), box(x1, L / 2, kick, H - t, -D / 2, zf, 0),
-                  box(x0, x1, kick, low, -D / 2, zf, 0), box(x0, x1, low, H - t, zf - 0.02, zf, 0),
-                  box(x0, x1, low, H - t, -D / 2, z0, 0)]
-        parts += [box(-L / 2, x0, H - t, H, -D / 2, D / 2, 1), box(x1, L / 2, H - t, H, -D / 2, D / 2, 1),
-                  box(x0, x1, H - t, H, -D / 2, z0, 1), box(x0, x1, H - t, H, z1, D / 2, 1)]
+        parts += [
+            box(-L / 2, x0, kick, H - t, -D / 2, zf, 0),
+            box(x1, L / 2, kick, H - t, -D / 2, zf, 0),
+            box(x0, x1, kick, low, -D / 2, zf, 0),
+            box(x0, x1, low, H - t, zf - 0.02, zf, 0),
+            box(x0, x1, low, H - t, -D / 2, z0, 0),
+        ]
+        parts += [
+            box(-L / 2, x0, H - t, H, -D / 2, D / 2, 1),
+            box(x1, L / 2, H - t, H, -D / 2, D / 2, 1),
+            box(x0, x1, H - t, H, -D / 2, z0, 1),
+            box(x0, x1, H - t, H, z1, D / 2, 1),
+        ]
     n = max(1, round(L / _u(rng, 0.4, 0.6)))
     xs = np.linspace(-L / 2, L / 2, n + 1)
     drawers = rng.random() < 0.5
-    for a, b in zip(xs[:-1], xs[1:], strict=True):
+    for a, b in itertools.pairwise(xs):
         top_d = H - t - (0.17 if drawers else 0.0)
         parts += _drawer_front(rng, float(a), float(b), kick, top_d, zf, 2, 3)
         if drawers:
             parts += _drawer_front(rng, float(a), float(b), top_d, H - t, zf, 2, 3)
     surf = [Surface(-L / 2 + 0.03, L / 2 - 0.03, -D / 2 + 0.03, D / 2 - 0.03, H)]
     if hole is not None:
-        surf = [Surface(-L / 2 + 0.03, hole[0] - 0.05, -D / 2 + 0.03, D / 2 - 0.03, H),
-                Surface(hole[1] + 0.05, L / 2 - 0.03, -D / 2 + 0.03, D / 2 - 0.03, H)]
+        surf = [
+            Surface(-L / 2 + 0.03, hole[0] - 0.05, -D / 2 + 0.03, D / 2 - 0.03, H),
+            Surface(hole[1] + 0.05, L / 2 - 0.03, -D / 2 + 0.03, D / 2 - 0.03, H),
+        ]
     return Furniture("counter", parts, [s for s in surf if s.x1 - s.x0 > 0.15])
 
 
@@ -364,21 +485,27 @@ def counter(rng: Rng, length: float, depth: float, height: float, hole: tuple[fl
 def _basin(rng: Rng, w: float, d: float, depth: float, wall: float, h0: float) -> list[Part]:
     """A hollow rectangular basin: bottom and four walls, from height h0 up to h0 + depth."""
     h1 = h0 + depth
-    return [box(-w / 2, w / 2, h0, h0 + wall, -d / 2, d / 2, 0),
-            box(-w / 2, -w / 2 + wall, h0, h1, -d / 2, d / 2, 0), box(w / 2 - wall, w / 2, h0, h1, -d / 2, d / 2, 0),
-            box(-w / 2 + wall, w / 2 - wall, h0, h1, -d / 2, -d / 2 + wall, 0),
-            box(-w / 2 + wall, w / 2 - wall, h0, h1, d / 2 - wall, d / 2, 0)]
+    return [
+        box(-w / 2, w / 2, h0, h0 + wall, -d / 2, d / 2, 0),
+        box(-w / 2, -w / 2 + wall, h0, h1, -d / 2, d / 2, 0),
+        box(w / 2 - wall, w / 2, h0, h1, -d / 2, d / 2, 0),
+        box(-w / 2 + wall, w / 2 - wall, h0, h1, -d / 2, -d / 2 + wall, 0),
+        box(-w / 2 + wall, w / 2 - wall, h0, h1, d / 2 - wall, d / 2, 0),
+    ]
 
 
 def _faucet(rng: Rng, z_back: float, h0: float, reach: float) -> list[Part]:
     """Base, riser and spout of a tap standing at z_back on height h0, reaching forward."""
     r, rise = _u(rng, 0.015, 0.03), _u(rng, 0.1, 0.3)
-    return [cyl(0, z_back, r * 1.4, h0, h0 + 0.03, 1), cyl(0, z_back, r, h0, h0 + rise, 1),
-            box(-r * 0.8, r * 0.8, h0 + rise - 0.03, h0 + rise, z_back, z_back + reach, 1)]
+    return [
+        cyl(0, z_back, r * 1.4, h0, h0 + 0.03, 1),
+        cyl(0, z_back, r, h0, h0 + rise, 1),
+        box(-r * 0.8, r * 0.8, h0 + rise - 0.03, h0 + rise, z_back, z_back + reach, 1),
+    ]
 
 
 def counter_with_sink(rng: Rng, length: float) -> tuple[Furniture, Furniture, tuple[float, float, float]]:
-    """A counter and the drop-in sink in it; returns (counter, sink, sink pose (x, z, base) in the counter frame)."""
+    """A counter and the drop-in sink in it: (counter, sink, sink pose (x, z, base) in the counter frame)."""
     depth, height = _u(rng, 0.55, 0.65), _u(rng, 0.82, 0.94)
     sw = min(_u(rng, 0.4, 0.8), length - 0.2)
     sd = min(_u(rng, 0.32, 0.45), depth - 0.2)  # keeps the hole clear of the front doors and the tap
@@ -390,10 +517,12 @@ def counter_with_sink(rng: Rng, length: float) -> tuple[Furniture, Furniture, tu
     hole = (sx - sw / 2, sx + sw / 2, sz - sd / 2, sz + sd / 2)
     c = counter(rng, length, depth, height, hole, height - basin)
     parts = _basin(rng, sw, sd, basin + rim, wall, 0.0)
-    parts += [box(-sw / 2 - 0.02, sw / 2 + 0.02, basin, basin + rim, -sd / 2 - 0.02, -sd / 2, 1),
-              box(-sw / 2 - 0.02, sw / 2 + 0.02, basin, basin + rim, sd / 2, sd / 2 + 0.02, 1),
-              box(-sw / 2 - 0.02, -sw / 2, basin, basin + rim, -sd / 2, sd / 2, 1),
-              box(sw / 2, sw / 2 + 0.02, basin, basin + rim, -sd / 2, sd / 2, 1)]
+    parts += [
+        box(-sw / 2 - 0.02, sw / 2 + 0.02, basin, basin + rim, -sd / 2 - 0.02, -sd / 2, 1),
+        box(-sw / 2 - 0.02, sw / 2 + 0.02, basin, basin + rim, sd / 2, sd / 2 + 0.02, 1),
+        box(-sw / 2 - 0.02, -sw / 2, basin, basin + rim, -sd / 2, sd / 2, 1),
+        box(sw / 2, sw / 2 + 0.02, basin, basin + rim, -sd / 2, sd / 2, 1),
+    ]
     back = -sd / 2 - 0.02 - 0.045
     if back > -depth / 2 + 0.02 - sz:
         parts += _faucet(rng, back, basin, sd * 0.4)
@@ -416,8 +545,14 @@ def toilet(rng: Rng) -> Furniture:
     t0, t1 = _u(rng, 0.38, 0.45), _u(rng, 0.7, 0.85)
     rx, rz, bh = _u(rng, 0.17, 0.2), _u(rng, 0.21, 0.27), _u(rng, 0.36, 0.41)
     zb = -0.35 + td + rz - 0.06
-    parts = [box(-tw / 2, tw / 2, t0, t1, -0.35, -0.35 + td, 0), box(-tw / 2 - 0.01, tw / 2 + 0.01, t1, t1 + 0.025, -0.355, -0.345 + td, 0)]
-    parts += [cyl(0, zb, rx, 0.17, bh - 0.02, 0, rz=rz), cyl(0, zb - 0.03, rx * 0.6, 0, 0.17, 0, rz=rz * 0.65)]
+    parts = [
+        box(-tw / 2, tw / 2, t0, t1, -0.35, -0.35 + td, 0),
+        box(-tw / 2 - 0.01, tw / 2 + 0.01, t1, t1 + 0.025, -0.355, -0.345 + td, 0),
+    ]
+    parts += [
+        cyl(0, zb, rx, 0.17, bh - 0.02, 0, rz=rz),
+        cyl(0, zb - 0.03, rx * 0.6, 0, 0.17, 0, rz=rz * 0.65),
+    ]
     parts.append(box(-0.09, 0.09, bh - 0.1, t0 + 0.02, -0.35 + td - 0.01, zb - rz + 0.1, 0))
     parts.append(cyl(0, zb, rx + 0.01, bh - 0.02, bh + 0.005, 1, rz=rz + 0.01))
     if rng.random() < 0.5:  # lid up against the tank
@@ -432,13 +567,25 @@ def bathtub(rng: Rng) -> Furniture:
     L, W, H = _u(rng, 1.4, 1.8), _u(rng, 0.7, 0.85), _u(rng, 0.45, 0.6)
     wall, floor = _u(rng, 0.06, 0.12), _u(rng, 0.08, 0.15)
     parts = [box(-L / 2, L / 2, 0, floor, -W / 2, W / 2, 0)]
-    parts += [box(-L / 2, -L / 2 + wall, floor, H, -W / 2, W / 2, 0), box(L / 2 - wall, L / 2, floor, H, -W / 2, W / 2, 0),
-              box(-L / 2 + wall, L / 2 - wall, floor, H, -W / 2, -W / 2 + wall, 0),
-              box(-L / 2 + wall, L / 2 - wall, floor, H, W / 2 - wall, W / 2, 0)]
+    parts += [
+        box(-L / 2, -L / 2 + wall, floor, H, -W / 2, W / 2, 0),
+        box(L / 2 - wall, L / 2, floor, H, -W / 2, W / 2, 0),
+        box(-L / 2 + wall, L / 2 - wall, floor, H, -W / 2, -W / 2 + wall, 0),
+        box(-L / 2 + wall, L / 2 - wall, floor, H, W / 2 - wall, W / 2, 0),
+    ]
     side = float(rng.choice([-1.0, 1.0]))
     parts.append(cyl(side * (L / 2 - wall / 2), -W / 2 + wall / 2, 0.02, H, H + 0.12, 1))
-    parts.append(box(side * (L / 2 - wall / 2) - 0.015, side * (L / 2 - wall / 2) + 0.015, H + 0.09, H + 0.12,
-                     -W / 2 + wall / 2, -W / 2 + wall + 0.08, 1))
+    parts.append(
+        box(
+            side * (L / 2 - wall / 2) - 0.015,
+            side * (L / 2 - wall / 2) + 0.015,
+            H + 0.09,
+            H + 0.12,
+            -W / 2 + wall / 2,
+            -W / 2 + wall + 0.08,
+            1,
+        )
+    )
     return Furniture("bathtub", parts)
 
 
@@ -448,7 +595,9 @@ def garbage_bin(rng: Rng) -> Furniture:
     if rng.random() < 0.6:
         r = _u(rng, 0.12, 0.22)
         parts = [cyl(0, 0, r, 0, h, 0)]
-        parts.append(cyl(0, 0, r + _u(rng, 0.005, 0.015), h - 0.02, h + _u(rng, 0.0, 0.04), int(rng.integers(0, 2))))
+        parts.append(
+            cyl(0, 0, r + _u(rng, 0.005, 0.015), h - 0.02, h + _u(rng, 0.0, 0.04), int(rng.integers(0, 2)))
+        )
         return Furniture("garbage bin", parts)
     w, d = _u(rng, 0.22, 0.4), _u(rng, 0.2, 0.35)
     return Furniture("garbage bin", _basin(rng, w, d, h, 0.01, 0.0))
@@ -470,7 +619,10 @@ def lamp(rng: Rng, floor: bool | None = None) -> Furniture:
         parts.append(cyl(0, 0, br * _u(rng, 0.6, 1.0), 0.02, stem * 0.7, 0))
     parts.append(cyl(0, 0, _u(rng, 0.008, 0.02), 0, stem + sh * 0.5, 1))
     top_r = sr * _u(rng, 0.6, 0.95)
-    parts += [cyl(0, 0, sr, stem, stem + sh * 0.5, 2), cyl(0, 0, (sr + top_r) / 2, stem + sh * 0.5, stem + sh, 2)]
+    parts += [
+        cyl(0, 0, sr, stem, stem + sh * 0.5, 2),
+        cyl(0, 0, (sr + top_r) / 2, stem + sh * 0.5, stem + sh, 2),
+    ]
     return Furniture("lamp", parts)
 
 
@@ -486,25 +638,36 @@ def monitor(rng: Rng) -> Furniture:
     parts.append(box(-w / 2, w / 2, lift, lift + sh, -0.01, face, 0))
     parts.append(box(-w / 2 + 0.02, w / 2 - 0.02, lift + 0.02, lift + sh - 0.02, face, face + 0.004, 2))
     if rng.random() < 0.5:  # bulge at the back
-        parts.append(box(-w / 3, w / 3, lift + sh * 0.2, lift + sh * 0.8, -0.01 - _u(rng, 0.02, 0.06), -0.01, 0))
+        parts.append(
+            box(-w / 3, w / 3, lift + sh * 0.2, lift + sh * 0.8, -0.01 - _u(rng, 0.02, 0.06), -0.01, 0)
+        )
     return Furniture("monitor", parts)
 
 
-def television(rng: Rng, on_stand: bool = True) -> Furniture:
-    """A flat TV (on a stand or bare for the wall), or a deep old CRT set; screen faces +z."""
+def television(rng: Rng, on_stand: bool = True, max_width: float = 1.4) -> Furniture:
+    """A flat TV (on a stand or bare for the wall), or a deep old CRT set; screen faces +z.
+
+    ``max_width`` (>= 0.5 m) bounds its width, to fit the furniture it stands on."""
+    max_width = max(max_width, 0.5)
     if on_stand and rng.random() < 0.2:  # CRT: a bezel box and a narrower tube box behind it
-        w, d = _u(rng, 0.45, 0.75), _u(rng, 0.38, 0.5)
+        w, d = _u(rng, 0.45, min(0.75, max_width)), _u(rng, 0.38, 0.5)
         h = w * _u(rng, 0.8, 0.9)
-        parts = [box(-w / 2, w / 2, 0, h, d / 2 - 0.1, d / 2, 0), box(-w / 2 + 0.08, w / 2 - 0.08, 0.05, h - 0.06, -d / 2, d / 2 - 0.1, 0)]
+        parts = [
+            box(-w / 2, w / 2, 0, h, d / 2 - 0.1, d / 2, 0),
+            box(-w / 2 + 0.08, w / 2 - 0.08, 0.05, h - 0.06, -d / 2, d / 2 - 0.1, 0),
+        ]
         parts.append(box(-w / 2 + 0.05, w / 2 - 0.05, 0.05, h - 0.05, d / 2, d / 2 + 0.005, 2))
         return Furniture("television", parts)
-    w = _u(rng, 0.7, 1.4)
+    w = _u(rng, 0.5, min(1.4, max_width))
     h, t = w * _u(rng, 0.56, 0.62), _u(rng, 0.04, 0.1)
     lift = _u(rng, 0.05, 0.12) if on_stand else 0.0
     parts = [box(-w / 2, w / 2, lift, lift + h, -t / 2, t / 2, 0)]
     parts.append(box(-w / 2 + 0.02, w / 2 - 0.02, lift + 0.02, lift + h - 0.02, t / 2, t / 2 + 0.004, 2))
     if on_stand:
-        parts += [cbox(_u(rng, 0.3, 0.5), _u(rng, 0.18, 0.25), 0, 0.02, slot=1), cbox(0.08, 0.03, 0, lift + 0.1, z=-t / 2 - 0.015, slot=1)]
+        parts += [
+            cbox(_u(rng, 0.3, 0.5), _u(rng, 0.18, 0.25), 0, 0.02, slot=1),
+            cbox(0.08, 0.03, 0, lift + 0.1, z=-t / 2 - 0.015, slot=1),
+        ]
     return Furniture("television", parts)
 
 
@@ -513,13 +676,26 @@ def door(rng: Rng) -> Furniture:
     w, h = _u(rng, 0.75, 0.95), _u(rng, 1.98, 2.12)
     fw, fd, proud = _u(rng, 0.04, 0.09), _u(rng, 0.01, 0.03), _u(rng, 0.008, 0.02)
     parts = [box(-w / 2, w / 2, 0, h, 0, proud, 0)]
-    parts += [box(-w / 2 - fw, -w / 2, 0, h + fw, 0, fd, 1), box(w / 2, w / 2 + fw, 0, h + fw, 0, fd, 1),
-              box(-w / 2, w / 2, h, h + fw, 0, fd, 1)]
+    parts += [
+        box(-w / 2 - fw, -w / 2, 0, h + fw, 0, fd, 1),
+        box(w / 2, w / 2 + fw, 0, h + fw, 0, fd, 1),
+        box(-w / 2, w / 2, h, h + fw, 0, fd, 1),
+    ]
     side, hh = float(rng.choice([-1.0, 1.0])), _u(rng, 0.92, 1.06)
     hx = side * (w / 2 - 0.07)
     parts.append(cyl(hx, proud + 0.004, 0.03, hh - 0.03, hh + 0.03, 1, rz=0.004))
     if rng.random() < 0.5:  # lever
-        parts.append(box(min(hx, hx - side * 0.12), max(hx, hx - side * 0.12), hh - 0.01, hh + 0.01, proud + 0.045, proud + 0.065, 1))
+        parts.append(
+            box(
+                min(hx, hx - side * 0.12),
+                max(hx, hx - side * 0.12),
+                hh - 0.01,
+                hh + 0.01,
+                proud + 0.045,
+                proud + 0.065,
+                1,
+            )
+        )
         parts.append(cyl(hx, proud + 0.03, 0.01, hh - 0.01, hh + 0.01, 1, rz=0.03))
     else:
         parts.append(cyl(hx, proud + 0.04, 0.025, hh - 0.025, hh + 0.025, 1, rz=0.02))
@@ -535,15 +711,21 @@ def door(rng: Rng) -> Furniture:
 def picture(rng: Rng) -> Furniture:
     """A framed picture (hung on a wall: back at z = 0)."""
     w, h, f = _u(rng, 0.25, 1.0), _u(rng, 0.2, 0.8), _u(rng, 0.015, 0.05)
-    return Furniture(None, [box(-w / 2, w / 2, 0, h, 0, 0.02, 1), box(-w / 2 + f, w / 2 - f, f, h - f, 0.02, 0.024, 2)])
+    return Furniture(
+        None, [box(-w / 2, w / 2, 0, h, 0, 0.02, 1), box(-w / 2 + f, w / 2 - f, f, h - f, 0.02, 0.024, 2)]
+    )
 
 
 def window(rng: Rng) -> Furniture:
     """A window on a wall: frame bars, glass pane and sill (back at z = 0)."""
     w, h, f = _u(rng, 0.6, 1.8), _u(rng, 0.8, 1.4), _u(rng, 0.04, 0.08)
     parts = [box(-w / 2 + f, w / 2 - f, f, h - f, 0, 0.005, 3)]
-    parts += [box(-w / 2, w / 2, 0, f, 0, 0.04, 1), box(-w / 2, w / 2, h - f, h, 0, 0.04, 1),
-              box(-w / 2, -w / 2 + f, 0, h, 0, 0.04, 1), box(w / 2 - f, w / 2, 0, h, 0, 0.04, 1)]
+    parts += [
+        box(-w / 2, w / 2, 0, f, 0, 0.04, 1),
+        box(-w / 2, w / 2, h - f, h, 0, 0.04, 1),
+        box(-w / 2, -w / 2 + f, 0, h, 0, 0.04, 1),
+        box(w / 2 - f, w / 2, 0, h, 0, 0.04, 1),
+    ]
     if w > 1.0:
         parts.append(box(-f / 3, f / 3, 0, h, 0, 0.03, 1))
     parts.append(box(-w / 2 - 0.05, w / 2 + 0.05, -0.03, 0.0, 0, _u(rng, 0.08, 0.2), 1))
@@ -562,7 +744,7 @@ def cabinet(rng: Rng, wall_hung: bool = False) -> Furniture:
     n = max(1, round(w / 0.5))
     parts = [box(-w / 2, w / 2, 0, h, -d / 2, d / 2 - 0.02, 0)]
     xs = np.linspace(-w / 2, w / 2, n + 1)
-    for a, b in zip(xs[:-1], xs[1:], strict=True):
+    for a, b in itertools.pairwise(xs):
         parts += _drawer_front(rng, float(a), float(b), 0.0, h, d / 2 - 0.02, 2, 1)
     return Furniture(None, parts)
 
@@ -581,7 +763,9 @@ def small_item(rng: Rng) -> Furniture:
         return Furniture(None, [cyl(0, 0, r, 0, h * 0.6, 0), cyl(0, 0, r * 0.6, h * 0.6, h, 0)])
     if kind == "plant":
         r = _u(rng, 0.06, 0.14)
-        return Furniture(None, [cyl(0, 0, r, 0, r * 1.5, 0), cyl(0, 0, r * 1.6, r * 1.5, r * 3.5, 3, rz=r * 1.3)])
+        return Furniture(
+            None, [cyl(0, 0, r, 0, r * 1.5, 0), cyl(0, 0, r * 1.6, r * 1.5, r * 3.5, 3, rz=r * 1.3)]
+        )
     parts, h = [], 0.0
     for _ in range(int(rng.integers(1, 5))):
         t = _u(rng, 0.015, 0.05)

@@ -135,8 +135,12 @@ class Layout:
         An object of that yaw has its local +x along the tangent and +z pointing into the room.
         """
         W, D = self.room.width, self.room.depth
-        return [((0.0, 0.0), (1.0, 0.0), 0.0, W), ((W, 0.0), (0.0, 1.0), -math.pi / 2, D),
-                ((W, D), (-1.0, 0.0), math.pi, W), ((0.0, D), (0.0, -1.0), math.pi / 2, D)][k]
+        return [
+            ((0.0, 0.0), (1.0, 0.0), 0.0, W),
+            ((W, 0.0), (0.0, 1.0), -math.pi / 2, D),
+            ((W, D), (-1.0, 0.0), math.pi, W),
+            ((0.0, D), (0.0, -1.0), math.pi / 2, D),
+        ][k]
 
     def at_wall(self, item: Furniture, k: int, s: float, gap: float = 0.0, base: float = 0.0) -> Placed:
         """Pose with the item's back ``gap`` from wall k and its origin at ``s`` along the wall."""
@@ -145,8 +149,15 @@ class Layout:
         nx, nz = math.sin(yaw), math.cos(yaw)
         return Placed(item, x0 + s * tx + d * nx, z0 + s * tz + d * nz, base, yaw, wall=k)
 
-    def place_wall(self, item: Furniture, walls: tuple[int, ...] = (0, 1, 2, 3), base: float = 0.0,
-                   tries: int = 25, gap: tuple[float, float] = (0.0, 0.04), corner: float = 0.25) -> int | None:
+    def place_wall(
+        self,
+        item: Furniture,
+        walls: tuple[int, ...] = (0, 1, 2, 3),
+        base: float = 0.0,
+        tries: int = 25,
+        gap: tuple[float, float] = (0.0, 0.04),
+        corner: float = 0.25,
+    ) -> int | None:
         """Against a random wall at a random free spot (a corner with probability ``corner``)."""
         rng = self.rng
         for _ in range(tries):
@@ -163,21 +174,35 @@ class Layout:
 
     # ------------------------------------------------------------------ floor and relations
 
-    def place_free(self, item: Furniture, tries: int = 25, yaw: float | None = None, jitter: float = 0.0,
-                   margin: float = 0.02, wall_clear: float = 0.0) -> int | None:
+    def place_free(
+        self,
+        item: Furniture,
+        tries: int = 25,
+        yaw: float | None = None,
+        jitter: float = 0.0,
+        margin: float = 0.02,
+        wall_clear: float = 0.0,
+    ) -> int | None:
         """Anywhere on the floor (``wall_clear`` from the walls, ``margin`` from other objects);
         random yaw unless ``yaw`` (plus up to ``jitter``) is given."""
         rng = self.rng
         for _ in range(tries):
-            y = float(rng.uniform(0, 2 * math.pi)) if yaw is None else yaw + float(rng.uniform(-jitter, jitter))
-            p = Placed(item, float(rng.uniform(0, self.room.width)), float(rng.uniform(0, self.room.depth)), 0.0, y)
+            y = (
+                float(rng.uniform(0, 2 * math.pi))
+                if yaw is None
+                else yaw + float(rng.uniform(-jitter, jitter))
+            )
+            p = Placed(
+                item, float(rng.uniform(0, self.room.width)), float(rng.uniform(0, self.room.depth)), 0.0, y
+            )
             idx = self.add(p, margin, wall_clear)
             if idx is not None:
                 return idx
         return None
 
-    def place_rel(self, item: Furniture, anchor: int, lx: float, lz: float, rel_yaw: float,
-                  margin: float = 0.02) -> int | None:
+    def place_rel(
+        self, item: Furniture, anchor: int, lx: float, lz: float, rel_yaw: float, margin: float = 0.02
+    ) -> int | None:
         """On the anchor's floor level at (lx, lz) in the anchor's frame, turned by rel_yaw."""
         a = self.objects[anchor]
         x, z = a.to_room(lx, lz)
@@ -186,11 +211,14 @@ class Layout:
     def place_beside(self, item: Furniture, anchor: int, side: float, gap: float) -> int | None:
         """Next to the anchor's left (-1) or right (+1) side, backs aligned, same yaw."""
         a = self.objects[anchor].item
-        lx = float(a.hi[0]) + gap - float(item.lo[0]) if side > 0 else float(a.lo[0]) - gap - float(item.hi[0])
+        lx = (
+            float(a.hi[0]) + gap - float(item.lo[0]) if side > 0 else float(a.lo[0]) - gap - float(item.hi[0])
+        )
         return self.place_rel(item, anchor, lx, float(a.lo[2] - item.lo[2]), 0.0)
 
-    def place_facing(self, item: Furniture, anchor: int, side: int, along: float, gap: float,
-                     jitter: float = 0.0) -> int | None:
+    def place_facing(
+        self, item: Furniture, anchor: int, side: int, along: float, gap: float, jitter: float = 0.0
+    ) -> int | None:
         """At side ``side`` (0: +z, 1: +x, 2: -z, 3: -x of the anchor frame) facing the anchor.
 
         ``along`` shifts it along that side; ``gap`` is the clearance between the anchor's edge and
@@ -204,8 +232,15 @@ class Layout:
         rel = math.atan2(-nx, -nz) + float(self.rng.uniform(-jitter, jitter))
         return self.place_rel(item, anchor, lx, lz, rel)
 
-    def place_on(self, item: Furniture, parent: int, tries: int = 12, rel_yaw: float = 0.0, jitter: float = math.pi,
-                 back: bool = False) -> int | None:
+    def place_on(
+        self,
+        item: Furniture,
+        parent: int,
+        tries: int = 12,
+        rel_yaw: float = 0.0,
+        jitter: float = math.pi,
+        back: bool = False,
+    ) -> int | None:
         """On a random support surface of ``parent``, inside its rectangle (near its back if ``back``)."""
         rng = self.rng
         par = self.objects[parent]

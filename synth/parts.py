@@ -48,7 +48,13 @@ def box(x0: float, x1: float, h0: float, h1: float, z0: float, z1: float, slot: 
     """An unrotated cuboid given by its extents in the object frame."""
     if not (x1 > x0 and h1 > h0 and z1 > z0):
         raise ValueError(f"box: empty extent x[{x0}, {x1}] h[{h0}, {h1}] z[{z0}, {z1}]")
-    return Part(BOX, ((x0 + x1) / 2, (h0 + h1) / 2, (z0 + z1) / 2), ((x1 - x0) / 2, (h1 - h0) / 2, (z1 - z0) / 2), 0.0, slot)
+    return Part(
+        BOX,
+        ((x0 + x1) / 2, (h0 + h1) / 2, (z0 + z1) / 2),
+        ((x1 - x0) / 2, (h1 - h0) / 2, (z1 - z0) / 2),
+        0.0,
+        slot,
+    )
 
 
 def cbox(w: float, d: float, h0: float, h1: float, x: float = 0.0, z: float = 0.0, slot: int = 0) -> Part:

@@ -56,14 +56,33 @@ class RayGrid:
     d: np.ndarray
 
     @classmethod
-    def make(cls, origin: np.ndarray, rot: np.ndarray, K: np.ndarray, shape: tuple[int, int],
-             u0: float = 0.0, v0: float = 0.0, stride: float = 1.0) -> RayGrid:
+    def make(
+        cls,
+        origin: np.ndarray,
+        rot: np.ndarray,
+        K: np.ndarray,
+        shape: tuple[int, int],
+        u0: float = 0.0,
+        v0: float = 0.0,
+        stride: float = 1.0,
+    ) -> RayGrid:
         rows, cols = shape
         x = (u0 + stride * np.arange(cols) - K[0, 2]) / K[0, 0]
         y = (v0 + stride * np.arange(rows) - K[1, 2]) / K[1, 1]
-        d = rot[:, 0, None, None] * x[None, None, :] + rot[:, 1, None, None] * y[None, :, None] + rot[:, 2, None, None]
-        return cls(np.asarray(origin, np.float64), np.asarray(rot, np.float64), np.asarray(K, np.float64),
-                   u0, v0, stride, np.ascontiguousarray(d, dtype=np.float32))
+        d = (
+            rot[:, 0, None, None] * x[None, None, :]
+            + rot[:, 1, None, None] * y[None, :, None]
+            + rot[:, 2, None, None]
+        )
+        return cls(
+            np.asarray(origin, np.float64),
+            np.asarray(rot, np.float64),
+            np.asarray(K, np.float64),
+            u0,
+            v0,
+            stride,
+            np.ascontiguousarray(d, dtype=np.float32),
+        )
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -141,8 +160,14 @@ class Render:
     alone: np.ndarray
 
 
-def cast(grid: RayGrid, parts: PartArrays, n_objects: int, objects: np.ndarray | None = None,
-         t: np.ndarray | None = None, count_outside: tuple[int, int] | None = None) -> Render:
+def cast(
+    grid: RayGrid,
+    parts: PartArrays,
+    n_objects: int,
+    objects: np.ndarray | None = None,
+    t: np.ndarray | None = None,
+    count_outside: tuple[int, int] | None = None,
+) -> Render:
     """Render ``parts`` (optionally only those of ``objects``) into the z-buffer ``t`` (default empty).
 
     ``count_outside = (H, W)`` makes ``alone`` count only grid cells whose pixel centre falls
@@ -177,7 +202,11 @@ def cast(grid: RayGrid, parts: PartArrays, n_objects: int, objects: np.ndarray |
             buf[sub] = np.where(closer, th, buf[sub])
             bid[sub][closer] = p
         seen = buf < np.inf
-        alone[o] = np.count_nonzero(seen & outside[r0:r1, c0:c1]) if count_outside is not None else np.count_nonzero(seen)
+        alone[o] = (
+            np.count_nonzero(seen & outside[r0:r1, c0:c1])
+            if count_outside is not None
+            else np.count_nonzero(seen)
+        )
         closer = buf < depth[r0:r1, c0:c1]
         depth[r0:r1, c0:c1][closer] = buf[closer]
         ids[r0:r1, c0:c1][closer] = bid[closer]
@@ -192,8 +221,9 @@ def room_exit(grid: RayGrid, half: np.ndarray, centre: np.ndarray, yaw: float) -
     o = (ca * q[0] - sa * q[2], q[1], sa * q[0] + ca * q[2])
     ls = (ca * dx - sa * dz, dy, sa * dx + ca * dz)
     t_hi = np.full(grid.shape, np.inf, np.float32)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        for l_, o_, h_ in zip(ls, o, half, strict=True):
-            il = np.float32(1.0) / l_
-            t_hi = np.minimum(t_hi, np.float32(-o_) * il + np.float32(h_) * np.abs(il))
+    with np.errstate(divide="ignore"):
+        for l_, o_, h_ in zip(
+            ls, o, half, strict=True
+        ):  # exit of each slab: (h - o sign(l)) / |l| (inf if l = 0)
+            t_hi = np.minimum(t_hi, (np.float32(h_) - np.float32(o_) * np.sign(l_)) / np.abs(l_))
     return t_hi

@@ -17,13 +17,23 @@ from a3d.synth.layout import Layout, Placed, Room
 from a3d.synth.parts import Furniture, box
 
 ROOM_TYPES: dict[str, float] = {
-    "bedroom": 0.2, "living": 0.17, "dining": 0.1, "kitchen": 0.13, "office": 0.17, "bathroom": 0.13, "classroom": 0.1,
+    "bedroom": 0.2,
+    "living": 0.17,
+    "dining": 0.1,
+    "kitchen": 0.13,
+    "office": 0.17,
+    "bathroom": 0.13,
+    "classroom": 0.1,
 }
 """Room type -> probability."""
 
 _SIZES = {  # (width range, depth range) in metres
-    "bedroom": ((3.0, 4.6), (3.0, 5.0)), "living": ((3.5, 5.5), (3.5, 6.0)), "dining": ((3.0, 5.0), (3.0, 5.0)),
-    "kitchen": ((2.6, 4.2), (3.0, 4.6)), "office": ((3.0, 5.5), (3.0, 6.0)), "bathroom": ((1.8, 3.2), (2.0, 3.5)),
+    "bedroom": ((3.0, 4.6), (3.0, 5.0)),
+    "living": ((3.5, 5.5), (3.5, 6.0)),
+    "dining": ((3.0, 5.0), (3.0, 5.0)),
+    "kitchen": ((2.6, 4.2), (3.0, 4.6)),
+    "office": ((3.0, 5.5), (3.0, 6.0)),
+    "bathroom": ((1.8, 3.2), (2.0, 3.5)),
     "classroom": ((4.5, 6.5), (4.5, 6.5)),
 }
 
@@ -50,8 +60,19 @@ def _doors_windows(L: Layout) -> None:
             if length < door.size[0] + 0.1:
                 continue
             p = L.at_wall(door, k, float(rng.uniform(-door.lo[0] + 0.05, length - door.hi[0] - 0.05)))
-            swing = Furniture(None, [box(float(door.lo[0]), float(door.hi[0]), 0, 2.0, float(door.hi[2]),
-                                         float(door.hi[2]) + 0.8)])
+            swing = Furniture(
+                None,
+                [
+                    box(
+                        float(door.lo[0]),
+                        float(door.hi[0]),
+                        0,
+                        2.0,
+                        float(door.hi[2]),
+                        float(door.hi[2]) + 0.8,
+                    )
+                ],
+            )
             keep = Placed(swing, p.x, p.z, 0.0, p.yaw, render=False)
             if L.fits(p) and L.fits(keep):
                 L.objects += [p, keep]
@@ -63,6 +84,14 @@ def _doors_windows(L: Layout) -> None:
 def _pictures(L: Layout, n: int) -> None:
     for _ in range(n):
         L.place_wall(fu.picture(L.rng), base=float(L.rng.uniform(1.1, 1.7)), gap=(0, 0), tries=6, corner=0)
+
+
+def _tv_on(L: Layout, idx: int | None) -> int | None:
+    """A TV that fits on object idx's top (facing its front)."""
+    if idx is None:
+        return None
+    width = float(L.objects[idx].item.size[0]) - 0.08
+    return L.place_on(fu.television(L.rng, max_width=width), idx, jitter=0.3)
 
 
 def _clutter(L: Layout, idx: int | None, n: int) -> None:
@@ -90,7 +119,12 @@ def _chairs_around(L: Layout, table: int | None, n: int, jitter: float = 0.3) ->
         side, along = seats[i]
         gap = float(rng.uniform(0.0, 0.35)) + 0.04
         for attempt in range(4):  # pull the chair further out until it fits
-            if L.place_facing(chair, table, side, along + float(rng.uniform(-0.05, 0.05)), gap + 0.08 * attempt, jitter) is not None:
+            if (
+                L.place_facing(
+                    chair, table, side, along + float(rng.uniform(-0.05, 0.05)), gap + 0.08 * attempt, jitter
+                )
+                is not None
+            ):
                 break
 
 
@@ -119,12 +153,19 @@ def _sofa_group(L: Layout) -> None:
     table = None
     if _p(rng, 0.75):
         t = fu.table(rng, "coffee")
-        table = L.place_rel(t, sofa, float(rng.uniform(-0.2, 0.2)),
-                            float(L.objects[sofa].item.hi[2] + rng.uniform(0.3, 0.55) - t.lo[2]), float(rng.uniform(-0.1, 0.1)))
+        table = L.place_rel(
+            t,
+            sofa,
+            float(rng.uniform(-0.2, 0.2)),
+            float(L.objects[sofa].item.hi[2] + rng.uniform(0.3, 0.55) - t.lo[2]),
+            float(rng.uniform(-0.1, 0.1)),
+        )
         _clutter(L, table, _n(rng, 0, 3))
     for side in (-1.0, 1.0):
         if _p(rng, 0.3):
-            st = L.place_beside(fu.night_stand(rng) if _p(rng, 0.5) else fu.table(rng, "side"), sofa, side, 0.05)
+            st = L.place_beside(
+                fu.night_stand(rng) if _p(rng, 0.5) else fu.table(rng, "side"), sofa, side, 0.05
+            )
             if st is not None and _p(rng, 0.6):
                 L.place_on(fu.lamp(rng, floor=False), st)
         elif _p(rng, 0.25):
@@ -132,24 +173,37 @@ def _sofa_group(L: Layout) -> None:
     if table is not None:
         for side in (1, 3):
             if _p(rng, 0.45):
-                L.place_facing(fu.chair(rng, "armchair"), table, side, float(rng.uniform(-0.2, 0.2)), float(rng.uniform(0.25, 0.6)), 0.4)
+                L.place_facing(
+                    fu.chair(rng, "armchair"),
+                    table,
+                    side,
+                    float(rng.uniform(-0.2, 0.2)),
+                    float(rng.uniform(0.25, 0.6)),
+                    0.4,
+                )
 
 
 def _tv_group(L: Layout) -> None:
     rng = L.rng
     if _p(rng, 0.3):  # on the wall
-        L.place_wall(fu.television(rng, on_stand=False), base=float(rng.uniform(0.9, 1.5)), gap=(0.02, 0.06), corner=0)
+        L.place_wall(
+            fu.television(rng, on_stand=False), base=float(rng.uniform(0.9, 1.5)), gap=(0.02, 0.06), corner=0
+        )
         return
     stand = L.place_wall(fu.dresser(rng) if _p(rng, 0.6) else fu.table(rng, "side"), tries=20)
     if stand is not None:
-        L.place_on(fu.television(rng), stand, jitter=0.25)
+        _tv_on(L, stand)
         _clutter(L, stand, _n(rng, 0, 2))
 
 
 def _desk_group(L: Layout, at_wall: bool = True) -> int | None:
     rng = L.rng
     d = fu.desk(rng)
-    idx = L.place_wall(d, tries=20) if at_wall else L.place_free(d, yaw=float(rng.choice([0, math.pi / 2, math.pi, -math.pi / 2])), jitter=0.1)
+    idx = (
+        L.place_wall(d, tries=20)
+        if at_wall
+        else L.place_free(d, yaw=float(rng.choice([0, math.pi / 2, math.pi, -math.pi / 2])), jitter=0.1)
+    )
     if idx is None:
         return None
     for _ in range(_n(rng, 1, 2) if _p(rng, 0.8) else 0):
@@ -158,7 +212,9 @@ def _desk_group(L: Layout, at_wall: bool = True) -> int | None:
         L.place_on(fu.lamp(rng, floor=False), idx, back=True)
     _clutter(L, idx, _n(rng, 0, 3))
     if _p(rng, 0.85):
-        L.place_facing(fu.chair(rng), idx, 0, float(rng.uniform(-0.3, 0.3)), float(rng.uniform(-0.05, 0.5)) + 0.06, 0.6)
+        L.place_facing(
+            fu.chair(rng), idx, 0, float(rng.uniform(-0.3, 0.3)), float(rng.uniform(-0.05, 0.5)) + 0.06, 0.6
+        )
     if _p(rng, 0.35):
         L.place_beside(fu.garbage_bin(rng), idx, float(rng.choice([-1.0, 1.0])), 0.05)
     return idx
@@ -196,9 +252,17 @@ def _extras(L: Layout) -> None:
         L.place_wall(fu.lamp(rng, floor=True), corner=0.7, gap=(0.05, 0.2))
     if _p(rng, 0.3):
         L.place_wall(fu.cabinet(rng), tries=10)
-    for _ in range(_n(rng, 0, 3)):
+    for _ in range(_n(rng, 1, 3)):
         L.place_free(fu.chair(rng), tries=10)
     _storage(L, 0, _n(rng, 0, 2))
+    if _p(rng, 0.35):  # a side table with a lamp, a TV or a box on it
+        idx = L.place_wall(fu.table(rng, "side"), corner=0.5)
+        if idx is not None:
+            what = int(rng.choice(3, p=[0.5, 0.25, 0.25]))
+            if what == 1:
+                _tv_on(L, idx)
+            else:
+                L.place_on(fu.lamp(rng, floor=False) if what == 0 else fu.box_(rng), idx, jitter=0.4)
 
 
 # ----------------------------------------------------------------------------- rooms
@@ -210,9 +274,9 @@ def _bedroom(L: Layout) -> None:
     if _p(rng, 0.7):
         idx = L.place_wall(fu.dresser(rng), tries=15)
         if idx is not None:
-            if _p(rng, 0.3):
-                L.place_on(fu.television(rng), idx, jitter=0.3)
             if _p(rng, 0.4):
+                _tv_on(L, idx)
+            if _p(rng, 0.5):
                 L.place_on(fu.lamp(rng, floor=False), idx)
             _clutter(L, idx, _n(rng, 0, 3))
     if _p(rng, 0.5):
@@ -229,7 +293,7 @@ def _living(L: Layout) -> None:
     _sofa_group(L)
     if _p(rng, 0.4):
         _sofa_group(L)
-    if _p(rng, 0.8):
+    if _p(rng, 0.85):
         _tv_group(L)
     _storage(L, _n(rng, 0, 2), _n(rng, 0, 3))
     if _p(rng, 0.5):
@@ -251,7 +315,9 @@ def _dining(L: Layout) -> None:
     _storage(L, _n(rng, 0, 1), _n(rng, 0, 3))
 
 
-def _counter(L: Layout, sink: bool, length: tuple[float, float] = (1.2, 3.0), stools: float = 0.0) -> int | None:
+def _counter(
+    L: Layout, sink: bool, length: tuple[float, float] = (1.2, 3.0), stools: float = 0.0
+) -> int | None:
     """A counter at a wall (with a drop-in sink), wall cabinets above it, things on top, and
     (probability ``stools``) chairs in front of it."""
     rng = L.rng
@@ -260,7 +326,9 @@ def _counter(L: Layout, sink: bool, length: tuple[float, float] = (1.2, 3.0), st
         if sink:
             c, s, (sx, sz, sbase) = fu.counter_with_sink(rng, length_)
         else:
-            c = fu.counter(rng, length_, float(rng.uniform(0.55, 0.65)), float(rng.uniform(0.82, 0.94)), None, 0.0)
+            c = fu.counter(
+                rng, length_, float(rng.uniform(0.55, 0.65)), float(rng.uniform(0.82, 0.94)), None, 0.0
+            )
         idx = L.place_wall(c, tries=4, gap=(0.0, 0.02), corner=0.5)
         if idx is None:
             continue
@@ -271,13 +339,17 @@ def _counter(L: Layout, sink: bool, length: tuple[float, float] = (1.2, 3.0), st
         for _ in range(_n(rng, 0, 4)):
             item = fu.box_(rng) if _p(rng, 0.35) else fu.small_item(rng)
             if _p(rng, 0.08):
-                item = fu.television(rng)
+                item = fu.television(rng, max_width=0.8)
             L.place_on(item, idx, jitter=0.4)
         if _p(rng, 0.5):
             cab = fu.cabinet(rng, wall_hung=True)
             for _ in range(3):
                 q = L.at_wall(cab, par.wall, 0.0, 0.0, float(rng.uniform(1.4, 1.55)))
-                lx = float(rng.uniform(c.lo[0] - cab.lo[0], c.hi[0] - cab.hi[0])) if c.size[0] > cab.size[0] else 0.0
+                lx = (
+                    float(rng.uniform(c.lo[0] - cab.lo[0], c.hi[0] - cab.hi[0]))
+                    if c.size[0] > cab.size[0]
+                    else 0.0
+                )
                 q.x, q.z = par.to_room(lx, float(c.lo[2] - cab.lo[2]))
                 if L.add(q) is not None:
                     break
@@ -313,7 +385,7 @@ def _office(L: Layout) -> None:
         _dining_set(L, (3, 6))
     if _p(rng, 0.15):
         _sofa_group(L)
-    for _ in range(_n(rng, 0, 3)):
+    for _ in range(_n(rng, 1, 4)):
         L.place_free(fu.chair(rng), tries=8)
 
 
@@ -340,14 +412,23 @@ def _classroom(L: Layout) -> None:
         for _ in range(_n(rng, 3, 6)):
             _desk_group(L, at_wall=_p(rng, 0.3))
     if _p(rng, 0.5):
-        L.place_wall(fu.television(rng, on_stand=False), base=float(rng.uniform(1.0, 1.5)), gap=(0.02, 0.06), corner=0)
+        L.place_wall(
+            fu.television(rng, on_stand=False), base=float(rng.uniform(1.0, 1.5)), gap=(0.02, 0.06), corner=0
+        )
     _storage(L, _n(rng, 0, 2), _n(rng, 0, 3))
     for _ in range(_n(rng, 1, 5)):
         L.place_free(fu.chair(rng), tries=8)
 
 
-_RECIPES = {"bedroom": _bedroom, "living": _living, "dining": _dining, "kitchen": _kitchen,
-            "office": _office, "bathroom": _bathroom, "classroom": _classroom}
+_RECIPES = {
+    "bedroom": _bedroom,
+    "living": _living,
+    "dining": _dining,
+    "kitchen": _kitchen,
+    "office": _office,
+    "bathroom": _bathroom,
+    "classroom": _classroom,
+}
 
 
 def furnish(rng: np.random.Generator, kind: str | None = None) -> tuple[str, Layout]:

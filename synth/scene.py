@@ -29,10 +29,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from a3d.runtime.frames import GroundTruth
-from a3d.runtime.geometry import NYU_CROP_INTRINSICS, NYU_CROP_SIZE, Intrinsics, canonical_boxes, project_boxes_to_2d
+from a3d.runtime.geometry import (
+    NYU_CROP_INTRINSICS,
+    NYU_CROP_SIZE,
+    Intrinsics,
+    canonical_boxes,
+    project_boxes_to_2d,
+)
 from a3d.synth import shading
 from a3d.synth.camera import CameraPose, CameraRanges, choose_camera
-from a3d.synth.layout import Layout
+from a3d.synth.layout import Placed
 from a3d.synth.parts import N_SLOTS
 from a3d.synth.raycast import PartArrays, RayGrid, cast, room_exit
 from a3d.synth.rooms import furnish
@@ -74,7 +80,8 @@ class ObjectRecord:
 class SynthFrame:
     """A rendered frame: ``color`` (H, W, 3) uint8 BGR, ``depth`` (H, W) float32 metres (0 =
     missing, sensor-like), ``depth_exact`` the noise-free z-depth, ``R_tilt`` (3, 3), intrinsics,
-    ground truth, ``instances`` (H, W) uint16, per-object statistics, room type and camera pose."""
+    ground truth, ``instances`` (H, W) uint16, ``floor`` (H, W) bool (visible floor pixels),
+    per-object statistics, room type and camera pose."""
 
     color: np.ndarray
     depth: np.ndarray
@@ -83,6 +90,7 @@ class SynthFrame:
     intrinsics: Intrinsics
     gt: GroundTruth
     instances: np.ndarray
+    floor: np.ndarray
     objects: list[ObjectRecord]
     room_type: str
     camera: CameraPose
@@ -97,12 +105,14 @@ def generate_frame(seed: int, config: SceneConfig = SceneConfig()) -> SynthFrame
     R = pose.R_tilt
     K = config.intrinsics.matrix()
     placed = [p for p in layout.objects if p.render]
-    parts, obj_mats = _part_arrays(layout, placed, pose, rng, config.palette)
+    parts, mats, room_faces = build_parts(placed, pose, rng, config.palette)
     n_obj, n_parts = len(placed), len(parts)
 
     grid = RayGrid.make(np.zeros(3), R, K, (H, W))
     room = layout.room
-    room_centre = pose.room_to_tilt(np.array(room.width / 2), np.array(room.height / 2), np.array(room.depth / 2))
+    room_centre = pose.room_to_tilt(
+        np.array(room.width / 2), np.array(room.height / 2), np.array(room.depth / 2)
+    )
     room_half = np.array([room.width / 2, room.height / 2, room.depth / 2])
     render = cast(grid, parts, n_obj, t=room_exit(grid, room_half, room_centre, -pose.heading))
     part = np.where(render.part >= 0, render.part, n_parts)  # index n_parts = the room
@@ -115,11 +125,12 @@ def generate_frame(seed: int, config: SceneConfig = SceneConfig()) -> SynthFrame
     records, gt, instances = _ground_truth(placed, pose, visible, render.alone, full, obj_map, config)
 
     all_parts = _with_room(parts, room_centre, room_half, -pose.heading)
-    mats, room_faces = obj_mats
     surf = shading.surfaces(grid, t, part, all_parts)
     alb = shading.albedo(surf, part, all_parts, mats, room_faces)
     gloss = np.where(surf.face >= 0, 0.0, mats.gloss[all_parts.material[part]]).astype(np.float32)
-    corners = pose.room_to_tilt(np.array([0, room.width, room.width, 0.0]), np.zeros(4), np.array([0, 0, room.depth, room.depth]))
+    corners = pose.room_to_tilt(
+        np.array([0, room.width, room.width, 0.0]), np.zeros(4), np.array([0, 0, room.depth, room.depth])
+    )
     lights = shading.draw_lights(rng, pose.height - room.height, corners)
     lit = shading.shadow_factor(surf.point, lights.positions[0], parts, n_obj)
     radiance = shading.illuminate(surf, alb, gloss, lights, t, lit)
@@ -134,20 +145,37 @@ def generate_frame(seed: int, config: SceneConfig = SceneConfig()) -> SynthFrame
         img = np.clip(radiance * (0.7 / max(float(np.percentile(radiance, 95)), 1e-4)), 0, 1) ** (1 / 2.2)
         color = np.ascontiguousarray((img[..., ::-1] * 255 + 0.5).astype(np.uint8))
         depth = t.astype(np.float32).copy()
-    return SynthFrame(color, depth, t.astype(np.float32), R, config.intrinsics, gt, instances, records, kind, pose)
+    return SynthFrame(
+        color,
+        depth,
+        t.astype(np.float32),
+        R,
+        config.intrinsics,
+        gt,
+        instances,
+        surf.face == shading.FLOOR,
+        records,
+        kind,
+        pose,
+    )
 
 
-def _part_arrays(layout: Layout, placed: list, pose: CameraPose, rng: np.random.Generator,
-                 palette: int) -> tuple[PartArrays, tuple[shading.Materials, np.ndarray]]:
-    """All rendered parts in the tilt frame, and the materials: object palette + floor, wall, ceiling.
+def build_parts(
+    placed: list[Placed], pose: CameraPose, rng: np.random.Generator, palette: int
+) -> tuple[PartArrays, shading.Materials, np.ndarray]:
+    """All rendered parts in the tilt frame, the materials (object palette, then floor, wall and
+    ceiling) and the room's material per surface (indexed FLOOR, CEILING, WALL).
 
     Every distinct furniture model picks N_SLOTS materials uniformly from the palette, whatever
     its class (pieces placed several times, like a set of chairs, share theirs).
     """
-    mats = shading.concat_materials(shading.draw_materials(rng, palette), shading.draw_materials(rng, 1, "floor"),
-                                    shading.draw_materials(rng, 1, "wall"), shading.draw_materials(rng, 1, "ceiling"))
-    room_faces = np.arange(palette, palette + 3)  # FLOOR, CEILING, WALL order below
-    room_faces = room_faces[[0, 2, 1]]
+    mats = shading.concat_materials(
+        shading.draw_materials(rng, palette),
+        shading.draw_materials(rng, 1, "floor"),
+        shading.draw_materials(rng, 1, "wall"),
+        shading.draw_materials(rng, 1, "ceiling"),
+    )
+    room_faces = palette + np.array([0, 2, 1])  # floor, wall, ceiling materials follow the palette
     slots: dict[int, np.ndarray] = {}
     kind, centre, half, yaw, obj, material = [], [], [], [], [], []
     for i, p in enumerate(placed):
@@ -165,19 +193,34 @@ def _part_arrays(layout: Layout, placed: list, pose: CameraPose, rng: np.random.
     c = np.array(centre, np.float64).reshape(-1, 3)
     tilt = pose.room_to_tilt(c[:, 0], c[:, 1], c[:, 2])
     n = len(kind)
-    parts = PartArrays(np.array(kind, np.int64), tilt, np.array(half, np.float64).reshape(-1, 3), np.array(yaw, np.float64),
-                       np.array(obj, np.int64), np.array(material, np.int64), shading.tint_jitter(rng, n))
-    return parts, (mats, room_faces)
+    parts = PartArrays(
+        np.array(kind, np.int64),
+        tilt,
+        np.array(half, np.float64).reshape(-1, 3),
+        np.array(yaw, np.float64),
+        np.array(obj, np.int64),
+        np.array(material, np.int64),
+        shading.tint_jitter(rng, n),
+    )
+    return parts, mats, room_faces
 
 
 def _with_room(parts: PartArrays, centre: np.ndarray, half: np.ndarray, yaw: float) -> PartArrays:
     """The parts plus the room box as the last part (kind ROOM)."""
-    return PartArrays(np.append(parts.kind, shading.ROOM), np.vstack([parts.centre, centre]),
-                      np.vstack([parts.half, half]), np.append(parts.yaw, yaw), np.append(parts.obj, -1),
-                      np.append(parts.material, 0), np.vstack([parts.tint, np.ones((1, 3))]))
+    return PartArrays(
+        np.append(parts.kind, shading.ROOM),
+        np.vstack([parts.centre, centre]),
+        np.vstack([parts.half, half]),
+        np.append(parts.yaw, yaw),
+        np.append(parts.obj, -1),
+        np.append(parts.material, 0),
+        np.vstack([parts.tint, np.ones((1, 3))]),
+    )
 
 
-def _outside_counts(grid: RayGrid, parts: PartArrays, n_obj: int, alone: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+def _outside_counts(
+    grid: RayGrid, parts: PartArrays, n_obj: int, alone: np.ndarray, size: tuple[int, int]
+) -> np.ndarray:
     """Estimated pixel area of each object's unoccluded projection outside the image."""
     H, W = size
     rects = grid.rects(parts)
@@ -189,12 +232,21 @@ def _outside_counts(grid: RayGrid, parts: PartArrays, n_obj: int, alone: np.ndar
     if len(cut) == 0:
         return np.zeros(n_obj)
     s = OUTSIDE_STRIDE
-    ext = RayGrid.make(grid.origin, grid.rot, grid.K, (math.ceil(2 * H / s), math.ceil(2 * W / s)), -W / 2, -H / 2, s)
+    ext = RayGrid.make(
+        grid.origin, grid.rot, grid.K, (math.ceil(2 * H / s), math.ceil(2 * W / s)), -W / 2, -H / 2, s
+    )
     return cast(ext, parts, n_obj, objects=cut, count_outside=size).alone * float(s * s)
 
 
-def _ground_truth(placed: list, pose: CameraPose, visible: np.ndarray, alone: np.ndarray, full: np.ndarray,
-                  obj_map: np.ndarray, config: SceneConfig) -> tuple[list[ObjectRecord], GroundTruth, np.ndarray]:
+def _ground_truth(
+    placed: list[Placed],
+    pose: CameraPose,
+    visible: np.ndarray,
+    alone: np.ndarray,
+    full: np.ndarray,
+    obj_map: np.ndarray,
+    config: SceneConfig,
+) -> tuple[list[ObjectRecord], GroundTruth, np.ndarray]:
     H, W = config.image_size
     records, names, boxes, vis_boxes, keep = [], [], [], [], []
     for i, p in enumerate(placed):
@@ -203,8 +255,17 @@ def _ground_truth(placed: list, pose: CameraPose, visible: np.ndarray, alone: np
             continue
         annotated = bool(visible[i] >= config.min_visible_px)
         visibility = float(visible[i] / full[i])
-        records.append(ObjectRecord(cls, annotated, int(visible[i]), int(alone[i]), float(full[i]), visibility,
-                                    bool(full[i] - alone[i] > TRUNCATED_FRACTION * full[i])))
+        records.append(
+            ObjectRecord(
+                cls,
+                annotated,
+                int(visible[i]),
+                int(alone[i]),
+                float(full[i]),
+                visibility,
+                bool(full[i] - alone[i] > TRUNCATED_FRACTION * full[i]),
+            )
+        )
         if not annotated:
             continue
         lo, hi = p.item.lo, p.item.hi
@@ -225,4 +286,3 @@ def _ground_truth(placed: list, pose: CameraPose, visible: np.ndarray, alone: np
     instances = lut[obj_map]  # obj_map -1 (room) reads the last entry, 0
     gt = GroundTruth.from_classes(names, boxes3d, np.array(vis_boxes).reshape(n, 4), amodal, ids)
     return records, gt, instances
-

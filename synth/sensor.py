@@ -35,7 +35,7 @@ class DepthSensor:
     sigma0: float = 0.0012
     sigma2: float = 0.0019
     edge_drop: float = 0.5  # dropout probability in the band along depth discontinuities
-    dark_albedo: float = 0.03  # albedo luminance below which IR return is unreliable
+    dark_albedo: float = 0.02  # albedo luminance below which IR return is unreliable
     glancing_cos: float = 0.12  # |cos incidence| below which depth is often lost
 
 
@@ -60,8 +60,14 @@ def _clumpy_uniform(rng: np.random.Generator, shape: tuple[int, int], sigma: flo
     return 1.0 / (1.0 + np.exp(-1.702 * g))
 
 
-def sense_depth(rng: np.random.Generator, z: np.ndarray, fx: float, albedo_lum: np.ndarray, cos_inc: np.ndarray,
-                s: DepthSensor = DepthSensor()) -> np.ndarray:
+def sense_depth(
+    rng: np.random.Generator,
+    z: np.ndarray,
+    fx: float,
+    albedo_lum: np.ndarray,
+    cos_inc: np.ndarray,
+    s: DepthSensor = DepthSensor(),
+) -> np.ndarray:
     """Noisy, quantised, holey float32 depth from the exact depth z (H, W)."""
     H, W = z.shape
     fb = fx * s.baseline
@@ -73,8 +79,10 @@ def sense_depth(rng: np.random.Generator, z: np.ndarray, fx: float, albedo_lum: 
     drop = (z < s.min_depth) | (z > s.max_depth)
     drop |= projector_shadow(z, fb)
     zp = np.pad(z, 1, mode="edge")  # depth discontinuities: a jump to one of the 4-neighbours
-    jump = np.maximum(np.maximum(np.abs(zp[1:-1, 2:] - z), np.abs(zp[1:-1, :-2] - z)),
-                      np.maximum(np.abs(zp[2:, 1:-1] - z), np.abs(zp[:-2, 1:-1] - z)))
+    jump = np.maximum(
+        np.maximum(np.abs(zp[1:-1, 2:] - z), np.abs(zp[1:-1, :-2] - z)),
+        np.maximum(np.abs(zp[2:, 1:-1] - z), np.abs(zp[:-2, 1:-1] - z)),
+    )
     band = cv2.dilate((jump > 0.04 * z).astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
     drop |= band & (rng.random((H, W), dtype=np.float32) < s.edge_drop)
     dark = np.clip((s.dark_albedo - albedo_lum) / s.dark_albedo, 0, 1) * 0.9

@@ -15,7 +15,6 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass
 
-
 import cv2
 import numpy as np
 
@@ -56,7 +55,9 @@ def _noise_bank(beta: float, aniso: float) -> np.ndarray:
 def _noise(rng: np.random.Generator, beta: float, aniso: float = 1.0) -> np.ndarray:
     """A random tileable noise field (TEX, TEX): a bank field, shifted and sign-flipped at random."""
     bank = _noise_bank(beta, aniso)
-    field = np.roll(bank[int(rng.integers(len(bank)))], (int(rng.integers(TEX)), int(rng.integers(TEX))), axis=(0, 1))
+    field = np.roll(
+        bank[int(rng.integers(len(bank)))], (int(rng.integers(TEX)), int(rng.integers(TEX))), axis=(0, 1)
+    )
     return field if rng.random() < 0.5 else -field
 
 
@@ -113,7 +114,9 @@ def draw_materials(rng: np.random.Generator, n: int, surface: str = "object") ->
         "wall": (("plain", "mottled", "stripes", "fabric"), [0.5, 0.3, 0.1, 0.1]),
         "ceiling": (("plain", "mottled"), [0.7, 0.3]),
     }[surface]
-    val = {"object": (0.08, 0.95), "floor": (0.15, 0.75), "wall": (0.55, 0.95), "ceiling": (0.75, 0.98)}[surface]
+    val = {"object": (0.08, 0.95), "floor": (0.15, 0.75), "wall": (0.55, 0.95), "ceiling": (0.75, 0.98)}[
+        surface
+    ]
     sat = {"object": (0.0, 0.75), "floor": (0.0, 0.6), "wall": (0.0, 0.3), "ceiling": (0.0, 0.08)}[surface]
     tex, tile, gloss, kind = [], [], [], []
     for _ in range(n):
@@ -121,15 +124,23 @@ def draw_materials(rng: np.random.Generator, n: int, surface: str = "object") ->
         base = _hsv_colour(rng, sat, val)
         other = _hsv_colour(rng, sat, val) if rng.random() < 0.6 else base * float(rng.uniform(0.3, 0.7))
         tex.append(np.clip(make_texture(rng, k, base, other), 0.0, 1.0))
-        tile.append(float(rng.uniform(0.25, 1.2)) if k not in ("fabric", "speckle") else float(rng.uniform(0.15, 0.5)))
+        tile.append(
+            float(rng.uniform(0.25, 1.2)) if k not in ("fabric", "speckle") else float(rng.uniform(0.15, 0.5))
+        )
         gloss.append(float(rng.choice([0.0, 0.0, rng.uniform(0.05, 0.3), 0.5 if k == "metal" else 0.1])))
         kind.append(KINDS.index(k))
-    return Materials(np.stack(tex).astype(np.float32), np.array(tile, np.float32), np.array(gloss, np.float32),
-                     np.array(kind, np.int64))
+    return Materials(
+        np.stack(tex).astype(np.float32),
+        np.array(tile, np.float32),
+        np.array(gloss, np.float32),
+        np.array(kind, np.int64),
+    )
 
 
 def concat_materials(*banks: Materials) -> Materials:
-    return Materials(*(np.concatenate([getattr(b, f) for b in banks]) for f in ("texture", "tile", "gloss", "kind")))
+    return Materials(
+        *(np.concatenate([getattr(b, f) for b in banks]) for f in ("texture", "tile", "gloss", "kind"))
+    )
 
 
 # ----------------------------------------------------------------------------- surfaces
@@ -165,7 +176,11 @@ def surfaces(grid: RayGrid, t: np.ndarray, part: np.ndarray, parts: PartArrays) 
     ca, sa = per_pixel(np.cos(parts.yaw)), per_pixel(np.sin(parts.yaw))
     q0, q1, q2 = (P[k] - per_pixel(parts.centre[:, k]) for k in range(3))
     qx, qy, qz = ca * q0 - sa * q2, q1, sa * q0 + ca * q2
-    rx, ry, rz = qx / per_pixel(parts.half[:, 0]), qy / per_pixel(parts.half[:, 1]), qz / per_pixel(parts.half[:, 2])
+    rx, ry, rz = (
+        qx / per_pixel(parts.half[:, 0]),
+        qy / per_pixel(parts.half[:, 1]),
+        qz / per_pixel(parts.half[:, 2]),
+    )
     kind = np.take(parts.kind, flat).reshape(shape)
     ax, ay, az = np.abs(rx), np.abs(ry), np.abs(rz)
     rho = np.sqrt(rx * rx + rz * rz)
@@ -191,7 +206,9 @@ def surfaces(grid: RayGrid, t: np.ndarray, part: np.ndarray, parts: PartArrays) 
     return Surfaces(P, normal, uv, face)
 
 
-def albedo(s: Surfaces, part: np.ndarray, parts: PartArrays, mats: Materials, room_faces: np.ndarray) -> np.ndarray:
+def albedo(
+    s: Surfaces, part: np.ndarray, parts: PartArrays, mats: Materials, room_faces: np.ndarray
+) -> np.ndarray:
     """(H, W, 3) linear albedo: each part's material (the room's per face) sampled at its uv, tinted."""
     m = np.where(s.face >= 0, room_faces[np.maximum(s.face, 0)], np.take(parts.material, part))
     inv_tile = (1.0 / mats.tile).astype(np.float32)[m] * TEX
@@ -219,16 +236,21 @@ class Lights:
 
 def draw_lights(rng: np.random.Generator, ceiling_y: float, room_corners: np.ndarray) -> Lights:
     """Ambient + 1-3 ceiling lights at random spots of the room (tilt frame), sometimes a sun."""
-    tint = lambda: np.array([1.0, rng.uniform(0.85, 1.0), rng.uniform(0.65, 1.0)])[:: int(rng.choice([1, -1]))]  # noqa: E731
+
+    def tint():
+        return np.array([1.0, rng.uniform(0.85, 1.0), rng.uniform(0.65, 1.0)])[:: int(rng.choice([1, -1]))]
+
     n = int(rng.integers(1, 4))
     lo, hi = room_corners.min(axis=0), room_corners.max(axis=0)
     pos = []
     for _ in range(n):
         w = rng.dirichlet(np.ones(len(room_corners)) * 2)
         p = w @ room_corners
-        pos.append([p[0], ceiling_y + float(rng.uniform(0.05, 0.5)), p[2]])
+        pos.append([p[0], ceiling_y + float(rng.uniform(0.05, 0.3)), p[2]])
     pos_arr = np.clip(np.array(pos), [lo[0] + 0.1, -np.inf, lo[2] + 0.1], [hi[0] - 0.1, np.inf, hi[2] - 0.1])
-    powers = np.array([tint() * rng.uniform(0.6, 1.4) * (1.0 if i == 0 else rng.uniform(0.2, 0.6)) for i in range(n)])
+    powers = np.array(
+        [tint() * rng.uniform(0.6, 1.4) * (1.0 if i == 0 else rng.uniform(0.2, 0.6)) for i in range(n)]
+    )
     ambient = tint() * rng.uniform(0.12, 0.35)
     sun_dir = sun = None
     if rng.random() < 0.3:
@@ -238,14 +260,15 @@ def draw_lights(rng: np.random.Generator, ceiling_y: float, room_corners: np.nda
 
 
 _LIGHT_ROT = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # view (x, y, z) -> tilt: z down
-_SHADOW_SIZE, _SHADOW_TAN = 160, 3.0
+_SHADOW_SIZE, _SHADOW_TAN = 256, 2.5
 
 
 def shadow_factor(points: np.ndarray, light: np.ndarray, parts: PartArrays, n_objects: int) -> np.ndarray:
     """(H, W) in [0, 1]: how much of the light reaches each point (1 = lit), by a shadow map.
 
-    The map looks straight down from the light over a 143-degree field; points it does not
-    cover count as lit. Four neighbouring map samples are compared and averaged (soft edges).
+    The map looks straight down from the light over a 136-degree field; points it does not
+    cover count as lit. The four nearest map samples are compared and their results bilinearly
+    weighted, then blurred a little (soft edges).
     """
     f = _SHADOW_SIZE / (2 * _SHADOW_TAN)
     c = (_SHADOW_SIZE - 1) / 2
@@ -259,13 +282,20 @@ def shadow_factor(points: np.ndarray, light: np.ndarray, parts: PartArrays, n_ob
     safe = np.where(ok, vz, 1.0)
     u, v = f * vx / safe + c, f * vy / safe + c
     ok &= (u >= 0) & (u < _SHADOW_SIZE - 1) & (v >= 0) & (v < _SHADOW_SIZE - 1)
+    fu_, fv_ = np.where(ok, u, 0), np.where(ok, v, 0)
+    u0, v0 = fu_.astype(np.int64), fv_.astype(np.int64)
+    wu, wv = (fu_ - u0).astype(np.float32), (fv_ - v0).astype(np.float32)
+    limit = vz - (0.03 + 0.02 * vz)  # depth bias against self-shadowing
     lit = np.zeros(vz.shape, np.float32)
-    u0, v0 = np.where(ok, u, 0).astype(np.int64), np.where(ok, v, 0).astype(np.int64)
-    bias = 0.03 + 0.02 * vz
-    for du in (0, 1):
-        for dv in (0, 1):
-            lit += (depth[v0 + dv, u0 + du] >= vz - bias).astype(np.float32)
-    return np.where(ok, lit / 4, 1.0)
+    for du, dv, w in (
+        (0, 0, (1 - wu) * (1 - wv)),
+        (1, 0, wu * (1 - wv)),
+        (0, 1, (1 - wu) * wv),
+        (1, 1, wu * wv),
+    ):
+        lit += w * (depth[v0 + dv, u0 + du] >= limit)
+    lit = cv2.GaussianBlur(lit, (0, 0), 1.5)  # soft shadow edges
+    return np.where(ok, lit, np.float32(1))
 
 
 def _ssao(depth: np.ndarray) -> np.ndarray:
@@ -278,8 +308,9 @@ def _ssao(depth: np.ndarray) -> np.ndarray:
     return 1 - np.clip(2.5 * (z - blur) / np.maximum(blur, 0.5), 0, 0.45)
 
 
-def illuminate(s: Surfaces, alb: np.ndarray, gloss: np.ndarray, lights: Lights, depth: np.ndarray,
-               lit_main: np.ndarray) -> np.ndarray:
+def illuminate(
+    s: Surfaces, alb: np.ndarray, gloss: np.ndarray, lights: Lights, depth: np.ndarray, lit_main: np.ndarray
+) -> np.ndarray:
     """(H, W, 3) linear radiance seen from a camera at the tilt-frame origin: albedo times
     (occluded ambient + lights with distance falloff) plus a highlight of the main light."""
     f32 = np.float32
@@ -295,7 +326,9 @@ def illuminate(s: Surfaces, alb: np.ndarray, gloss: np.ndarray, lights: Lights, 
         if i == 0:
             ndl *= lit_main
             hx, hy, hz = lx * inv_d - px * inv_v, ly * inv_d - py * inv_v, lz * inv_d - pz * inv_v
-            nh = np.maximum(nx * hx + ny * hy + nz * hz, f32(0)) / np.sqrt(hx * hx + hy * hy + hz * hz + f32(1e-12))
+            nh = np.maximum(nx * hx + ny * hy + nz * hz, f32(0)) / np.sqrt(
+                hx * hx + hy * hy + hz * hz + f32(1e-12)
+            )
             nh8 = ((nh * nh) ** 2) ** 2
             spec = ndl * ((nh8 * nh8) ** 2 * nh8)  # (n.h)^40
         irradiance.append(ndl)
@@ -306,11 +339,12 @@ def illuminate(s: Surfaces, alb: np.ndarray, gloss: np.ndarray, lights: Lights, 
         powers = np.vstack([powers, lights.sun.astype(f32)])
     sky = (f32(0.85) - f32(0.15) * ny) * _ssao(depth)  # surfaces facing up (n_y = -1) get more ambient light
     ambient = lights.ambient.astype(f32)
-    light = [sum((p[c] * e for p, e in zip(powers, irradiance, strict=True)), sky * ambient[c]) for c in range(3)]
+    light = [
+        sum((p[c] * e for p, e in zip(powers, irradiance, strict=True)), sky * ambient[c]) for c in range(3)
+    ]
     return alb * np.stack(light, axis=-1) + (gloss * spec)[..., None]
 
 
 def tint_jitter(rng: np.random.Generator, n: int, spread: float = 0.06) -> np.ndarray:
     """(n, 3) per-part multiplicative colour jitter around 1 (class-blind)."""
     return np.clip(1 + rng.normal(0, spread, (n, 3)), 0.7, 1.3) * rng.uniform(0.85, 1.15, (n, 1))
-

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from a3d.runtime.classes import CLASSES, NUM_CLASSES, class_index
 from a3d.runtime.detections_io import FrameDetections
 from a3d.runtime.evaluation import (

@@ -21,6 +21,7 @@ import sys
 from pathlib import Path
 
 import cv2
+
 from a3d.runtime.detections_io import FrameDetections, atomic_write_bytes, read_detections
 from a3d.runtime.errors import InputError
 from a3d.runtime.evaluation import IOU_THRESHOLDS, NMS_IOU, EvalConfig, EvalResult, FrameTruth, evaluate

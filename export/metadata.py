@@ -1,0 +1,115 @@
+"""ModelMetadata from a training checkpoint: everything the runtime needs besides the graph.
+
+Values come from the checkpoint (classes, mean sizes, training config) and from the shared
+preprocessing constants (a3d.runtime.preprocess), never typed in twice. Post-processing defaults
+are the training config's ``inference`` section, so a3d-run reproduces the validation detector of
+a3d.train.inference; ``score_threshold`` can be raised at export (``--score-threshold``).
+"""
+
+from __future__ import annotations
+
+import datetime
+import hashlib
+import importlib.metadata
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from a3d.export.onnx_export import ExportError
+from a3d.runtime.classes import CLASSES, NUM_CLASSES
+from a3d.runtime.model import SCHEMA_VERSION, ModelMetadata
+from a3d.runtime.preprocess import COLOR_MEAN_BGR, DEPTH_MEAN
+from a3d.train.config import TrainConfig
+from a3d.train.dataset import CONTEXT_SCALE
+
+METRICS_FILE = "metrics.jsonl"  # a3d.train.loop writes it next to checkpoint.pt
+
+
+def build_metadata(
+    state: dict,
+    config: TrainConfig,
+    checkpoint: str | os.PathLike,
+    *,
+    score_threshold: float | None = None,
+    export_options: dict[str, Any] | None = None,
+) -> ModelMetadata:
+    """Metadata for the model exported from checkpoint ``state`` (as load_checkpoint returns it).
+
+    ``export_options`` (opset, int8, svd rank, ...) go into the provenance as they are.
+    """
+    path = Path(checkpoint)
+    classes = tuple(state.get("classes", CLASSES))
+    if classes != CLASSES:
+        raise ExportError(f"{path}: checkpoint classes {list(classes)} are not a3d's 19 classes")
+    sizes = np.asarray(state["mean_sizes"], np.float64)
+    if sizes.shape != (NUM_CLASSES, 3) or not np.all(np.isfinite(sizes) & (sizes > 0)):
+        raise ExportError(f"{path}: checkpoint mean_sizes must be positive, shape (19, 3), got {sizes.shape}")
+    inference = config.inference
+    return ModelMetadata(
+        schema_version=SCHEMA_VERSION,
+        classes=CLASSES,
+        mean_sizes=sizes,
+        color_mean_bgr=tuple(float(v) for v in COLOR_MEAN_BGR),
+        depth_mean=float(DEPTH_MEAN),
+        depth_truncation_m=float(config.data.depth_truncation),
+        input_scale=float(config.data.scale),
+        context_scale=float(CONTEXT_SCALE),
+        score_threshold=float(inference.min_score if score_threshold is None else score_threshold),
+        nms_iou=float(inference.nms_iou),
+        top_k=int(inference.top_k),
+        max_proposals=int(config.proposals.max_proposals),
+        proposal_config=config.to_dict()["proposals"],
+        provenance=provenance(state, config, path, export_options or {}),
+    )
+
+
+def provenance(state: dict, config: TrainConfig, checkpoint: Path, export_options: dict[str, Any]) -> dict:
+    """Where the model came from: package versions, date, checkpoint hash, training config and data."""
+    return {
+        "a3d_version": _version("a3d"),
+        "exported_at": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+        "checkpoint": {
+            "path": str(checkpoint.resolve()),
+            "sha256": file_sha256(checkpoint),
+            "iteration": int(state["iteration"]),
+        },
+        "training_config": config.to_dict(),
+        "training_data": training_data(state, checkpoint),
+        "export": {**export_options, **{name: _version(name) for name in ("torch", "onnx", "onnxruntime")}},
+    }
+
+
+def training_data(state: dict, checkpoint: Path) -> dict | None:
+    """The training set's description: the checkpoint's ``data`` entry (path, frames) when it has
+    one, else the run's last ``"kind": "data"`` metrics line (frame and RoI counts), else None."""
+    if isinstance(state.get("data"), dict):
+        return state["data"]
+    metrics = checkpoint.parent / METRICS_FILE
+    found = None
+    if metrics.is_file():
+        for line in metrics.read_text(encoding="utf-8", errors="replace").splitlines():
+            try:
+                record = json.loads(line)
+            except json.JSONDecodeError:
+                continue
+            if isinstance(record, dict) and record.get("kind") == "data":
+                found = {k: v for k, v in record.items() if k not in ("kind", "iter")}
+    return found
+
+
+def file_sha256(path: Path) -> str:
+    sha = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            sha.update(block)
+    return sha.hexdigest()
+
+
+def _version(package: str) -> str | None:
+    try:
+        return importlib.metadata.version(package)
+    except importlib.metadata.PackageNotFoundError:
+        return None

@@ -1,0 +1,168 @@
+"""A3DNet -> the runtime's ONNX graph (the a3d.runtime.model contract) and the model file.
+
+``RuntimeGraph`` wraps a trained A3DNet into what the runtime runs: one image, (R, 4) RoIs (the
+batch index column of zeros is added inside), softmax inside, outputs reshaped to (R, 20, 7) and
+(R, 20, 4). The training target normalisation is folded into the box heads' weights
+(``fold_target_stats``), as the authors' release does at save time (SPEC.md "Regression
+targets"), so the graph answers raw deltas for box_coder.decode_3d / decode_2d.
+
+Export uses the torch.onnx dynamo exporter as tests/test_model_onnx.py does (weights inside the
+file: external_data=False; opset >= 18, the lowest it implements; IR version <= 13 for ONNX
+Runtime, PLATFORM.md "ONNX / ORT pitfalls"), with the image size and the RoI count dynamic.
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import os
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import onnx
+import torch
+from torch import nn
+
+from a3d.runtime.classes import NUM_OUTPUTS
+from a3d.runtime.detections_io import atomic_write_bytes
+from a3d.runtime.model import INPUT_NAMES, METADATA_KEY, OUTPUT_NAMES, ModelMetadata, content_digest
+from a3d.train.checkpoint import load_checkpoint
+from a3d.train.config import TrainConfig
+from a3d.train.dataset import TargetStats
+from a3d.train.model.net import BOX2D_SIZE, BOX3D_SIZE, A3DNet
+
+MIN_OPSET = 18  # the dynamo exporter's lowest native opset; lower ones fail its version conversion
+MAX_IR_VERSION = 13  # ONNX Runtime 1.31 reads IR <= 13 (onnx 1.23 writes 14 by default)
+EXAMPLE_SIZE = (64, 80)  # (h, w) of the tracing example; the exported graph takes any size
+
+
+class ExportError(RuntimeError):
+    """Export or verification failed; the message is one line for the command line."""
+
+
+@dataclass(frozen=True)
+class Trained:
+    """A training checkpoint ready to export: the network (eval mode), its target statistics,
+    its training config and the rest of the checkpoint (without model and optimizer state)."""
+
+    net: A3DNet
+    stats: TargetStats
+    config: TrainConfig
+    state: dict
+
+
+def load_trained(path: str | os.PathLike) -> Trained:
+    """Read an a3d-train checkpoint; CheckpointError / ExportError "PATH: problem" if unusable."""
+    state = load_checkpoint(path)
+    missing = [k for k in ("target_stats", "mean_sizes") if k not in state]
+    if missing:
+        raise ExportError(f"{path}: checkpoint without {', '.join(missing)} (not written by a3d-train?)")
+    config = TrainConfig.from_json(state["config"], str(path))
+    net = A3DNet(config.net)
+    try:
+        net.load_state_dict(state["model"])
+    except RuntimeError as e:
+        first = str(e).strip().splitlines()[0]
+        raise ExportError(f"{path}: weights do not fit the checkpoint's network config ({first})") from None
+    stats = TargetStats.from_tensors(state["target_stats"])
+    rest = {k: v for k, v in state.items() if k not in ("model", "optimizer")}
+    return Trained(net.eval(), stats, config, rest)
+
+
+class RuntimeGraph(nn.Module):
+    """forward(color (1,3,h,w), depth (1,3,h,w), rois (R,4), context_rois (R,4))
+    -> (class_probs (R,20), deltas3d (R,20,7), deltas2d (R,20,4)), deltas raw (de-normalised)."""
+
+    def __init__(self, net: A3DNet, stats: TargetStats) -> None:
+        super().__init__()
+        self.net = fold_target_stats(net, stats)
+
+    def forward(
+        self, color: torch.Tensor, depth: torch.Tensor, rois: torch.Tensor, context_rois: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        image = torch.zeros_like(rois[:, :1])  # every RoI is on image 0 of a batch of one
+        logits, deltas3d, deltas2d = self.net(
+            color, depth, torch.cat([image, rois], dim=1), torch.cat([image, context_rois], dim=1)
+        )
+        return (
+            torch.softmax(logits, dim=1),
+            deltas3d.reshape(-1, NUM_OUTPUTS, BOX3D_SIZE),
+            deltas2d.reshape(-1, NUM_OUTPUTS, BOX2D_SIZE),
+        )
+
+
+def fold_target_stats(net: A3DNet, stats: TargetStats) -> A3DNet:
+    """An eval-mode copy of ``net`` whose box heads answer raw deltas.
+
+    The network predicts normalised deltas n = W x + b, and raw = n * std + mean per class and
+    coordinate (output row k * 7 + j for class k, coordinate j); so W' = std * W (row-wise) and
+    b' = std * b + mean give raw = W' x + b'. Computed in float64, stored in the layer's dtype.
+    """
+    folded = copy.deepcopy(net).eval()
+    with torch.no_grad():
+        for layer, mean, std in (
+            (folded.bbox_pred_3d, stats.mean3d, stats.std3d),
+            (folded.bbox_pred_2d, stats.mean2d, stats.std2d),
+        ):
+            m = torch.as_tensor(mean, dtype=torch.float64).reshape(-1)
+            s = torch.as_tensor(std, dtype=torch.float64).reshape(-1)
+            layer.weight.copy_(layer.weight.double() * s[:, None])
+            layer.bias.copy_(layer.bias.double() * s + m)
+    return folded
+
+
+def example_inputs(height: int, width: int, count: int, seed: int = 0) -> tuple[torch.Tensor, ...]:
+    """Distinct random network inputs (the exporter merges aliased example tensors into one input)."""
+    gen = torch.Generator().manual_seed(seed)
+    color = torch.randn(1, 3, height, width, generator=gen) * 50
+    depth = torch.randn(1, 3, height, width, generator=gen) * 50
+    boxes = []
+    for _ in range(2):
+        corner = torch.rand(count, 2, generator=gen) * torch.tensor([width, height]) - 0.5
+        size = torch.rand(count, 2, generator=gen) * torch.tensor([width, height]) / 2 + 1
+        boxes.append(torch.cat([corner, corner + size], dim=1))
+    return color, depth, boxes[0], boxes[1]
+
+
+def export_graph(graph: RuntimeGraph, path: str | os.PathLike, opset: int = MIN_OPSET) -> onnx.ModelProto:
+    """Trace ``graph`` to ONNX at ``path`` (plain graph, no a3d metadata yet) and return it."""
+    if opset < MIN_OPSET:
+        raise ExportError(f"--opset {opset}: the exporter supports opset {MIN_OPSET} or newer")
+    graph = graph.eval()
+    dims = {2: "height", 3: "width"}
+    with warnings.catch_warnings(), torch.no_grad():
+        warnings.simplefilter("ignore")  # the exporter's deprecation and dynamic-shape chatter
+        torch.onnx.export(
+            graph,
+            example_inputs(*EXAMPLE_SIZE, count=5),
+            str(path),
+            input_names=list(INPUT_NAMES),
+            output_names=list(OUTPUT_NAMES),
+            dynamic_shapes={"color": dims, "depth": dims, "rois": {0: "rois"}, "context_rois": {0: "rois"}},
+            opset_version=opset,
+            dynamo=True,
+            external_data=False,
+            verbose=False,
+        )
+    model = onnx.load(str(path))
+    got = next((o.version for o in model.opset_import if o.domain in ("", "ai.onnx")), None)
+    if got != opset:
+        raise ExportError(f"--opset {opset}: the exporter wrote opset {got}")
+    model.ir_version = min(model.ir_version, MAX_IR_VERSION)
+    return model
+
+
+def save_model(model: onnx.ModelProto, metadata: ModelMetadata, path: str | os.PathLike) -> ModelMetadata:
+    """Write ``model`` with ``metadata`` (its content digest filled in) atomically to ``path``.
+
+    Sets the a3d entry of ``model.metadata_props`` in place (other entries are kept) and returns
+    the metadata written.
+    """
+    others = {p.key: p.value for p in model.metadata_props if p.key != METADATA_KEY}
+    onnx.helper.set_model_props(model, others)
+    digest = content_digest(model.SerializeToString(), str(path))
+    metadata = dataclasses.replace(metadata, content_sha256=digest)
+    model.metadata_props.add(key=METADATA_KEY, value=metadata.to_json())
+    atomic_write_bytes(Path(path), model.SerializeToString())
+    return metadata

@@ -1,0 +1,61 @@
+"""Truncated SVD of the fully connected layers fc6 and fc7 (Fast R-CNN, Girshick 2015, sec. 3.1).
+
+A Linear layer y = W x + b with W (out, in) is replaced by two: y = U_r (S_r V_r^T x) + b, i.e.
+Linear(in, r, no bias) then Linear(r, out) with the original bias, which costs r (in + out)
+multiply-adds per RoI instead of in * out. The singular values are split evenly between the two
+factors (sqrt(S_r) on each side), which keeps both weight matrices in a similar range for int8
+quantisation; the product is the same as Fast R-CNN's S_r V_r^T / U_r split. At full rank
+r = min(in, out) the layer is reproduced to float rounding.
+
+The factorisation is done on the torch model before export, so the export is verified against
+the compressed torch model, and compared to the uncompressed one separately (a3d.export.cli).
+"""
+
+from __future__ import annotations
+
+import copy
+
+import torch
+from torch import nn
+
+from a3d.train.model.net import A3DNet
+
+SVD_LAYERS = ("fc6", "fc7")
+
+
+def truncated_svd(layer: nn.Linear, rank: int, name: str = "layer") -> tuple[nn.Sequential, dict]:
+    """Two Linears equal to ``layer`` at rank ``rank``, and a summary (shape, parameters, energy kept)."""
+    weight = layer.weight.detach().double()
+    full = min(weight.shape)
+    if not 1 <= rank <= full:
+        raise ValueError(
+            f"--svd {rank}: {name} is {weight.shape[0]}x{weight.shape[1]}, rank must be in [1, {full}]"
+        )
+    u, s, vh = torch.linalg.svd(weight, full_matrices=False)
+    root = s[:rank].sqrt()
+    first = nn.Linear(weight.shape[1], rank, bias=False)
+    second = nn.Linear(rank, weight.shape[0], bias=layer.bias is not None)
+    dtype = layer.weight.dtype
+    with torch.no_grad():
+        first.weight.copy_((root[:, None] * vh[:rank]).to(dtype))
+        second.weight.copy_((u[:, :rank] * root[None, :]).to(dtype))
+        if layer.bias is not None:
+            second.bias.copy_(layer.bias)
+    summary = {
+        "shape": list(weight.shape),
+        "rank": rank,
+        "parameters": weight.numel(),
+        "parameters_svd": rank * sum(weight.shape),
+        "energy_kept": float((s[:rank] ** 2).sum() / (s**2).sum().clamp(min=1e-300)),
+    }
+    return nn.Sequential(first, second), summary
+
+
+def svd_compress(net: A3DNet, rank: int) -> tuple[A3DNet, dict[str, dict]]:
+    """An eval-mode copy of ``net`` with fc6 and fc7 factorised at ``rank``, and per-layer summaries."""
+    out = copy.deepcopy(net).eval()
+    summaries = {}
+    for name in SVD_LAYERS:
+        factored, summaries[name] = truncated_svd(getattr(net, name), rank, name)
+        setattr(out, name, factored)
+    return out, summaries

@@ -1,0 +1,192 @@
+"""``a3d-synth``: write a synthetic RGB-D training and test set, or summarise one.
+
+    a3d-synth OUT --frames N --seed S [--split test=0.3] [--workers K] [--size HxW]
+    a3d-synth --stats OUT
+
+Frame i of a run is rendered from ``frame_seed(S, i)``, so a set is the same whatever the number
+of workers. Frames go to OUT/train and OUT/test (a random ``test`` share, also fixed by S) as
+``synth_NNNNNN`` in the README frame format, each folder with its ``intrinsics.json``; one
+statistics line per frame goes to OUT/synth_objects.jsonl (``a3d.synth.stats``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import cv2
+import numpy as np
+from tqdm import tqdm
+
+from a3d.runtime.errors import InputError
+from a3d.runtime.frames import write_frame, write_intrinsics
+from a3d.runtime.geometry import NYU_CROP_INTRINSICS, NYU_CROP_SIZE, Intrinsics
+from a3d.synth.scene import SceneConfig, generate_frame
+from a3d.synth.stats import RECORDS_FILE, format_summary, frame_record, read_records, summarise
+
+
+def frame_seed(seed: int, index: int) -> int:
+    """The render seed of frame ``index`` of a run with seed ``seed``."""
+    return int(np.random.SeedSequence([seed, index]).generate_state(1, np.uint64)[0] >> np.uint64(1))
+
+
+def test_indices(seed: int, n: int, share: float) -> set[int]:
+    """Which of frames 0..n-1 go to the test split (round(n * share) of them, fixed by seed)."""
+    order = np.random.default_rng(np.random.SeedSequence([seed, 0x7E57])).permutation(n)
+    return {int(i) for i in order[: round(n * share)]}
+
+
+def scaled_intrinsics(size: tuple[int, int]) -> Intrinsics:
+    """NYUv2 standard-crop intrinsics resampled to an image of ``size`` (H, W) (same field of view)."""
+    H, W = size
+    sy, sx = H / NYU_CROP_SIZE[0], W / NYU_CROP_SIZE[1]
+    k = NYU_CROP_INTRINSICS
+    return Intrinsics(k.fx * sx, k.fy * sy, (k.cx + 0.5) * sx - 0.5, (k.cy + 0.5) * sy - 0.5)
+
+
+def _parse_split(text: str) -> float:
+    name, _, value = text.partition("=")
+    try:
+        share = float(value)
+    except ValueError:
+        share = -1.0
+    if name != "test" or not 0.0 <= share <= 1.0:
+        raise argparse.ArgumentTypeError(f"--split: expected test=SHARE with SHARE in [0, 1], got {text!r}")
+    return share
+
+
+def _parse_size(text: str) -> tuple[int, int]:
+    try:
+        h, w = (int(v) for v in text.lower().split("x"))
+    except ValueError:
+        h = w = 0
+    if h < 16 or w < 16:
+        raise argparse.ArgumentTypeError(f"--size: expected HxW with both >= 16, got {text!r}")
+    return h, w
+
+
+def _render_one(job: tuple[Path, str, str, int, SceneConfig, str]) -> dict:
+    folder, name, split, seed, config, depth_format = job
+    frame = generate_frame(seed, config)
+    write_frame(
+        folder,
+        name,
+        frame.color,
+        frame.depth,
+        R_tilt=frame.R_tilt,
+        gt=frame.gt,
+        instances=frame.instances,
+        depth_format=depth_format,
+    )
+    return frame_record(name, split, seed, frame)
+
+
+def _init_worker() -> None:
+    cv2.setNumThreads(1)  # one core per worker
+
+
+def generate(
+    out: Path,
+    frames: int,
+    seed: int,
+    test_share: float,
+    workers: int,
+    config: SceneConfig,
+    depth_format: str = "png",
+    progress: bool = True,
+) -> list[dict]:
+    """Render and write a set (see the module docstring); returns its statistics records."""
+    test = test_indices(seed, frames, test_share)
+    jobs = []
+    for i in range(frames):
+        split = "test" if i in test else "train"
+        jobs.append((out / split, f"synth_{i:06d}", split, frame_seed(seed, i), config, depth_format))
+    for split in ("train", "test"):
+        (out / split).mkdir(parents=True, exist_ok=True)
+        write_intrinsics(out / split, config.intrinsics)
+    bar = tqdm(total=frames, desc="a3d-synth", unit="frame", disable=not progress)
+    records = []
+    if workers <= 1:
+        _init_worker()
+        for job in jobs:
+            records.append(_render_one(job))
+            bar.update()
+    else:
+        with multiprocessing.get_context("spawn").Pool(workers, initializer=_init_worker) as pool:
+            for record in pool.imap(_render_one, jobs, chunksize=1):
+                records.append(record)
+                bar.update()
+    bar.close()
+    with (out / RECORDS_FILE).open("w") as f:
+        for record in records:
+            f.write(json.dumps(record) + "\n")
+    return records
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="a3d-synth", description=__doc__.split("\n\n")[0])
+    parser.add_argument(
+        "out", nargs="?", type=Path, help="output folder (gets train/, test/ and the statistics)"
+    )
+    parser.add_argument("--frames", type=int, default=100, help="number of frames (default 100)")
+    parser.add_argument("--seed", type=int, default=0, help="run seed (default 0)")
+    parser.add_argument(
+        "--split",
+        type=_parse_split,
+        default=0.3,
+        metavar="test=SHARE",
+        help="share of frames in the test split (default test=0.3)",
+    )
+    parser.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
+    parser.add_argument(
+        "--size",
+        type=_parse_size,
+        default=NYU_CROP_SIZE,
+        metavar="HxW",
+        help="image size; the NYUv2 crop intrinsics are scaled to it (default 427x561)",
+    )
+    parser.add_argument(
+        "--min-visible-px",
+        type=int,
+        default=SceneConfig.min_visible_px,
+        help="objects with fewer visible pixels are not annotated (default %(default)s)",
+    )
+    parser.add_argument("--depth-format", choices=("png", "npy"), default="png")
+    parser.add_argument(
+        "--stats", type=Path, metavar="FOLDER", help="print the statistics of a generated set and exit"
+    )
+    args = parser.parse_args(argv)
+    if args.stats is not None:
+        try:
+            print(format_summary(summarise(read_records(args.stats))))
+        except (FileNotFoundError, ValueError) as e:
+            print(f"a3d-synth: {e}", file=sys.stderr)
+            return 2
+        return 0
+    if args.out is None:
+        parser.error("give an output folder, or --stats FOLDER")
+    if args.frames < 1 or args.workers < 1 or args.min_visible_px < 1:
+        parser.error("--frames, --workers and --min-visible-px must be >= 1")
+    config = replace(
+        SceneConfig(),
+        image_size=args.size,
+        intrinsics=scaled_intrinsics(args.size),
+        min_visible_px=args.min_visible_px,
+    )
+    try:
+        records = generate(
+            args.out, args.frames, args.seed, args.split, args.workers, config, args.depth_format
+        )
+    except (InputError, OSError) as e:
+        print(f"a3d-synth: {e}", file=sys.stderr)
+        return 1
+    print(format_summary(summarise(records)))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,307 @@
+"""a3d.synth: rendering agrees with the ground truth, sensor models, placement rules, determinism."""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import replace
+
+import cv2
+import numpy as np
+import pytest
+from a3d.runtime.classes import CLASSES
+from a3d.runtime.frames import list_frames, read_folder_intrinsics, read_frame, read_ground_truth, read_instances
+from a3d.runtime.geometry import backproject, box_area_2d
+from a3d.synth import SceneConfig, generate_frame
+from a3d.synth import furniture as fu
+from a3d.synth.camera import CameraPose
+from a3d.synth.cli import frame_seed, main, scaled_intrinsics
+from a3d.synth.parts import CYL, Furniture, box, cyl
+from a3d.synth.raycast import PartArrays, RayGrid, cast
+from a3d.synth.rooms import furnish
+from a3d.synth.scene import build_parts
+from a3d.synth.sensor import DepthSensor, depth_sigma, projector_shadow, sense_depth
+
+SEEDS = (11, 12, 13, 14, 15)
+
+
+@pytest.fixture(scope="module")
+def frames():
+    return [generate_frame(s) for s in SEEDS]
+
+
+def _local(points_cam: np.ndarray, box3d: np.ndarray, R_tilt: np.ndarray) -> np.ndarray:
+    """Points (N, 3) in the box's own frame (x along l, y along h, z along w), by the SPEC formulas."""
+    p = points_cam @ R_tilt.T - R_tilt @ box3d[:3]
+    c, s = math.cos(box3d[6]), math.sin(box3d[6])
+    return np.stack([c * p[:, 0] - s * p[:, 2], p[:, 1], s * p[:, 0] + c * p[:, 2]], axis=1)
+
+
+def _inside(local: np.ndarray, box3d: np.ndarray, margin: float) -> np.ndarray:
+    half = np.array([box3d[3], box3d[5], box3d[4]]) / 2 + margin
+    return np.all(np.abs(local) <= half, axis=1)
+
+
+def test_mask_pixels_back_project_into_their_3d_box(frames) -> None:
+    checked = 0
+    for f in frames:
+        assert len(f.gt) > 0
+        for k, b in enumerate(f.gt.boxes3d):
+            mask = f.instances == f.gt.instance_ids[k]
+            # sensor depth: >= 95% inside the box grown by 5 cm
+            v, u = np.nonzero(mask & (f.depth > 0))
+            if len(u) >= 20:
+                pts = backproject(u, v, f.depth[v, u], f.intrinsics)
+                assert _inside(_local(pts, b, f.R_tilt), b, 0.05).mean() >= 0.95, (f.gt.classes[k], len(u))
+                checked += 1
+            # exact depth: every visible pixel lies on the object, so inside its box (1 mm)
+            v, u = np.nonzero(mask)
+            pts = backproject(u, v, f.depth_exact[v, u], f.intrinsics)
+            assert _inside(_local(pts, b, f.R_tilt), b, 0.001).all(), f.gt.classes[k]
+    assert checked >= 20
+
+
+def test_2d_boxes_masks_and_classes_are_consistent(frames) -> None:
+    for f in frames:
+        gt = f.gt
+        H, W = f.depth.shape
+        assert set(np.unique(f.instances)) == {0, *gt.instance_ids.tolist()}
+        for k in range(len(gt)):
+            rows, cols = np.nonzero(f.instances == gt.instance_ids[k])
+            assert len(rows) >= SceneConfig().min_visible_px
+            extent = [cols.min() - 0.5, rows.min() - 0.5, cols.max() + 0.5, rows.max() + 0.5]
+            np.testing.assert_array_equal(gt.boxes2d_visible[k], extent)  # README pixel-extent convention
+            vis, amo = gt.boxes2d_visible[k], gt.boxes2d_amodal[k]
+            assert amo[0] <= vis[0] + 0.5 and amo[1] <= vis[1] + 0.5 and amo[2] >= vis[2] - 0.5 and amo[3] >= vis[3] - 0.5
+            assert -0.5 <= amo[0] <= amo[2] <= W - 0.5 and -0.5 <= amo[1] <= amo[3] <= H - 0.5
+        assert np.all(gt.boxes3d[:, 3] >= gt.boxes3d[:, 4]) and np.all(np.abs(gt.boxes3d[:, 6]) <= math.pi / 2)
+        assert all(c in CLASSES for c in gt.classes)
+        annotated = [r for r in f.objects if r.annotated]  # statistics come in ground-truth order
+        assert [r.cls for r in annotated] == gt.classes
+        for r in f.objects:
+            assert 0 <= r.visible_px <= r.alone_px <= r.full_px + 1e-6
+            assert r.annotated == (r.visible_px >= SceneConfig().min_visible_px)
+
+
+def test_rtilt_levels_the_floor(frames) -> None:
+    for f in frames:
+        v, u = np.nonzero(f.floor)
+        assert len(u) > 1000
+        y = (backproject(u, v, f.depth_exact[v, u], f.intrinsics) @ f.R_tilt.T)[:, 1]
+        assert y.max() - y.min() < 0.02
+        assert abs(np.median(y) - f.camera.height) < 0.01  # tilt y points down: the floor lies at +height
+        pitch = math.degrees(f.camera.pitch)
+        assert -35 <= pitch <= -5 and abs(math.degrees(f.camera.roll)) <= 5 and 1.0 <= f.camera.height <= 1.8
+
+
+def test_sensor_depth_is_kinect_like(frames) -> None:
+    errors, depths = [], []
+    for f in frames:
+        valid = f.depth > 0
+        assert 0.02 < 1 - valid.mean() < 0.5  # holes, but mostly depth
+        assert np.all((f.depth[valid] >= 0.4) & (f.depth[valid] <= 8.5))
+        errors.append(f.depth[valid] - f.depth_exact[valid])
+        depths.append(f.depth_exact[valid])
+    err, z = np.abs(np.concatenate(errors)), np.concatenate(depths)
+    near, far = err[z < 2.0].mean(), err[z > 3.0].mean()
+    assert near < 0.01 and far > 2 * near  # noise grows with depth
+
+
+def test_depth_noise_follows_sigma_and_disparity_steps() -> None:
+    rng = np.random.default_rng(0)
+    s = DepthSensor()
+    fx = 518.857901
+    for z0 in (1.0, 3.0):
+        z = np.full((200, 200), z0, np.float32)
+        d = sense_depth(rng, z, fx, np.full(z.shape, 0.5, np.float32), np.ones(z.shape, np.float32), s)
+        ok = d > 0
+        assert ok.mean() > 0.9
+        # quantised to 1/8-pixel disparity steps
+        steps = fx * s.baseline / d[ok] * s.subpixel
+        np.testing.assert_allclose(steps, np.round(steps), atol=1e-2)
+        spread = d[ok].std()
+        step = z0**2 / (fx * s.baseline * s.subpixel)
+        assert 0.5 * depth_sigma(z0) < spread < 1.5 * math.hypot(depth_sigma(z0), step / math.sqrt(12))
+
+
+def test_projector_shadow_lies_left_of_near_objects() -> None:
+    fb = 518.857901 * 0.075
+    z = np.full((50, 300), 3.0, np.float32)
+    z[:, 150:200] = 1.0
+    shadow = projector_shadow(z, fb)
+    width = fb * (1 / 1.0 - 1 / 3.0)  # 25.9 px
+    row = np.flatnonzero(shadow[10])
+    assert row.min() == 150 - math.floor(width) and row.max() == 149  # a band ending at the object's left edge
+    assert not shadow[:, 150:].any()
+
+
+def test_ray_casting_is_exact_for_a_box_and_a_cylinder() -> None:
+    K = scaled_intrinsics((120, 160)).matrix()
+    grid = RayGrid.make(np.zeros(3), np.eye(3), K, (120, 160))
+    # a cuboid on the optical axis whose front face is the plane z = 2 (no other face is seen),
+    # and a vertical cylinder of radius 0.2 at z = 3 to the right
+    parts = PartArrays(
+        np.array([0, CYL]),
+        np.array([[0.0, 0.0, 2.25], [0.6, 0.0, 3.0]]),
+        np.array([[0.2, 0.3, 0.25], [0.2, 0.4, 0.2]]),
+        np.array([0.0, 0.7]),
+        np.array([0, 1]),
+        np.zeros(2, np.int64),
+        np.ones((2, 3)),
+    )
+    r = cast(grid, parts, 2)
+    face = r.part == 0
+    np.testing.assert_allclose(r.t[face], 2.0, atol=1e-5)
+    rows, cols = np.nonzero(face)
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    assert cols.min() == math.ceil(cx - fx * 0.2 / 2) and cols.max() == math.floor(cx + fx * 0.2 / 2)
+    assert rows.min() == math.ceil(cy + fy * -0.3 / 2) and rows.max() == math.floor(cy + fy * 0.3 / 2)
+    v, u = np.nonzero(r.part == 1)
+    p = backproject(u, v, r.t[v, u], K)
+    np.testing.assert_allclose(np.hypot(p[:, 0] - 0.6, p[:, 2] - 3.0), 0.2, atol=1e-4)  # on the cylinder wall
+    assert np.all(np.abs(p[:, 1]) <= 0.4 + 1e-5)
+    assert r.alone[0] == face.sum() and r.alone[1] == (r.part == 1).sum()
+
+
+def test_amodal_extent_is_the_tight_box_of_all_parts() -> None:
+    rng = np.random.default_rng(1)
+    for cls, build in fu.BUILDERS.items():
+        for _ in range(5):
+            item = build(rng)
+            assert item.cls == cls and np.all(item.size > 0)
+            pts = []
+            for p in item.parts:  # sample each part's outline in the object frame
+                a = np.linspace(0, 2 * math.pi, 64, endpoint=False)
+                if p.kind == CYL:
+                    lx, lz = p.half[0] * np.cos(a), p.half[2] * np.sin(a)
+                else:
+                    sx, sz = np.meshgrid([-1.0, 1.0], [-1.0, 1.0])
+                    lx, lz = sx.ravel() * p.half[0], sz.ravel() * p.half[2]
+                c, s = math.cos(p.yaw), math.sin(p.yaw)
+                x, z = p.centre[0] + c * lx + s * lz, p.centre[2] - s * lx + c * lz
+                for h in (p.centre[1] - p.half[1], p.centre[1] + p.half[1]):
+                    pts.append(np.stack([x, np.full_like(x, h), z], 1))
+            pts = np.concatenate(pts)
+            np.testing.assert_allclose(pts.min(0), item.lo, atol=2e-3)
+            np.testing.assert_allclose(pts.max(0), item.hi, atol=2e-3)
+
+
+def test_layouts_follow_the_placement_rules() -> None:
+    """No two objects' boxes intersect (checked on a 1 cm raster of the footprints), except a
+    child with the object it stands on; everything is inside the room and on a support."""
+    for seed in range(12):
+        _, L = furnish(np.random.default_rng(seed))
+        room = L.room
+        W, D = math.ceil(room.width * 100) + 2, math.ceil(room.depth * 100) + 2
+        masks = []
+        for p in L.objects:
+            m = np.zeros((D, W), np.uint8)
+            poly = np.array([[x * 100, z * 100] for x, z in p.footprint(-0.012)], np.float64)
+            cv2.fillConvexPoly(m, np.round(poly * 16).astype(np.int32), 1, shift=4)
+            masks.append(m.astype(bool))
+            assert p.h0 >= -1e-6 and p.h1 <= room.height
+            fp = np.array(p.footprint())
+            assert fp.min() >= -1e-6 and fp[:, 0].max() <= room.width + 1e-6 and fp[:, 1].max() <= room.depth + 1e-6
+            if p.parent >= 0:  # stands on its parent's top surface
+                par = L.objects[p.parent]
+                assert any(abs(p.base - (par.base + s.h)) < 1e-9 for s in par.item.surfaces) or p.item.cls == "sink"
+        for i, a in enumerate(L.objects):
+            for j in range(i):
+                b = L.objects[j]
+                if not (a.item.collides and b.item.collides) or a.parent == j or b.parent == i:
+                    continue
+                if min(a.h1, b.h1) - max(a.h0, b.h0) > 1e-3:
+                    assert not (masks[i] & masks[j]).any(), (seed, a.item.cls, b.item.cls)
+
+
+def test_materials_do_not_depend_on_the_class() -> None:
+    """Texture kind and brightness of each object's first material slot, over many rooms, are
+    independent of its class: their class-dependence statistics are not extreme among those of
+    200 shufflings of the class labels within each room (which keep the rooms' shared palettes)."""
+    rooms, classes, kinds, lums = [], [], [], []
+    for seed in range(40):
+        rng = np.random.default_rng(seed)
+        _, L = furnish(rng)
+        placed = [p for p in L.objects if p.render]
+        pose = CameraPose(L.room.width / 2, L.room.depth / 2, 1.5, 0.0, -0.3, 0.0)
+        parts, mats, _ = build_parts(placed, pose, rng, 12)
+        for i, p in enumerate(placed):
+            if p.item.cls is None:
+                continue
+            first = parts.material[np.flatnonzero(parts.obj == i)[0]]
+            rooms.append(seed)
+            classes.append(CLASSES.index(p.item.cls))
+            kinds.append(int(mats.kind[first]))
+            lums.append(float(mats.texture[first].mean()))
+    rooms_a, kinds_a, lums_a = np.array(rooms), np.array(kinds), np.array(lums)
+    onehot = np.eye(8)[kinds_a]
+
+    def dependence(labels: np.ndarray) -> tuple[float, float]:
+        """Chi-square of class x kind counts, and between-class variance of the luminance."""
+        counts = np.zeros((len(CLASSES), 8))
+        np.add.at(counts, labels, onehot)
+        expected = counts.sum(1, keepdims=True) * counts.sum(0, keepdims=True) / counts.sum()
+        chi2 = np.sum((counts - expected) ** 2 / np.maximum(expected, 1e-9))
+        n = np.bincount(labels, minlength=len(CLASSES))
+        means = np.bincount(labels, lums_a, minlength=len(CLASSES)) / np.maximum(n, 1)
+        return chi2, float(np.sum(n * (means - lums_a.mean()) ** 2))
+
+    observed = dependence(np.array(classes))
+    rng = np.random.default_rng(0)
+    shuffled = []
+    for _ in range(200):
+        labels = np.array(classes)
+        for r in np.unique(rooms_a):
+            idx = np.flatnonzero(rooms_a == r)
+            labels[idx] = labels[rng.permutation(idx)]
+        shuffled.append(dependence(labels))
+    shuffled = np.array(shuffled)
+    assert len(classes) > 300
+    for k in range(2):
+        assert (shuffled[:, k] >= observed[k]).mean() > 0.01, ("kind", "luminance")[k]
+
+
+def test_frames_are_deterministic_per_seed(frames) -> None:
+    again = generate_frame(SEEDS[0])
+    np.testing.assert_array_equal(again.color, frames[0].color)
+    np.testing.assert_array_equal(again.depth, frames[0].depth)
+    np.testing.assert_array_equal(again.gt.boxes3d, frames[0].gt.boxes3d)
+    assert not np.array_equal(frames[1].color, frames[0].color)
+
+
+def test_cli_writes_the_same_set_with_any_worker_count(tmp_path) -> None:
+    args = ["--frames", "4", "--seed", "5", "--split", "test=0.5", "--size", "96x128"]
+    assert main([str(tmp_path / "a"), *args, "--workers", "1"]) == 0
+    assert main([str(tmp_path / "b"), *args, "--workers", "2"]) == 0
+    files = sorted(p.relative_to(tmp_path / "a") for p in (tmp_path / "a").rglob("*") if p.is_file())
+    assert len(files) > 10
+    for rel in files:
+        assert (tmp_path / "a" / rel).read_bytes() == (tmp_path / "b" / rel).read_bytes(), rel
+    refs = {s: list_frames(tmp_path / "a" / s) for s in ("train", "test")}
+    assert len(refs["train"]) == 2 and len(refs["test"]) == 2
+    config = replace(SceneConfig(), image_size=(96, 128), intrinsics=scaled_intrinsics((96, 128)))
+    ref = refs["test"][0]
+    frame = read_frame(ref, read_folder_intrinsics(tmp_path / "a" / "test"))
+    direct = generate_frame(frame_seed(5, int(ref.name.split("_")[1])), config)
+    np.testing.assert_array_equal(frame.color, direct.color)
+    np.testing.assert_allclose(frame.depth, direct.depth, atol=5e-4)  # millimetre PNG
+    gt = read_ground_truth(ref)
+    np.testing.assert_allclose(gt.boxes3d, direct.gt.boxes3d)
+    np.testing.assert_array_equal(read_instances(ref), direct.instances)
+    assert np.all(box_area_2d(gt.boxes2d_visible) > 0)
+    assert main(["--stats", str(tmp_path / "a")]) == 0
+
+
+def test_tiny_objects_are_rendered_but_not_annotated() -> None:
+    config = replace(SceneConfig(), min_visible_px=10**9)
+    f = generate_frame(SEEDS[0], config)
+    assert len(f.gt) == 0 and not f.instances.any() and f.objects
+
+
+def test_box_and_cylinder_helpers_validate_extents() -> None:
+    with pytest.raises(ValueError):
+        box(0, 0, 0, 1, 0, 1)
+    with pytest.raises(ValueError):
+        cyl(0, 0, -0.1, 0, 1)
+    with pytest.raises(ValueError):
+        Furniture("chair", [])
