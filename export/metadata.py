@@ -1,9 +1,10 @@
 """ModelMetadata from a training checkpoint: everything the runtime needs besides the graph.
 
-Values come from the checkpoint (classes, mean sizes, training config) and from the shared
-preprocessing constants (a3d.runtime.preprocess), never typed in twice. Post-processing defaults
-are the training config's ``inference`` section, so a3d-run reproduces the validation detector of
-a3d.train.inference; ``score_threshold`` can be raised at export (``--score-threshold``).
+Values come from the checkpoint (classes, mean sizes, training config) through
+``TrainConfig.pipeline`` (the runtime pipeline settings the pure-torch validation detector of
+a3d.train.inference uses, so a3d-run reproduces it) and from the shared preprocessing constants
+(a3d.runtime.preprocess), never typed in twice. ``score_threshold`` can be set at export
+(``--score-threshold``).
 """
 
 from __future__ import annotations
@@ -23,7 +24,6 @@ from a3d.runtime.classes import CLASSES, NUM_CLASSES
 from a3d.runtime.model import SCHEMA_VERSION, ModelMetadata
 from a3d.runtime.preprocess import COLOR_MEAN_BGR, DEPTH_MEAN
 from a3d.train.config import TrainConfig
-from a3d.train.dataset import CONTEXT_SCALE
 
 METRICS_FILE = "metrics.jsonl"  # a3d.train.loop writes it next to checkpoint.pt
 
@@ -47,20 +47,20 @@ def build_metadata(
     sizes = np.asarray(state["mean_sizes"], np.float64)
     if sizes.shape != (NUM_CLASSES, 3) or not np.all(np.isfinite(sizes) & (sizes > 0)):
         raise ExportError(f"{path}: checkpoint mean_sizes must be positive, shape (19, 3), got {sizes.shape}")
-    inference = config.inference
+    pipeline = config.pipeline(sizes)  # the runtime settings a3d.train validates with
     return ModelMetadata(
         schema_version=SCHEMA_VERSION,
         classes=CLASSES,
         mean_sizes=sizes,
         color_mean_bgr=tuple(float(v) for v in COLOR_MEAN_BGR),
         depth_mean=float(DEPTH_MEAN),
-        depth_truncation_m=float(config.data.depth_truncation),
-        input_scale=float(config.data.scale),
-        context_scale=float(CONTEXT_SCALE),
-        score_threshold=float(inference.min_score if score_threshold is None else score_threshold),
-        nms_iou=float(inference.nms_iou),
-        top_k=int(inference.top_k),
-        max_proposals=int(config.proposals.max_proposals),
+        depth_truncation_m=float(pipeline.depth_truncation_m),
+        input_scale=float(pipeline.input_scale),
+        context_scale=float(pipeline.context_scale),
+        score_threshold=float(pipeline.min_score if score_threshold is None else score_threshold),
+        nms_iou=float(pipeline.nms_iou),
+        top_k=int(pipeline.top_k),
+        max_proposals=int(pipeline.max_proposals),
         proposal_config=config.to_dict()["proposals"],
         provenance=provenance(state, config, path, export_options or {}),
     )

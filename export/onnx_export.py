@@ -72,11 +72,15 @@ def load_trained(path: str | os.PathLike) -> Trained:
 
 class RuntimeGraph(nn.Module):
     """forward(color (1,3,h,w), depth (1,3,h,w), rois (R,4), context_rois (R,4))
-    -> (class_probs (R,20), deltas3d (R,20,7), deltas2d (R,20,4)), deltas raw (de-normalised)."""
+    -> (class_probs (R,20), deltas3d (R,20,7), deltas2d (R,20,4)), deltas raw (de-normalised).
 
-    def __init__(self, net: A3DNet, stats: TargetStats) -> None:
+    ``regress_3d=False`` (the training config's "-3dreg" ablation) answers zero 3D deltas, which
+    decode to the initial boxes, as a3d.train.inference.TorchNetwork does.
+    """
+
+    def __init__(self, net: A3DNet, stats: TargetStats, regress_3d: bool = True) -> None:
         super().__init__()
-        self.net = fold_target_stats(net, stats)
+        self.net = fold_target_stats(net, stats, regress_3d)
 
     def forward(
         self, color: torch.Tensor, depth: torch.Tensor, rois: torch.Tensor, context_rois: torch.Tensor
@@ -92,17 +96,19 @@ class RuntimeGraph(nn.Module):
         )
 
 
-def fold_target_stats(net: A3DNet, stats: TargetStats) -> A3DNet:
+def fold_target_stats(net: A3DNet, stats: TargetStats, regress_3d: bool = True) -> A3DNet:
     """An eval-mode copy of ``net`` whose box heads answer raw deltas.
 
     The network predicts normalised deltas n = W x + b, and raw = n * std + mean per class and
     coordinate (output row k * 7 + j for class k, coordinate j); so W' = std * W (row-wise) and
     b' = std * b + mean give raw = W' x + b'. Computed in float64, stored in the layer's dtype.
+    Without ``regress_3d`` the 3D head becomes zero (std = mean = 0).
     """
     folded = copy.deepcopy(net).eval()
+    keep = 1.0 if regress_3d else 0.0
     with torch.no_grad():
         for layer, mean, std in (
-            (folded.bbox_pred_3d, stats.mean3d, stats.std3d),
+            (folded.bbox_pred_3d, keep * stats.mean3d, keep * stats.std3d),
             (folded.bbox_pred_2d, stats.mean2d, stats.std2d),
         ):
             m = torch.as_tensor(mean, dtype=torch.float64).reshape(-1)

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
 from a3d.runtime.errors import InputError
 
 

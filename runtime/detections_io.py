@@ -4,7 +4,8 @@
 
     {"frame": "NAME", "color": "path", "depth": "path", "R_tilt": [[3x3]],
      "detections": [{"class": "chair", "score": 0.93, "box2d": [x1, y1, x2, y2],
-                     "box3d": [x, y, z, l, w, h, theta], "corners": [[x, y, z], ... 8 ...]}],
+                     "box2d_amodal": [x1, y1, x2, y2], "box3d": [x, y, z, l, w, h, theta],
+                     "corners": [[x, y, z], ... 8 ...]}],
      "timing": {"stage": seconds, ...}}
 
 ``box3d`` is in the camera frame (metres) with ``theta`` in the tilt frame of the line's
@@ -12,8 +13,9 @@
 written for other tools' convenience. Reading requires ``frame``, ``R_tilt`` (a proper rotation)
 and ``detections`` (each with a known class, a finite score, ``box2d`` with x2 >= x1 and y2 >= y1,
 and ``box3d`` with positive sizes); ``color``, ``depth``, ``corners`` and ``timing`` are optional
-(scoring uses ``box3d`` and ``R_tilt`` only). Blank lines are skipped; a frame may appear once.
-Every problem is an ``InputError`` "FILE:LINE: what is wrong".
+(scoring uses ``box3d`` and ``R_tilt`` only). ``box2d_amodal`` (optional, all detections or
+none) is the amodal 2D box from the network's 2D regressor, clipped to the image. Blank lines
+are skipped; a frame may appear once. Every problem is an ``InputError`` "FILE:LINE: what is wrong".
 """
 
 from __future__ import annotations
@@ -33,7 +35,7 @@ from a3d.runtime.geometry import box_corners_camera, check_rotation
 
 _CLASS_INDEX = {name: i for i, name in enumerate(CLASSES)}
 METRE_DECIMALS = 6  # box3d and corners are written to 1 micrometre
-PIXEL_DECIMALS = 4  # box2d to 1e-4 pixel
+PIXEL_DECIMALS = 4  # box2d and box2d_amodal to 1e-4 pixel
 
 
 @dataclass(frozen=True)
@@ -50,6 +52,7 @@ class FrameDetections:
     color: str | None = None
     depth: str | None = None
     timing: dict[str, float] = field(default_factory=dict)
+    boxes2d_amodal: np.ndarray | None = None  # (N, 4) amodal 2D boxes (2D regressor), optional
 
     @property
     def classes(self) -> list[str]:
@@ -89,12 +92,25 @@ def format_line(det: FrameDetections) -> str:
     if det.depth is not None:
         line["depth"] = det.depth
     line["R_tilt"] = np.asarray(det.R_tilt, dtype=np.float64).tolist()
+    amodal = (
+        [None] * len(det.class_ids)
+        if det.boxes2d_amodal is None
+        else _rounded(det.boxes2d_amodal, (-1, 4), PIXEL_DECIMALS)
+    )
     line["detections"] = [
-        {"class": CLASSES[c], "score": s, "box2d": b2, "box3d": b3, "corners": cn}
-        for c, s, b2, b3, cn in zip(
+        {
+            "class": CLASSES[c],
+            "score": s,
+            "box2d": b2,
+            **({} if a is None else {"box2d_amodal": a}),
+            "box3d": b3,
+            "corners": cn,
+        }
+        for c, s, b2, a, b3, cn in zip(
             det.class_ids.tolist(),
             np.asarray(det.scores, dtype=np.float64).tolist(),
             _rounded(det.boxes2d, (-1, 4), PIXEL_DECIMALS),
+            amodal,
             _rounded(det.boxes3d, (-1, 7), METRE_DECIMALS),
             _rounded(corners, (-1, 8, 3), METRE_DECIMALS),
             strict=True,
@@ -178,12 +194,10 @@ def parse_line(text: str, where: str) -> FrameDetections:
         _require(np.isfinite(values), where, f"'{name}' is not finite")
     _require(boxes2d[:, 2:] >= boxes2d[:, :2], where, "box2d has x2 < x1 or y2 < y1")
     _require(boxes3d[:, 3:6] > 0, where, "box3d has a size l, w or h <= 0")
-    corners = None
-    if any("corners" in d for d in dets):
-        if not all("corners" in d for d in dets):
-            raise InputError(f"{where}: 'corners' given for some detections but not all")
-        corners = _array([d["corners"] for d in dets], (len(dets), 8, 3), where, "corners")
-        _require(np.isfinite(corners), where, "'corners' is not finite")
+    corners = _optional_rows(dets, "corners", (8, 3), where)
+    boxes2d_amodal = _optional_rows(dets, "box2d_amodal", (4,), where)
+    if boxes2d_amodal is not None:
+        _require(boxes2d_amodal[:, 2:] >= boxes2d_amodal[:, :2], where, "box2d_amodal has x2 < x1 or y2 < y1")
     return FrameDetections(
         frame=frame,
         R_tilt=R_tilt,
@@ -195,6 +209,7 @@ def parse_line(text: str, where: str) -> FrameDetections:
         color=_optional_str(obj, "color", where),
         depth=_optional_str(obj, "depth", where),
         timing=_timing(obj.get("timing", {}), where),
+        boxes2d_amodal=boxes2d_amodal,
     )
 
 
@@ -213,6 +228,18 @@ def _array(value, shape: tuple[int, ...], where: str, what: str) -> np.ndarray:
         expect = "x".join(map(str, shape[1:])) or "a number"
         raise InputError(f"{where}: every detection's '{what}' must be {expect}, got {got}")
     return arr
+
+
+def _optional_rows(dets: list[dict], key: str, shape: tuple[int, ...], where: str) -> np.ndarray | None:
+    """An optional per-detection field: given for every detection (finite, of ``shape``) or for none."""
+    given = sum(key in d for d in dets)
+    if given == 0:
+        return None
+    if given < len(dets):
+        raise InputError(f"{where}: '{key}' given for some detections but not all")
+    rows = _array([d[key] for d in dets], (len(dets), *shape), where, key)
+    _require(np.isfinite(rows), where, f"'{key}' is not finite")
+    return rows
 
 
 def _require(ok: np.ndarray, where: str, problem: str) -> None:

@@ -436,15 +436,46 @@ def _greedy_nms(boxes: np.ndarray, scores: np.ndarray, labels: np.ndarray | None
     if not math.isfinite(thr):
         raise InputError(f"nms: the IoU threshold must be a number, got {thr}")
     order = np.argsort(-s, kind="stable")  # descending score, ties by index
-    keep = []
-    while order.size:
-        i, rest = order[0], order[1:]
-        keep.append(i)
-        suppress = iou_2d(b[i : i + 1], b[rest])[0] > thr
-        if labels is not None:
-            suppress &= labels[rest] == labels[i]
-        order = rest[~suppress]
-    return np.asarray(keep, dtype=np.int64)
+    groups = [order] if labels is None else [order[labels[order] == v] for v in np.unique(labels)]
+    kept = np.concatenate([g[_keep_in_group(b[g], thr)] for g in groups]) if len(order) else order
+    return kept[np.lexsort((kept, -s[kept]))].astype(np.int64)
+
+
+_MATRIX_NMS_LIMIT = 4000  # boxes per label above which the IoU matrix would be too large
+
+
+def _keep_in_group(boxes: np.ndarray, thr: float) -> np.ndarray:
+    """Greedy keep mask of boxes already sorted by descending score.
+
+    Up to _MATRIX_NMS_LIMIT boxes: from the matrix ``sup[i, j]`` = "i, ranked before j, overlaps
+    j by more than thr", decided in rounds: keep every undecided box that no undecided or kept box
+    suppresses, drop every box a kept box suppresses. This is exactly the greedy result (a box is
+    kept iff no kept box ranked before it suppresses it), in as many rounds as the longest
+    suppression chain instead of one Python step per kept box.
+    """
+    n = len(boxes)
+    if n > _MATRIX_NMS_LIMIT:
+        return _keep_in_group_loop(boxes, thr)
+    sup = np.triu(iou_2d(boxes, boxes) > thr, 1)
+    kept = ~sup.any(axis=0)
+    removed = np.zeros(n, dtype=bool)
+    while True:
+        removed |= sup[kept].any(axis=0)
+        newly = ~(kept | removed) & ~sup[~removed].any(axis=0)
+        if not newly.any():
+            return kept
+        kept |= newly
+
+
+def _keep_in_group_loop(boxes: np.ndarray, thr: float) -> np.ndarray:
+    """The plain greedy loop, one vectorised IoU row per kept box (for very large groups)."""
+    keep = np.zeros(len(boxes), dtype=bool)
+    rest = np.arange(len(boxes))
+    while rest.size:
+        i, rest = rest[0], rest[1:]
+        keep[i] = True
+        rest = rest[iou_2d(boxes[i : i + 1], boxes[rest])[0] <= thr]
+    return keep
 
 
 def nms_2d(boxes: np.ndarray, scores: np.ndarray, iou_threshold: float) -> np.ndarray:

@@ -25,6 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+
 from a3d.runtime.geometry import CameraLike, rtilt_from_pitch_roll
 from a3d.runtime.normals import NormalConfig, normal_grid
 

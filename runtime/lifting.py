@@ -22,6 +22,7 @@ from typing import Protocol
 
 import cv2
 import numpy as np
+
 from a3d.runtime.geometry import CameraLike, backproject
 
 

@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+
 from a3d.runtime.geometry import CameraLike, backproject
 
 

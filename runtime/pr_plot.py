@@ -9,6 +9,8 @@ marked "no ground truth" (AP 0 by definition).
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
+
 import cv2
 import numpy as np
 
@@ -18,7 +20,7 @@ COLUMNS = 5
 CELL_W, CELL_H = 300, 250
 MARGIN_L, MARGIN_R, MARGIN_T, MARGIN_B = 40, 12, 44, 26
 # One colour per threshold, in order (BGR): blue, orange, green, red.
-CURVE_COLORS = ((180, 119, 31), (14, 127, 255), (44, 160, 44), (40, 39, 214))
+CURVE_COLORS = ((180, 119, 31), (14, 127, 255), (44, 160, 44), (40, 39, 214))  # cycled beyond 4
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 INK, GRID, FAINT = (30, 30, 30), (225, 225, 225), (150, 150, 150)
 SUBPIXEL = 4  # fixed-point bits for smooth anti-aliased polylines
@@ -38,6 +40,15 @@ def draw_pr_curves(result: EvalResult) -> np.ndarray:
     return image
 
 
+def _color(k: int) -> tuple[int, int, int]:
+    return CURVE_COLORS[k % len(CURVE_COLORS)]
+
+
+def _per_threshold(value: Callable[[float], float], thresholds: Sequence[float]) -> str:
+    """'41.2 / 30.5' : a fraction per threshold, in percent, in the legend's order."""
+    return " / ".join(f"{100 * value(t):.1f}" for t in thresholds)
+
+
 def _text(image: np.ndarray, text: str, xy: tuple[int, int], scale: float = 0.45, color=INK, bold=False):
     cv2.putText(image, text, xy, FONT, scale, color, 2 if bold else 1, cv2.LINE_AA)
 
@@ -48,8 +59,7 @@ def _draw_class(image: np.ndarray, origin: tuple[int, int], cls: ClassResult, th
     w, h = CELL_W - MARGIN_L - MARGIN_R, CELL_H - MARGIN_T - MARGIN_B
     _text(image, f"{cls.name}  (gt {cls.num_gt}, det {cls.num_det})", (ox + 8, oy + 17), 0.5, bold=True)
     if cls.present:
-        aps = "  ".join(f"AP@{t:g} {100 * cls.ap[t]:.1f}" for t in thresholds)
-        _text(image, aps, (ox + 8, oy + 35), 0.42)
+        _text(image, f"AP {_per_threshold(cls.ap.__getitem__, thresholds)}", (ox + 8, oy + 35), 0.42)
     else:
         _text(image, "no ground truth (AP 0)", (ox + 8, oy + 35), 0.42, FAINT)
     for k in range(11):  # grid at 0.1 steps, labels at 0, 0.5, 1
@@ -64,13 +74,13 @@ def _draw_class(image: np.ndarray, origin: tuple[int, int], cls: ClassResult, th
     if not cls.present:
         return
     # Primary threshold drawn last and thinnest, so that coinciding curves all stay visible.
-    curves = list(zip(thresholds, CURVE_COLORS, strict=False))
-    for k, (t, color) in reversed(list(enumerate(curves))):
+    for k, t in reversed(list(enumerate(thresholds))):
+        color = _color(k)
         steps = _envelope_steps(cls.curve_corners(t)[:, :2])
-        if len(steps):
+        if len(steps) and steps[:, 0].max() > 0:  # no true positive: no curve
             pts = np.stack([x0 + steps[:, 0] * w, y0 + (1 - steps[:, 1]) * h], axis=1)
             fixed = np.round(pts * (1 << SUBPIXEL)).astype(np.int32).reshape(-1, 1, 2)
-            cv2.polylines(image, [fixed], False, color, 2 + 2 * k, cv2.LINE_AA, SUBPIXEL)
+            cv2.polylines(image, [fixed], False, color, 2 + min(k, 4), cv2.LINE_AA, SUBPIXEL)
 
 
 def _envelope_steps(corners: np.ndarray) -> np.ndarray:
@@ -87,15 +97,18 @@ def _draw_legend(image: np.ndarray, origin: tuple[int, int], result: EvalResult)
     ox, oy = origin
     _text(image, "interpolated precision vs recall", (ox + 8, oy + 22), 0.45, bold=True)
     y = oy + 52
-    for t, color in zip(result.config.iou_thresholds, CURVE_COLORS, strict=False):
+    for k, t in enumerate(result.config.iou_thresholds):
+        color = _color(k)
         cv2.line(image, (ox + 10, y - 5), (ox + 40, y - 5), color, 3, cv2.LINE_AA)
         _text(image, f"3D IoU >= {t:g}", (ox + 48, y))
-        y += 22
-    y += 8
+        y += 20
+    y += 6
+    thresholds = result.config.iou_thresholds
     present = sum(c.present for c in result.classes)
-    for t in result.config.iou_thresholds:
-        _text(image, f"mAP@{t:g}: {100 * result.map_all(t):.1f} (all {len(result.classes)})", (ox + 10, y))
-        _text(image, f"         {100 * result.map_present(t):.1f} ({present} with gt)", (ox + 10, y + 18))
-        y += 42
+    _text(image, f"mAP, all {len(result.classes)} classes:", (ox + 10, y))
+    _text(image, _per_threshold(result.map_all, thresholds), (ox + 30, y + 18))
+    _text(image, f"mAP, {present} classes with gt:", (ox + 10, y + 42))
+    _text(image, _per_threshold(result.map_present, thresholds), (ox + 30, y + 60))
+    y += 88
     nms = "off" if result.config.nms_iou is None else f"2D NMS {result.config.nms_iou:g}"
     _text(image, f"{result.num_frames} frames, {nms}", (ox + 10, y), 0.42, FAINT)

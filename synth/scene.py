@@ -65,7 +65,8 @@ class SceneConfig:
 
 @dataclass(frozen=True)
 class ObjectRecord:
-    """Statistics of one rendered object of a class (annotated or not)."""
+    """Statistics of one rendered object of a class that is at least partly in the image
+    (annotated or not); ``SynthFrame.objects`` lists the annotated ones in ground-truth order."""
 
     cls: str
     annotated: bool

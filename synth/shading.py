@@ -62,8 +62,10 @@ def _noise(rng: np.random.Generator, beta: float, aniso: float = 1.0) -> np.ndar
 
 
 def _hsv_colour(rng: np.random.Generator, sat: tuple[float, float], val: tuple[float, float]) -> np.ndarray:
-    """A linear-RGB colour from a random hue and the given saturation and value ranges."""
-    hsv = np.array([[[rng.uniform(0, 180), rng.uniform(*sat) * 255, rng.uniform(*val) * 255]]], np.float32)
+    """A linear-RGB colour from a random hue and the given saturation and value ranges
+    (saturation skewed low, as in most furnishings)."""
+    s = sat[0] + (sat[1] - sat[0]) * rng.random() ** 2
+    hsv = np.array([[[rng.uniform(0, 180), s * 255, rng.uniform(*val) * 255]]], np.float32)
     srgb = cv2.cvtColor(hsv.astype(np.uint8), cv2.COLOR_HSV2RGB)[0, 0].astype(np.float32) / 255
     return srgb**2.2
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from a3d.runtime.depth import fill_depth, fill_depth_info
 from a3d.runtime.errors import InputError
 

@@ -190,9 +190,10 @@ def test_cli_missing_inputs_exit_2(scene, tmp_path, capsys) -> None:
 def test_installed_command_exits_2_on_a_bad_file(scene) -> None:
     folder, detections = scene
     detections.write_text(detections.read_text() + '{"frame": "f1"}\n')
-    command = Path(sys.executable).with_name("a3d-eval")
+    script = Path(sys.executable).with_name("a3d-eval")  # the console script pip installed
+    command = [str(script)] if script.exists() else [sys.executable, "-m", "a3d.runtime.cli.eval"]
     result = subprocess.run(
-        [str(command), str(folder), "--detections", str(detections)],
+        [*command, str(folder), "--detections", str(detections)],
         capture_output=True,
         text=True,
         timeout=60,
@@ -230,6 +231,7 @@ def test_detections_round_trip_and_corners_follow_the_boxes(tmp_path) -> None:
         boxes2d=np.sort(rng.uniform(0, 400, (5, 2, 2)), axis=1).reshape(5, 4),
         boxes3d=boxes3d,
         timing={"proposals": 0.25, "network": 1.5},
+        boxes2d_amodal=np.array([[0.0, 1.0, 2.0, 3.0]] * 5) + rng.uniform(0, 100, (5, 1)),
     )
     path = tmp_path / "d.jsonl"
     write_detections(path, [original, det_line("0002", [])])
@@ -239,9 +241,11 @@ def test_detections_round_trip_and_corners_follow_the_boxes(tmp_path) -> None:
     # Boxes to 1 micrometre and 1e-4 pixel.
     np.testing.assert_allclose(back.boxes3d, boxes3d, rtol=0, atol=0.5e-6)
     np.testing.assert_allclose(back.boxes2d, original.boxes2d, rtol=0, atol=0.5e-4)
+    np.testing.assert_allclose(back.boxes2d_amodal, original.boxes2d_amodal, rtol=0, atol=0.5e-4)
     np.testing.assert_allclose(back.corners, box_corners_camera(boxes3d, R), rtol=0, atol=0.5e-6)
     assert back.timing == original.timing and back.classes[1] == "chair"
     assert empty.frame == "0002" and empty.boxes3d.shape == (0, 7) and empty.boxes2d.shape == (0, 4)
+    assert empty.boxes2d_amodal is None  # optional: absent when not written
 
 
 _GOOD = {"class": "chair", "score": 0.5, "box2d": [0, 0, 5, 5], "box3d": [0, 0, 3, 1, 1, 1, 0]}
@@ -264,6 +268,12 @@ _GOOD = {"class": "chair", "score": 0.5, "box2d": [0, 0, 5, 5], "box3d": [0, 0, 
         ({"detections": [{**_GOOD, "box2d": [5, 0, 0, 5]}]}, "x2 < x1"),
         ({"detections": [{k: v for k, v in _GOOD.items() if k != "score"}]}, "detection 0 has no 'score'"),
         ({"timing": {"a": "slow"}}, "'timing'"),
+        ({"detections": [{**_GOOD, "box2d_amodal": [0, 0, 1, 1]}, _GOOD]}, "'box2d_amodal' given for some"),
+        ({"detections": [{**_GOOD, "box2d_amodal": [0, 5, 1, 1]}]}, "detection 0: box2d_amodal has x2 < x1"),
+        (
+            {"detections": [{**_GOOD, "corners": [[0, 0, 0]] * 7}]},
+            "'corners' must be 8x3, got shape (1, 7, 3)",
+        ),
     ],
 )
 def test_bad_lines_are_one_line_errors_naming_file_and_line(change, message) -> None:

@@ -405,6 +405,22 @@ def test_nms_matches_a_plain_greedy_reference(thr):
         assert list(nms_2d(boxes, scores, thr)) == _reference_nms(boxes, scores, thr)
 
 
+@pytest.mark.parametrize("thr", [0.0, 0.3, 0.7])
+def test_nms_large_group_loop_path_matches_the_matrix_path(thr, monkeypatch):
+    """Groups above the matrix limit take the plain loop: same kept indices, same order."""
+    import a3d.runtime.geometry as geometry
+
+    rng = np.random.default_rng(42)
+    xy = rng.uniform(0, 300, (200, 2))
+    boxes = np.hstack([xy, xy + rng.uniform(5, 120, (200, 2))])
+    scores = np.round(rng.random(200), 2)
+    labels = rng.integers(0, 3, 200)
+    by_matrix = batched_nms_2d(boxes, scores, labels, thr)
+    monkeypatch.setattr(geometry, "_MATRIX_NMS_LIMIT", 0)
+    assert list(batched_nms_2d(boxes, scores, labels, thr)) == list(by_matrix)
+    assert list(nms_2d(boxes, scores, thr)) == _reference_nms(boxes, scores, thr)
+
+
 def test_nms_keeps_a_box_exactly_at_the_threshold_and_takes_any_scores():
     boxes = np.array([[0.0, 0.0, 10.0, 10.0], [0.0, 0.0, 10.0, 5.0], [0.0, 0.0, 10.0, 4.9]])
     # IoU(0, 1) = 0.5 exactly: kept at 0.5; box 2 has IoU 0.98 with box 1

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import pytest
+
 from a3d.runtime.geometry import NYU_CROP_INTRINSICS as K
 from a3d.runtime.geometry import is_rotation, pitch_roll_from_rtilt, rtilt_from_pitch_roll
 from a3d.runtime.gravity import (

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 import pytest
+
 from a3d.runtime.geometry import NYU_CROP_INTRINSICS as K
 from a3d.runtime.lifting import LiftConfig, initial_boxes, lift, masks_to_superpixels
 

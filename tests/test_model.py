@@ -6,6 +6,7 @@ from dataclasses import replace
 
 import pytest
 import torch
+
 from a3d.runtime.classes import NUM_OUTPUTS
 from a3d.train.model.config import PRESETS, NetConfig, preset
 from a3d.train.model.net import A3DNet

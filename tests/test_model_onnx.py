@@ -9,6 +9,7 @@ import onnx
 import onnxruntime as ort
 import pytest
 import torch
+
 from a3d.train.model.config import NetConfig
 from a3d.train.model.net import A3DNet
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+
 from a3d.runtime.preprocess import (
     COLOR_MEAN_BGR,
     DEPTH_MEAN,

@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 import torch
+
 from a3d.train.model.roi_pool import roi_align
 
 

@@ -3,14 +3,20 @@
 from __future__ import annotations
 
 import math
-from collections import Counter
 from dataclasses import replace
 
 import cv2
 import numpy as np
 import pytest
+
 from a3d.runtime.classes import CLASSES
-from a3d.runtime.frames import list_frames, read_folder_intrinsics, read_frame, read_ground_truth, read_instances
+from a3d.runtime.frames import (
+    list_frames,
+    read_folder_intrinsics,
+    read_frame,
+    read_ground_truth,
+    read_instances,
+)
 from a3d.runtime.geometry import backproject, box_area_2d
 from a3d.synth import SceneConfig, generate_frame
 from a3d.synth import furniture as fu
@@ -21,6 +27,7 @@ from a3d.synth.raycast import PartArrays, RayGrid, cast
 from a3d.synth.rooms import furnish
 from a3d.synth.scene import build_parts
 from a3d.synth.sensor import DepthSensor, depth_sigma, projector_shadow, sense_depth
+from a3d.synth.stats import summarise
 
 SEEDS = (11, 12, 13, 14, 15)
 
@@ -72,9 +79,16 @@ def test_2d_boxes_masks_and_classes_are_consistent(frames) -> None:
             extent = [cols.min() - 0.5, rows.min() - 0.5, cols.max() + 0.5, rows.max() + 0.5]
             np.testing.assert_array_equal(gt.boxes2d_visible[k], extent)  # README pixel-extent convention
             vis, amo = gt.boxes2d_visible[k], gt.boxes2d_amodal[k]
-            assert amo[0] <= vis[0] + 0.5 and amo[1] <= vis[1] + 0.5 and amo[2] >= vis[2] - 0.5 and amo[3] >= vis[3] - 0.5
+            assert (
+                amo[0] <= vis[0] + 0.5
+                and amo[1] <= vis[1] + 0.5
+                and amo[2] >= vis[2] - 0.5
+                and amo[3] >= vis[3] - 0.5
+            )
             assert -0.5 <= amo[0] <= amo[2] <= W - 0.5 and -0.5 <= amo[1] <= amo[3] <= H - 0.5
-        assert np.all(gt.boxes3d[:, 3] >= gt.boxes3d[:, 4]) and np.all(np.abs(gt.boxes3d[:, 6]) <= math.pi / 2)
+        assert np.all(gt.boxes3d[:, 3] >= gt.boxes3d[:, 4]) and np.all(
+            np.abs(gt.boxes3d[:, 6]) <= math.pi / 2
+        )
         assert all(c in CLASSES for c in gt.classes)
         annotated = [r for r in f.objects if r.annotated]  # statistics come in ground-truth order
         assert [r.cls for r in annotated] == gt.classes
@@ -98,7 +112,7 @@ def test_sensor_depth_is_kinect_like(frames) -> None:
     errors, depths = [], []
     for f in frames:
         valid = f.depth > 0
-        assert 0.02 < 1 - valid.mean() < 0.5  # holes, but mostly depth
+        assert 0.005 < 1 - valid.mean() < 0.5  # holes, but mostly depth
         assert np.all((f.depth[valid] >= 0.4) & (f.depth[valid] <= 8.5))
         errors.append(f.depth[valid] - f.depth_exact[valid])
         depths.append(f.depth_exact[valid])
@@ -131,7 +145,9 @@ def test_projector_shadow_lies_left_of_near_objects() -> None:
     shadow = projector_shadow(z, fb)
     width = fb * (1 / 1.0 - 1 / 3.0)  # 25.9 px
     row = np.flatnonzero(shadow[10])
-    assert row.min() == 150 - math.floor(width) and row.max() == 149  # a band ending at the object's left edge
+    assert (
+        row.min() == 150 - math.floor(width) and row.max() == 149
+    )  # a band ending at the object's left edge
     assert not shadow[:, 150:].any()
 
 
@@ -201,10 +217,17 @@ def test_layouts_follow_the_placement_rules() -> None:
             masks.append(m.astype(bool))
             assert p.h0 >= -1e-6 and p.h1 <= room.height
             fp = np.array(p.footprint())
-            assert fp.min() >= -1e-6 and fp[:, 0].max() <= room.width + 1e-6 and fp[:, 1].max() <= room.depth + 1e-6
+            assert (
+                fp.min() >= -1e-6
+                and fp[:, 0].max() <= room.width + 1e-6
+                and fp[:, 1].max() <= room.depth + 1e-6
+            )
             if p.parent >= 0:  # stands on its parent's top surface
                 par = L.objects[p.parent]
-                assert any(abs(p.base - (par.base + s.h)) < 1e-9 for s in par.item.surfaces) or p.item.cls == "sink"
+                assert (
+                    any(abs(p.base - (par.base + s.h)) < 1e-9 for s in par.item.surfaces)
+                    or p.item.cls == "sink"
+                )
         for i, a in enumerate(L.objects):
             for j in range(i):
                 b = L.objects[j]
@@ -305,3 +328,29 @@ def test_box_and_cylinder_helpers_validate_extents() -> None:
         cyl(0, 0, -0.1, 0, 1)
     with pytest.raises(ValueError):
         Furniture("chair", [])
+
+
+def test_stats_summary_counts_what_it_says() -> None:
+    def obj(cls: str, vis: float, cut: bool, annotated: bool = True) -> dict:
+        return {"class": cls, "annotated": annotated, "visibility": vis, "truncated": cut}
+
+    records = [
+        {
+            "room": "office",
+            "depth_missing": 0.1,
+            "objects": [obj("chair", 0.5, True), obj("chair", 0.9, False)],
+        },
+        {
+            "room": "bedroom",
+            "depth_missing": 0.3,
+            "objects": [obj("bed", 1.0, True), obj("lamp", 0.0, False, False)],
+        },
+    ]
+    s = summarise(records)
+    assert s.frames == 2 and s.annotated_per_frame == 1.5
+    assert s.occluded_share == pytest.approx(1 / 3) and s.truncated_share == pytest.approx(2 / 3)
+    assert s.class_counts["chair"] == 2 and s.class_counts["lamp"] == 0 and s.most_frequent == "chair"
+    assert "bathtub" in s.missing_classes and s.depth_missing == pytest.approx(0.2)
+    assert s.unannotated_share == pytest.approx(0.25)
+    checks = s.checks()
+    assert not checks["annotated objects per frame >= 8"] and checks["chair most frequent"]

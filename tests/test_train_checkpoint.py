@@ -20,7 +20,8 @@ def _payload(value: float) -> dict:
         "iteration": 7,
         "config": '{"solver": {"lr": 0.005}}',
         "model": {"fc.weight": torch.full((3, 4), value), "bn.num_batches_tracked": torch.tensor(3)},
-        "optimizer": {"state": {0: {"momentum_buffer": torch.ones(2)}}, "param_groups": [{"lr": 0.1, "params": [0]}]},
+        "optimizer": {"state": {0: {"momentum_buffer": torch.ones(2)}},
+                      "param_groups": [{"lr": 0.1, "params": [0]}]},
         "classes": ["bathtub", "bed"],
     }
 
@@ -116,7 +117,8 @@ ck.save_checkpoint(path, {"iteration": 2, "config": "{}", "model": {"w": torch.f
 def test_kill_during_a_checkpoint_write_keeps_the_previous_one(tmp_path, mode):
     path = tmp_path / "checkpoint.pt"
     save_checkpoint(path, {"iteration": 1, "config": "{}", "model": {"w": torch.full((3,), 1.0)}})
-    proc = subprocess.run([sys.executable, "-c", textwrap.dedent(_CRASH), str(path), mode], capture_output=True)
+    crash = [sys.executable, "-c", textwrap.dedent(_CRASH), str(path), mode]
+    proc = subprocess.run(crash, capture_output=True)
     assert proc.returncode == -signal.SIGKILL
     loaded = load_checkpoint(path)
     assert loaded["iteration"] == 1 and torch.equal(loaded["model"]["w"], torch.full((3,), 1.0))

@@ -11,11 +11,11 @@ from a3d.train.config import PRESETS, TrainConfig, apply_overrides, load_config
 
 def test_presets_differ_where_they_should():
     paper, cpu = load_config("vgg16"), load_config("cpu-small")
-    assert paper.net.width == 1.0 and paper.data.scale == 1.0
+    assert paper.net.width == 1.0 and paper.data.input_scale == 1.0
     assert (paper.solver.lr, paper.solver.momentum, paper.solver.weight_decay) == (0.005, 0.9, 0.0005)
     assert (paper.data.images_per_batch, paper.data.rois_per_image, paper.data.fg_fraction) == (2, 128, 0.25)
     assert cpu.net.width == 0.25 and cpu.net.fuse_channels is not None
-    assert cpu.solver.iterations < paper.solver.iterations
+    assert cpu.data.input_scale < 1.0 and cpu.solver.iterations < paper.solver.iterations
     assert set(PRESETS) >= {"vgg16", "cpu-small"}
 
 

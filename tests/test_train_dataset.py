@@ -8,18 +8,13 @@ import pytest
 from a3d.runtime.depth import fill_depth
 from a3d.runtime.frames import GroundTruth, list_frames, read_frame, write_frame, write_intrinsics
 from a3d.runtime.geometry import flip_boxes_2d, flip_boxes_3d, flip_intrinsics, flip_rtilt
+from a3d.runtime.network_input import network_inputs, scale_boxes
 from a3d.runtime.preprocess import color_input
 from a3d.train.config import apply_overrides, load_config
-from a3d.train.dataset import (
-    BatchDataset,
-    compute_target_stats,
-    network_inputs,
-    raw_targets,
-    scale_boxes,
-)
+from a3d.train.dataset import BatchDataset, compute_target_stats, raw_targets
 from a3d.train.roidb import build_roidb
 from a3d.train.sampler import plan_batch
-from tests.test_train_scenes import K, SIZE, TINY, render_scene, write_scenes
+from tests.test_train_scenes import SIZE, TINY, K, render_scene, write_scenes
 
 
 @pytest.fixture(scope="module")
@@ -34,9 +29,8 @@ def test_flipped_targets_equal_those_of_the_mirrored_frame(tmp_path):
     theta -> -theta) gives the targets the runtime's lifting produces on the mirrored frame
     (mirrored pixels, cx -> W-1-cx, R_tilt -> F R_tilt F)."""
     color, depth, instances, gt = render_scene(7)
-    gt = GroundTruth.from_classes(
-        gt.classes, gt.boxes3d + [0, 0, 0, 0, 0, 0, 0.3], gt.boxes2d_visible, gt.boxes2d_amodal, gt.instance_ids
-    )  # a yaw, so that theta -> -theta is exercised
+    yawed = gt.boxes3d + np.array([0, 0, 0, 0, 0, 0, 0.3])  # a yaw, so that theta -> -theta is exercised
+    gt = GroundTruth.from_classes(gt.classes, yawed, gt.boxes2d_visible, gt.boxes2d_amodal, gt.instance_ids)
     width = SIZE[1]
     plain, mirror = tmp_path / "plain", tmp_path / "mirror"
     write_intrinsics(plain, K)
@@ -78,7 +72,8 @@ def test_batches_carry_flipped_images_and_boxes(db_and_config):
             record = db.records[plan.image]
             frame = read_frame(refs[record.name], K)
             expect = frame.color[:, ::-1] if plan.flip else frame.color
-            np.testing.assert_array_equal(batch["color"][b].numpy(), color_input(np.ascontiguousarray(expect)))
+            expect = color_input(np.ascontiguousarray(expect))
+            np.testing.assert_array_equal(batch["color"][b].numpy(), expect)
             boxes = record.boxes[plan.rois].astype(np.float64)
             boxes = flip_boxes_2d(boxes, SIZE[1]) if plan.flip else boxes
             rows = slice(start, start + len(plan.rois))
@@ -111,12 +106,13 @@ def test_target_normalisation_round_trip(db_and_config):
         np.testing.assert_allclose(n3d[rows].std(0)[stats.std3d[c] > 1e-3], 1, atol=1e-9)
         np.testing.assert_allclose(stats.mean3d[c, [0, 6]], 0, atol=1e-12)  # flips cancel dx, dtheta
     # De-normalising the network's per-class layout (N, 20, 7) inverts it exactly.
+    rows = np.arange(len(labels))
     per_class = np.zeros((len(labels), 20, 7))
-    per_class[np.arange(len(labels)), labels] = n3d
-    np.testing.assert_allclose(stats.denormalise_3d(per_class)[np.arange(len(labels)), labels], t3d, atol=1e-12)
+    per_class[rows, labels] = n3d
+    np.testing.assert_allclose(stats.denormalise_3d(per_class)[rows, labels], t3d, atol=1e-12)
     per_class2d = np.zeros((len(labels), 20, 4))
-    per_class2d[np.arange(len(labels)), labels] = n2d
-    np.testing.assert_allclose(stats.denormalise_2d(per_class2d)[np.arange(len(labels)), labels], t2d, atol=1e-12)
+    per_class2d[rows, labels] = n2d
+    np.testing.assert_allclose(stats.denormalise_2d(per_class2d)[rows, labels], t2d, atol=1e-12)
 
 
 def test_scaled_inputs_and_boxes_agree():

@@ -24,9 +24,10 @@ def _inputs():
     deltas2d[2, 3 * 4 + 1] = -3.0  # row 2's 2D target still counts: smooth-L1(3) = 2.5
     deltas2d[0] = 7.0
     deltas2d.requires_grad_(True)
+    weights3d = torch.tensor([0.0, 1.0, 0.0, 0.0])
     return dict(
         class_logits=logits, deltas3d=deltas3d, deltas2d=deltas2d, labels=labels,
-        targets3d=torch.zeros(4, 7), targets2d=torch.zeros(4, 4), weights3d=torch.tensor([0.0, 1.0, 0.0, 0.0]),
+        targets3d=torch.zeros(4, 7), targets2d=torch.zeros(4, 4), weights3d=weights3d,
     )  # fmt: skip
 
 
@@ -41,7 +42,8 @@ def test_known_answer_and_what_is_ignored():
     terms.total.backward()
     grad3d = args["deltas3d"].grad.view(4, 20, 7)
     assert grad3d[[0, 2, 3]].abs().sum() == 0  # background and weight-0 rows get no 3D gradient
-    assert grad3d[1, 3, :2].tolist() == [0.5 / 4, 1.0 / 4] and grad3d[1].abs().sum() == 1.5 / 4  # true class only
+    assert grad3d[1, 3, :2].tolist() == [0.5 / 4, 1.0 / 4]
+    assert grad3d[1].abs().sum() == 1.5 / 4  # the true class's deltas only
     assert args["deltas2d"].grad[[0, 3]].abs().sum() == 0
 
 

@@ -77,8 +77,9 @@ def test_resume_and_overwrite_errors_are_one_line(tmp_path):
     run = tmp_path / "run"
     run.mkdir()
     (run / "checkpoint.pt").write_bytes(b"not a checkpoint")
-    exists = subprocess.run(_cli(*_args(frames, run, tmp_path / "cache")), capture_output=True, text=True, timeout=120)
-    assert exists.returncode == 2 and "a run already exists here" in exists.stderr
+    cli = _cli(*_args(frames, run, tmp_path / "cache"))
+    exists = subprocess.run(cli, capture_output=True, text=True, timeout=120)
+    assert exists.returncode == 2 and "a run exists here" in exists.stderr
     broken = subprocess.run(_cli(str(frames), "--out", str(run), "--resume"), capture_output=True, text=True,
                             timeout=120)  # fmt: skip
     assert broken.returncode == 2 and "corrupted, truncated or not a checkpoint" in broken.stderr

@@ -14,10 +14,8 @@ from tests.test_train_scenes import TINY, write_scenes
 
 
 def test_label_rois_known_answers():
-    gt = GroundTruth.from_classes(
-        ["chair", "table"], np.zeros((2, 7)) + [0, 0, 3, 1, 1, 1, 0], [[0, 0, 10, 10], [20, 0, 30, 10]],
-        [[0, 0, 10, 10], [20, 0, 30, 10]],
-    )  # fmt: skip
+    boxes = [[0, 0, 10, 10], [20, 0, 30, 10]]
+    gt = GroundTruth.from_classes(["chair", "table"], [[0, 0, 3, 1, 1, 1, 0]] * 2, boxes, boxes)
     rois = np.array(
         [
             [0, 0, 10, 10],  # IoU 1 with the chair
@@ -42,13 +40,15 @@ def test_class_mean_sizes_with_absent_classes():
     def gt(classes, sizes):
         boxes = np.zeros((len(classes), 7))
         boxes[:, 3:6] = sizes
-        return GroundTruth.from_classes(classes, boxes, np.zeros((len(classes), 4)), np.zeros((len(classes), 4)))
+        empty = np.zeros((len(classes), 4))
+        return GroundTruth.from_classes(classes, boxes, empty, empty)
 
-    means = class_mean_sizes([gt(["chair", "bed"], [[0.5, 0.4, 0.9], [2, 1.5, 0.5]]), gt(["chair"], [[0.7, 0.6, 1.1]])])
+    sizes = [[0.5, 0.4, 0.9], [2, 1.5, 0.5], [0.7, 0.6, 1.1]]
+    means = class_mean_sizes([gt(["chair", "bed"], sizes[:2]), gt(["chair"], sizes[2:])])
     assert means.shape == (NUM_CLASSES, 3)
     np.testing.assert_allclose(means[class_index("chair")], [0.6, 0.5, 1.0])
     np.testing.assert_allclose(means[class_index("bed")], [2, 1.5, 0.5])
-    np.testing.assert_allclose(means[class_index("sofa")], np.mean([[0.5, 0.4, 0.9], [2, 1.5, 0.5], [0.7, 0.6, 1.1]], 0))
+    np.testing.assert_allclose(means[class_index("sofa")], np.mean(sizes, axis=0))  # absent: all objects
 
 
 @pytest.fixture(scope="module")
@@ -93,7 +93,7 @@ def test_proposal_cache_hits_and_misses(scenes, tmp_path, monkeypatch):
     def no_proposals(*args, **kwargs):
         raise AssertionError("proposal stage ran despite a cached result")
 
-    monkeypatch.setattr(roidb_module, "propose", no_proposals)
+    monkeypatch.setattr(roidb_module, "prepare", no_proposals)  # the runtime front end
     again = build_roidb(scenes, config, cache)
     for a, b in zip(first.records, again.records, strict=True):
         np.testing.assert_array_equal(a.boxes, b.boxes)

@@ -34,7 +34,8 @@ def render_scene(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, GroundT
     dx, dy = (u - K.cx) / K.fx, (v - K.cy) / K.fy  # ray direction with z = 1: hit distance t = z
     floor = np.where(dy > 1e-6, 1.0 / np.maximum(dy, 1e-6), np.inf)
     depth = np.minimum(floor, 6.0)
-    color = np.where((floor < 6.0)[..., None], np.array([120, 120, 120]), np.array([170, 200, 215])).astype(np.float64)
+    grey, beige = np.array([120.0, 120.0, 120.0]), np.array([170.0, 200.0, 215.0])
+    color = np.where((floor < 6.0)[..., None], grey, beige)
     instances = np.zeros((h, w), np.uint16)
     names, boxes = [], []
     n = int(rng.integers(2, 4))
@@ -65,10 +66,8 @@ def render_scene(seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, GroundT
             present[i] = True
             visible[i] = [uu.min() - 0.5, vv.min() - 0.5, uu.max() + 0.5, vv.max() + 0.5]
     amodal = project_boxes_to_2d(boxes3d, np.eye(3), K, SIZE)
-    gt = GroundTruth.from_classes(
-        [c for c, p in zip(names, present, strict=True) if p], boxes3d[present], visible[present], amodal[present],
-        ids[present],
-    )
+    kept = [c for c, p in zip(names, present, strict=True) if p]
+    gt = GroundTruth.from_classes(kept, boxes3d[present], visible[present], amodal[present], ids[present])
     depth = depth.astype(np.float32)
     depth[rng.random((h, w)) < 0.03] = 0.0
     color = np.clip(color + rng.normal(0, 4, color.shape), 0, 255).astype(np.uint8)

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 import torch
+
 from a3d.train.model.config import NetConfig, preset
 from a3d.train.model.net import A3DNet
 from a3d.train.model.vgg import VGG16_LAYOUT, scaled_channels

@@ -23,6 +23,7 @@ import zipfile
 from pathlib import Path
 
 import torch
+
 from a3d.runtime.errors import ModelError
 
 FORMAT = "a3d-checkpoint"
@@ -71,9 +72,8 @@ def load_checkpoint(path: str | os.PathLike) -> dict:
                 f"{path}: refused, not a weights-only checkpoint (loading it would import {culprit.group(1)})"
             ) from None
         detail = re.search(r"WeightsUnpickler error:\s*(.+)", text)
-        raise CheckpointError(
-            f"{path}: corrupted, truncated or not a checkpoint ({detail.group(1) if detail else 'unpickling failed'})"
-        ) from None
+        reason = detail.group(1) if detail else "unpickling failed"
+        raise CheckpointError(f"{path}: corrupted, truncated or not a checkpoint ({reason})") from None
     except (RuntimeError, EOFError, OSError, zipfile.BadZipFile, ValueError, KeyError) as e:
         first = (str(e).strip().splitlines() or [type(e).__name__])[0]
         raise CheckpointError(f"{path}: corrupted, truncated or not a checkpoint ({first})") from None

@@ -21,6 +21,9 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
+from a3d.runtime.pipeline import PipelineConfig
 from a3d.runtime.proposals import ProposalConfig
 from a3d.train.model import NetConfig
 
@@ -29,19 +32,20 @@ from a3d.train.model import NetConfig
 class DataConfig:
     """RoI database, mini-batch sampling (SPEC.md "Training") and input preparation.
 
-    ``scale`` resizes colour and depth (and every 2D box) before the network: 1.0 is the native
-    frame size, as in the paper; CPU presets train at a reduced scale. Proposals, lifting and all
-    3D geometry always work at native resolution.
+    ``input_scale`` resizes colour and depth (and every 2D box) before the network: 1.0 is the
+    native frame size, as in the paper; CPU presets train at a reduced scale. Proposals, lifting
+    and all 3D geometry always work at native resolution (a3d.runtime.network_input).
     """
 
-    scale: float = 1.0
+    input_scale: float = 1.0
+    context_scale: float = 1.5  # context box = RoI scaled about its centre (SPEC.md), clipped
     flip: bool = True
     images_per_batch: int = 2
     rois_per_image: int = 128
     fg_fraction: float = 0.25
     fg_iou: float = 0.5  # foreground: 2D IoU >= fg_iou with a visible (gt2d_sel) box
     bg_iou_low: float = 0.1  # background: IoU in [bg_iou_low, fg_iou)
-    depth_truncation: float = 10.0  # metres mapped to 255 in the depth trunk's input
+    depth_truncation_m: float = 10.0  # metres mapped to 255 in the depth trunk's input
     workers: int = 1  # DataLoader worker processes (0: load in the training process)
     cache_dir: str = ""  # per-frame proposal cache; "" = RUN_DIR/cache
 
@@ -81,7 +85,7 @@ class InferenceConfig:
     top_k: int = 100  # detections kept per class and image before NMS
     nms_iou: float = 0.3  # 2D NMS on the proposal boxes, per class
     min_score: float = 0.0  # detections below this score are dropped (0: none, as the release)
-    regress_3d: bool = True  # False: report the initial (lifted) boxes, the "-3dreg" ablation
+    regress_3d: bool = True  # False: zero 3D deltas, i.e. the initial boxes (the "-3dreg" ablation)
 
 
 @dataclass
@@ -95,6 +99,20 @@ class TrainConfig:
 
     def to_dict(self) -> dict:
         return _to_plain(self)
+
+    def pipeline(self, mean_sizes: np.ndarray) -> PipelineConfig:
+        """The runtime pipeline's settings for this model (what the exported model's metadata holds)."""
+        return PipelineConfig(
+            mean_sizes=np.asarray(mean_sizes, np.float64),
+            proposals=self.proposals,
+            max_proposals=self.proposals.max_proposals,
+            input_scale=self.data.input_scale,
+            context_scale=self.data.context_scale,
+            depth_truncation_m=self.data.depth_truncation_m,
+            top_k=self.inference.top_k,
+            nms_iou=self.inference.nms_iou,
+            min_score=self.inference.min_score,
+        )
 
     def to_json(self) -> str:
         return json.dumps(self.to_dict(), indent=2, sort_keys=True)
@@ -119,7 +137,7 @@ def _cpu_small() -> TrainConfig:
         TrainConfig(),
         {
             "net": {"width": 0.25, "fuse_channels": 128, "fc6": 512, "fc7": 512},
-            "data": {"scale": 0.5, "workers": 1},
+            "data": {"input_scale": 0.5, "workers": 1},
             "solver": {"iterations": 3000, "lr_steps": [2200]},
             "log": {"log_every": 10, "checkpoint_every": 250, "val_every": 1000},
         },

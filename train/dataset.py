@@ -5,7 +5,8 @@ is a pure function of the seed and the iteration, see a3d.train.sampler), so the
 iterates over iteration numbers and a resumed run simply starts at a later one. Per image:
 read the frame, fill the depth holes (a3d.runtime.depth), flip when the plan says so, compute
 the regression targets of the sampled foreground RoIs and normalise them per class, build the
-network inputs (a3d.runtime.preprocess) at the configured scale.
+network inputs and RoIs at the configured input scale exactly as the runtime does
+(a3d.runtime.network_input).
 
 Flip (README "Pixels and 2D boxes"): image and depth columns reversed, 2D boxes through
 ``flip_boxes_2d`` (u -> W - 1 - u), 3D boxes through ``flip_boxes_3d`` (x -> -x, theta -> -theta),
@@ -24,16 +25,16 @@ from dataclasses import dataclass, fields
 import cv2
 import numpy as np
 import torch
+
 from a3d.runtime.box_coder import encode_2d, encode_3d
 from a3d.runtime.classes import NUM_OUTPUTS
 from a3d.runtime.depth import fill_depth
 from a3d.runtime.frames import read_frame
 from a3d.runtime.geometry import Intrinsics, context_boxes, flip_boxes_2d, flip_boxes_3d
-from a3d.runtime.preprocess import color_input, depth_input
+from a3d.runtime.network_input import network_inputs, scale_boxes, with_batch_index
 from a3d.train.roidb import FrameRois
 from a3d.train.sampler import plan_batch
 
-CONTEXT_SCALE = 1.5  # SPEC.md: the context box is the RoI scaled 1.5x about its centre
 MIN_STD = 1e-3  # floor of a normalisation std (a class whose targets are all equal)
 
 
@@ -122,33 +123,6 @@ def compute_target_stats(records: list[FrameRois], flip: bool) -> TargetStats:
     return stats
 
 
-def network_inputs(
-    color_bgr: np.ndarray, depth_filled: np.ndarray, scale: float, truncation: float
-) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
-    """Colour and depth trunk inputs (3, h, w) at ``scale`` and the exact (sx, sy) box scaling.
-
-    Down-scaling uses area averaging (no aliasing), up-scaling bilinear interpolation.
-    """
-    h, w = depth_filled.shape
-    size = (max(1, round(w * scale)), max(1, round(h * scale)))
-    if size != (w, h):
-        interp = cv2.INTER_AREA if scale < 1.0 else cv2.INTER_LINEAR
-        color_bgr = cv2.resize(color_bgr, size, interpolation=interp)
-        depth_filled = cv2.resize(depth_filled, size, interpolation=interp)
-    return color_input(color_bgr), depth_input(depth_filled, truncation), (size[0] / w, size[1] / h)
-
-
-def scale_boxes(boxes: np.ndarray, sx: float, sy: float) -> np.ndarray:
-    """Boxes in native pixel coordinates -> the resized image's (the image spans [-0.5, W - 0.5])."""
-    factors = np.array([sx, sy, sx, sy])
-    return (np.asarray(boxes, np.float64) + 0.5) * factors - 0.5
-
-
-def with_batch_index(boxes: np.ndarray, index: int) -> np.ndarray:
-    """(n, 4) -> (n, 5) rows [index, x1, y1, x2, y2] as the network takes them."""
-    return np.concatenate([np.full((len(boxes), 1), float(index)), boxes], axis=1)
-
-
 def pad_stack(images: list[np.ndarray]) -> np.ndarray:
     """(3, h_i, w_i) arrays -> (B, 3, max h, max w), zero-padded at the bottom and right (= the mean)."""
     h = max(i.shape[1] for i in images)
@@ -207,9 +181,9 @@ class BatchDataset(torch.utils.data.Dataset):
                 color, depth = color[:, ::-1], depth[:, ::-1]
                 boxes = flip_boxes_2d(boxes, record.image_size[1])
             color_in, depth_in, (sx, sy) = network_inputs(
-                np.ascontiguousarray(color), np.ascontiguousarray(depth), d.scale, d.depth_truncation
+                np.ascontiguousarray(color), np.ascontiguousarray(depth), d.input_scale, d.depth_truncation_m
             )
-            context = context_boxes(boxes, record.image_size, CONTEXT_SCALE)
+            context = context_boxes(boxes, record.image_size, d.context_scale)
             t3d, t2d, has_3d = raw_targets(record, plan.rois, plan.flip)
             roi_labels = record.labels[plan.rois]
             colors.append(color_in)

@@ -1,213 +1,121 @@
-"""The pure-torch reference detector: frame -> detections with the eager A3DNet.
+"""The pure-torch reference detector: the runtime's pipeline with the eager A3DNet as its network.
 
-This is the path the ONNX runtime is compared against, so everything except the network itself
-is the runtime's own code (a3d.runtime): hole filling, gravity, proposals, lifting, initial
-boxes, preprocessing, context boxes, decoding, NMS, corners and the detections format.
-
-Per frame (SPEC.md "Inference and post-processing"):
-1. fill the depth holes; R_tilt from the frame (``NAME.meta.json``) or estimated from depth;
-2. segment proposals (or ``NAME.proposals.npz``), lifted to initial centres; proposals that
-   cannot be lifted (no depth at all) are dropped;
-3. the network scores every proposal and regresses class-specific 3D deltas, de-normalised with
-   the training target statistics and decoded onto the per-class initial boxes (class mean size,
-   theta 0); with ``regress_3d`` off the initial boxes are reported (the "-3dreg" ablation);
-4. per class, the ``top_k`` best scores, then 2D NMS at ``nms_iou`` on the proposal boxes (per
-   class); no NMS in 3D. ``box2d`` of a detection is its proposal box (what NMS and a3d-eval's
-   NMS see); ``box3d`` is canonical (l >= w, theta in [-pi/2, pi/2]).
+This is the path the ONNX runtime is compared against, so everything but the network call is the
+runtime's own code, a3d.runtime.pipeline: reading, hole filling, gravity, proposals (or
+``NAME.proposals.npz``), lifting, network inputs at the input scale, context boxes, per-class
+top-k and 2D NMS, decoding, corners and the detections line. ``TorchNetwork`` fills the
+pipeline's ``Detector`` slot: softmax scores and *raw* deltas, i.e. the network's normalised
+deltas times the training target std plus mean (the ONNX export folds the same statistics into
+its last layers). With ``inference.regress_3d`` off it answers zero 3D deltas, so every
+detection keeps its initial box (lifted centre, class mean size, theta 0): the paper's
+"-3dreg" ablation.
 """
 
 from __future__ import annotations
 
 import os
-import time
-from collections.abc import Sequence
+from collections.abc import Iterable
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import torch
-from a3d.runtime.box_coder import decode_3d
-from a3d.runtime.classes import NUM_CLASSES, NUM_OUTPUTS
-from a3d.runtime.depth import fill_depth
+
+from a3d.runtime.classes import NUM_OUTPUTS
+from a3d.runtime.cli.eval import load_truth
 from a3d.runtime.detections_io import FrameDetections
-from a3d.runtime.evaluation import EvalConfig, EvalResult, FrameTruth, evaluate
-from a3d.runtime.frames import Frame, list_frames, read_folder_intrinsics, read_frame, read_ground_truth
-from a3d.runtime.geometry import batched_nms_2d, box_corners_camera, canonical_boxes, context_boxes
-from a3d.runtime.gravity import estimate_rtilt
-from a3d.runtime.lifting import initial_boxes
+from a3d.runtime.evaluation import EvalConfig, EvalResult, evaluate
+from a3d.runtime.frames import FrameRef, list_frames, read_folder_intrinsics
+from a3d.runtime.pipeline import PipelineConfig, detect
 from a3d.train.checkpoint import load_checkpoint
-from a3d.train.config import InferenceConfig, TrainConfig
-from a3d.train.dataset import CONTEXT_SCALE, TargetStats, network_inputs, scale_boxes, with_batch_index
+from a3d.train.config import TrainConfig
+from a3d.train.dataset import TargetStats
 from a3d.train.model import A3DNet
-from a3d.train.roidb import Segments, cached_front_end, frame_segments
 
-HEAD_CHUNK = 512  # RoIs per head pass (bounds the RoI pooling's memory at 2000 proposals)
-
-
-@dataclass
-class NetworkOutput:
-    """Per proposal: softmax scores (N, 20) and raw (de-normalised) 3D deltas (N, 20, 7)."""
-
-    scores: np.ndarray
-    deltas3d: np.ndarray
+HEAD_CHUNK = 512  # RoIs per head pass: bounds RoI pooling's memory at 2000 proposals
 
 
-def select_detections(
-    scores: np.ndarray, boxes2d: np.ndarray, config: InferenceConfig
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Per class top-k then per-class 2D NMS. ``scores`` (N, 19) object-class scores.
+class TorchNetwork:
+    """A3DNet behind the runtime pipeline's model interface (``run``), in eval mode, no gradients."""
 
-    Returns (proposal index, class index (0-based), score) of the kept detections, by
-    descending score.
-    """
-    n = len(scores)
-    if n == 0:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
-    k = min(config.top_k, n)
-    top = np.argpartition(-scores, k - 1, axis=0)[:k].T  # (19, k) proposal indices per class
-    classes = np.repeat(np.arange(NUM_CLASSES), k)
-    rows = top.reshape(-1)
-    cand = scores[rows, classes]
-    ok = cand >= config.min_score
-    rows, classes, cand = rows[ok], classes[ok], cand[ok]
-    keep = batched_nms_2d(boxes2d[rows], cand, classes, config.nms_iou)
-    return rows[keep], classes[keep], cand[keep]
-
-
-class TorchDetector:
-    """A3DNet in eager torch plus the runtime's pre- and post-processing."""
-
-    def __init__(
-        self,
-        model: A3DNet,
-        config: TrainConfig,
-        stats: TargetStats,
-        mean_sizes: np.ndarray,
-        device: torch.device | str = "cpu",
-    ) -> None:
-        self.device = torch.device(device)
-        self.model = model.to(self.device)
-        self.config = config
+    def __init__(self, model: A3DNet, stats: TargetStats, regress_3d: bool = True,
+                 device: torch.device | str = "cpu") -> None:  # fmt: skip
+        self.model = model
         self.stats = stats
-        self.mean_sizes = np.asarray(mean_sizes, np.float64)
+        self.regress_3d = regress_3d
+        self.device = torch.device(device)
+        self.metadata = None  # the pipeline takes its settings from PipelineConfig instead
 
-    @classmethod
-    def from_checkpoint(cls, path: str | os.PathLike, device: torch.device | str = "cpu") -> TorchDetector:
-        state = load_checkpoint(path)
-        config = TrainConfig.from_json(state["config"], str(path))
-        model = A3DNet(config.net)
-        model.load_state_dict(state["model"])
-        stats = TargetStats.from_tensors(state["target_stats"])
-        return cls(model, config, stats, state["mean_sizes"].numpy(), device)
-
-    def network(self, frame: Frame, depth_filled: np.ndarray, boxes: np.ndarray) -> NetworkOutput:
-        """Scores and raw 3D deltas of proposal ``boxes`` (N, 4, native pixels), in eval mode."""
+    def run(
+        self, color: np.ndarray, depth: np.ndarray, rois: np.ndarray, context_rois: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(1, 3, h, w) inputs and (N, 4) RoIs in the input image's pixels -> softmax (N, 20),
+        raw 3D deltas (N, 20, 7), raw 2D deltas (N, 20, 4)."""
         was_training = self.model.training
         self.model.eval()
         try:
             with torch.no_grad():
-                return self._network(frame, depth_filled, boxes)
+                logits, deltas3d, deltas2d = self._forward(color, depth, rois, context_rois)
         finally:
             self.model.train(was_training)
+        probs = torch.softmax(logits.double(), dim=1).numpy()
+        raw3d = self.stats.denormalise_3d(deltas3d.double().numpy().reshape(-1, NUM_OUTPUTS, 7))
+        raw2d = self.stats.denormalise_2d(deltas2d.double().numpy().reshape(-1, NUM_OUTPUTS, 4))
+        return probs, raw3d if self.regress_3d else np.zeros_like(raw3d), raw2d
 
-    def _network(self, frame: Frame, depth_filled: np.ndarray, boxes: np.ndarray) -> NetworkOutput:
-        d = self.config.data
-        color, depth, (sx, sy) = network_inputs(frame.color, depth_filled, d.scale, d.depth_truncation)
-        context = context_boxes(boxes, frame.image_size, CONTEXT_SCALE)
-        rois = torch.from_numpy(with_batch_index(scale_boxes(boxes, sx, sy), 0).astype(np.float32))
-        ctx = torch.from_numpy(with_batch_index(scale_boxes(context, sx, sy), 0).astype(np.float32))
+    def _forward(self, color, depth, rois, context_rois) -> tuple[torch.Tensor, ...]:
+        def batch_rois(boxes: np.ndarray) -> torch.Tensor:
+            boxes = torch.from_numpy(np.asarray(boxes, np.float32).reshape(-1, 4))
+            return torch.cat([torch.zeros(len(boxes), 1), boxes], dim=1).to(self.device)
+
         features = self.model.trunk_features(
-            torch.from_numpy(color)[None].to(self.device), torch.from_numpy(depth)[None].to(self.device)
+            torch.from_numpy(np.asarray(color, np.float32)).to(self.device),
+            torch.from_numpy(np.asarray(depth, np.float32)).to(self.device),
         )
-        logits, deltas = [], []
-        for start in range(0, len(boxes), HEAD_CHUNK):
-            part = slice(start, start + HEAD_CHUNK)
-            lg, d3, _ = self.model.head(features, rois[part].to(self.device), ctx[part].to(self.device))
-            logits.append(lg.float().cpu())
-            deltas.append(d3.float().cpu())
-        if not logits:
-            return NetworkOutput(np.zeros((0, NUM_OUTPUTS)), np.zeros((0, NUM_OUTPUTS, 7)))
-        scores = torch.softmax(torch.cat(logits), dim=1).double().numpy()
-        raw = self.stats.denormalise_3d(torch.cat(deltas).double().numpy().reshape(-1, NUM_OUTPUTS, 7))
-        return NetworkOutput(scores, raw)
-
-    def detect(self, frame: Frame, segments: Segments | None = None) -> FrameDetections:
-        """Detections of one frame; ``segments`` skips the proposal stage (a cached result)."""
-        timing = {}
-        t0 = time.perf_counter()
-        filled = fill_depth(frame.depth)
-        R_tilt = frame.R_tilt if frame.R_tilt is not None else estimate_rtilt(frame.depth, frame.intrinsics)
-        t1 = time.perf_counter()
-        timing["front_end"] = t1 - t0
-        if segments is None:
-            segments = frame_segments(frame, filled, self.config.proposals)
-        valid = np.asarray(segments.valid, bool)
-        boxes, centers = np.asarray(segments.boxes, np.float64)[valid], segments.centers[valid]
-        t2 = time.perf_counter()
-        timing["proposals"] = t2 - t1
-        out = self.network(frame, filled, boxes)
-        t3 = time.perf_counter()
-        timing["network"] = t3 - t2
-        rows, classes, scores = select_detections(out.scores[:, 1:], boxes, self.config.inference)
-        init = initial_boxes(centers[rows], self.mean_sizes)[np.arange(len(rows)), classes]
-        if self.config.inference.regress_3d and len(rows):
-            boxes3d = decode_3d(init, out.deltas3d[rows, classes + 1])
-        else:
-            boxes3d = init
-        boxes3d = canonical_boxes(boxes3d) if len(rows) else np.zeros((0, 7))
-        timing["post"] = time.perf_counter() - t3
-        return FrameDetections(
-            frame=frame.name,
-            R_tilt=np.asarray(R_tilt, np.float64),
-            class_ids=classes.astype(np.int64),
-            scores=scores.astype(np.float64),
-            boxes2d=boxes[rows],
-            boxes3d=boxes3d,
-            corners=box_corners_camera(boxes3d, R_tilt) if len(rows) else np.zeros((0, 8, 3)),
-            color=str(frame.ref.color_path),
-            depth=str(frame.ref.depth_path),
-            timing=timing,
-        )
+        r, c = batch_rois(rois), batch_rois(context_rois)
+        chunks = [slice(i, i + HEAD_CHUNK) for i in range(0, len(r), HEAD_CHUNK)]
+        parts = [self.model.head(features, r[s], c[s]) for s in chunks]
+        return tuple(torch.cat([p[k].float().cpu() for p in parts]) for k in range(3))
 
 
-def detect_folder(
-    detector: TorchDetector,
-    folder: str | os.PathLike,
-    names: Sequence[str] | None = None,
-    cache_dir: str | os.PathLike | None = None,
-) -> tuple[dict[str, FrameDetections], dict[str, FrameTruth]]:
-    """Detections (and, where annotated, ground truth) of the frames of ``folder`` (or ``names``).
+@dataclass
+class TorchDetector:
+    """A trained model ready for the runtime pipeline: network + pipeline settings."""
 
-    With ``cache_dir`` the proposals of annotated frames come from (and go to) the training
-    proposal cache, so periodic validation runs the proposal stage once per frame.
-    """
-    intrinsics = read_folder_intrinsics(folder)
-    refs = list_frames(folder)
-    if names is not None:
-        wanted = set(names)
-        refs = [r for r in refs if r.name in wanted]
-    detections, truth = {}, {}
-    for ref in refs:
-        frame = read_frame(ref, intrinsics)
-        gt = read_ground_truth(ref)
-        segments = None
-        if gt is not None and cache_dir is not None:
-            front = cached_front_end(ref, gt, intrinsics, detector.config.proposals, cache_dir)
-            segments = Segments(front.proposal_boxes, front.proposal_centers, front.proposal_valid)
-        detections[ref.name] = detector.detect(frame, segments)
-        if gt is not None and frame.R_tilt is not None:
-            truth[ref.name] = FrameTruth(gt.class_ids, gt.boxes3d, frame.R_tilt)
-    return detections, truth
+    network: TorchNetwork
+    pipeline: PipelineConfig
+    config: TrainConfig
+
+    @classmethod
+    def build(cls, model: A3DNet, config: TrainConfig, stats: TargetStats, mean_sizes: np.ndarray,
+              device: torch.device | str = "cpu") -> TorchDetector:  # fmt: skip
+        network = TorchNetwork(model, stats, config.inference.regress_3d, device)
+        return cls(network, config.pipeline(mean_sizes), config)
+
+    @classmethod
+    def from_checkpoint(cls, path: str | os.PathLike, device: torch.device | str = "cpu",
+                        config: TrainConfig | None = None) -> TorchDetector:  # fmt: skip
+        """Load a training checkpoint; ``config`` replaces the stored one (e.g. inference settings)."""
+        state = load_checkpoint(path)
+        config = config or TrainConfig.from_json(state["config"], str(path))
+        model = A3DNet(config.net)
+        model.load_state_dict(state["model"])
+        model.to(device)
+        stats = TargetStats.from_tensors(state["target_stats"])
+        return cls.build(model, config, stats, state["mean_sizes"].numpy(), device)
+
+    def detect(self, ref: FrameRef, folder_intrinsics=None) -> FrameDetections:
+        """Detections of one frame (README detections format, a3d.runtime.detections_io)."""
+        return detect(ref, self.network, self.pipeline, folder_intrinsics)
+
+    def detect_all(self, refs: Iterable[FrameRef], folder_intrinsics=None) -> dict[str, FrameDetections]:
+        return {ref.name: self.detect(ref, folder_intrinsics) for ref in refs}
 
 
-def validate(
-    detector: TorchDetector,
-    folder: str | os.PathLike,
-    max_frames: int = 0,
-    cache_dir: str | os.PathLike | None = None,
-) -> EvalResult:
-    """The paper's mAP (a3d.runtime.evaluation) on the annotated frames of ``folder``."""
-    names = [r.name for r in list_frames(folder) if r.gt_path is not None]
-    if max_frames > 0:
-        names = names[:max_frames]
-    detections, truth = detect_folder(detector, folder, names, cache_dir)
-    return evaluate(truth, {k: v for k, v in detections.items() if k in truth}, EvalConfig())
+def validate(detector: TorchDetector, folder: str | os.PathLike, max_frames: int = 0) -> EvalResult:
+    """The paper's mAP (a3d.runtime.evaluation, as a3d-eval scores) on the annotated frames of ``folder``."""
+    truth, _ = load_truth(Path(folder))
+    refs = [r for r in list_frames(folder) if r.name in truth]
+    refs = refs[:max_frames] if max_frames > 0 else refs
+    detections = detector.detect_all(refs, read_folder_intrinsics(folder))
+    return evaluate({r.name: truth[r.name] for r in refs}, detections, EvalConfig())

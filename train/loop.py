@@ -60,6 +60,7 @@ METRICS_NAME = "metrics.jsonl"
 PLOT_NAME = "loss.png"
 CONFIG_NAME = "config.json"
 _DROPOUT_STREAM = 2  # seed stream (see sampler's 0 and 1)
+_POSTFIX = (("loss", "loss"), ("cls", "loss_cls"), ("l3d", "loss_3d"), ("l2d", "loss_2d"))  # progress bar
 
 
 @dataclass
@@ -162,7 +163,7 @@ def plot_losses(metrics_path: Path, png_path: Path) -> None:
 
 
 def _to_device(batch: dict, device: torch.device) -> dict:
-    return {k: v.to(device, non_blocking=True) if isinstance(v, torch.Tensor) else v for k, v in batch.items()}
+    return {k: v.to(device, non_blocking=True) if torch.is_tensor(v) else v for k, v in batch.items()}
 
 
 def train(
@@ -178,145 +179,156 @@ def train(
 
     ``resume``: continue from ``run_dir/checkpoint.pt`` (``config`` should be the checkpoint's,
     see a3d.train.cli). Without it, an existing checkpoint in ``run_dir`` is an error.
+    ``val_data``: annotated frames scored every ``log.val_every`` iterations and at the end.
     """
-    run = Path(run_dir)
     dev = resolve_device(device)
     info = init_distributed(dev)
-    dev = local_device(dev, info)
     try:
-        return _train(Path(data), run, config, dev, info, resume, val_data)
+        return _Run(Path(data), Path(run_dir), config, local_device(dev, info), info, resume, val_data).loop()
     finally:
         shutdown(info)
 
 
-def _train(
-    data: Path, run: Path, config: TrainConfig, dev: torch.device, info: DistInfo, resume: bool, val_data
-) -> TrainResult:
-    solver, log = config.solver, config.log
-    ckpt_path = run / CHECKPOINT_NAME
-    state = load_checkpoint(ckpt_path) if resume else None
-    if not resume and ckpt_path.exists():
-        raise ValueError(f"{ckpt_path}: a run already exists here; pass --resume to continue it or pick another --out")
-    if info.is_main:
-        run.mkdir(parents=True, exist_ok=True)
-        atomic_write_bytes(run / CONFIG_NAME, (config.to_json() + "\n").encode())
-    start = int(state["iteration"]) if state else 0
+class _Run:
+    """One training run: its state (model, optimizer, data) and the loop over iterations."""
 
-    cache = Path(config.data.cache_dir) if config.data.cache_dir else run / "cache"
-    mean_sizes = state["mean_sizes"].numpy() if state else None
-    if not info.is_main:
-        barrier(info)  # rank 0 fills the proposal cache first
-    roidb = build_roidb(data, config, cache, mean_sizes, progress=info.is_main and log.progress)
-    if info.is_main:
-        barrier(info)
-    stats = TargetStats.from_tensors(state["target_stats"]) if state else compute_target_stats(roidb.records,
-                                                                                               config.data.flip)  # fmt: skip
+    def __init__(self, data: Path, run: Path, config: TrainConfig, dev: torch.device, info: DistInfo,
+                 resume: bool, val_data) -> None:  # fmt: skip
+        self.run, self.config, self.dev, self.info, self.val_data = run, config, dev, info, val_data
+        solver = config.solver
+        self.ckpt_path = run / CHECKPOINT_NAME
+        state = load_checkpoint(self.ckpt_path) if resume else None
+        if state is None and self.ckpt_path.exists():
+            raise ValueError(f"{self.ckpt_path}: a run exists here; pass --resume or pick another --out")
+        if info.is_main:
+            run.mkdir(parents=True, exist_ok=True)
+            atomic_write_bytes(run / CONFIG_NAME, (config.to_json() + "\n").encode())
+        self.start = int(state["iteration"]) if state else 0
 
-    if solver.threads > 0:
-        torch.set_num_threads(solver.threads)
-    torch.manual_seed(solver.seed)
-    model = A3DNet(config.net)
-    if solver.pretrained and not state:
-        load_vgg16_imagenet(model, solver.pretrained)
-    model.to(dev)
-    optimizer = torch.optim.SGD(param_groups(model, solver.weight_decay), lr=solver.lr, momentum=solver.momentum)
-    if state:
-        model.load_state_dict(state["model"])
-        optimizer.load_state_dict(state["optimizer"])
-    net = wrap_model(model, info)
+        cache = Path(config.data.cache_dir) if config.data.cache_dir else run / "cache"
+        if not info.is_main:
+            barrier(info)  # rank 0 fills the proposal cache first
+        mean_sizes = state["mean_sizes"].numpy() if state else None
+        progress = info.is_main and config.log.progress
+        self.roidb = build_roidb(data, config, cache, mean_sizes, progress=progress)
+        if info.is_main:
+            barrier(info)
+        if state:
+            self.stats = TargetStats.from_tensors(state["target_stats"])
+        else:
+            self.stats = compute_target_stats(self.roidb.records, config.data.flip)
 
-    metrics = MetricsLog(run / METRICS_NAME, start if state else None) if info.is_main else None
-    if metrics:
-        metrics.write({"kind": "data", "iter": start, "world_size": info.world_size, **describe(roidb)})
-        for line in roidb.skipped:
-            logger.info("skipped %s", line)
+        if solver.threads > 0:
+            torch.set_num_threads(solver.threads)
+        torch.manual_seed(solver.seed)
+        model = A3DNet(config.net)
+        if solver.pretrained and not state:
+            load_vgg16_imagenet(model, solver.pretrained)
+        model.to(dev)
+        groups = param_groups(model, solver.weight_decay)
+        self.optimizer = torch.optim.SGD(groups, lr=solver.lr, momentum=solver.momentum)
+        if state:
+            model.load_state_dict(state["model"])
+            self.optimizer.load_state_dict(state["optimizer"])
+        self.net = wrap_model(model, info)
 
-    def payload(iteration: int) -> dict:
-        return {
-            "iteration": iteration,
-            "config": config.to_json(),
-            "model": unwrap(net).state_dict(),
-            "optimizer": optimizer.state_dict(),
-            "target_stats": stats.to_tensors(),
-            "mean_sizes": torch.from_numpy(np.asarray(roidb.mean_sizes, np.float64)),
-            "classes": list(CLASSES),
-        }
+        self.metrics = MetricsLog(run / METRICS_NAME, self.start if state else None) if info.is_main else None
+        if self.metrics:
+            self.metrics.write({"kind": "data", "iter": self.start, "world_size": info.world_size,
+                                **describe(self.roidb)})  # fmt: skip
+            for line in self.roidb.skipped:
+                logger.info("skipped %s", line)
+        dataset = BatchDataset(self.roidb.records, read_folder_intrinsics(data), self.stats, config,
+                               solver.iterations, info.rank, info.world_size)  # fmt: skip
+        self.loader = batch_loader(dataset, self.start, config.data.workers, pin_memory=dev.type == "cuda")
 
-    dataset = BatchDataset(
-        roidb.records, read_folder_intrinsics(data), stats, config, solver.iterations, info.rank, info.world_size
-    )
-    loader = batch_loader(dataset, start, config.data.workers, pin_memory=dev.type == "cuda")
-    bar = tqdm(total=solver.iterations, initial=start, disable=not (info.is_main and log.progress),
-               unit="it", dynamic_ncols=True, desc="train")  # fmt: skip
-    window: dict[str, float] = {}
-    window_n, window_start = 0, time.perf_counter()
-    last_loss, val_map = None, None
-    net.train()
-    for iteration, batch in zip(range(start, solver.iterations), loader, strict=False):
-        lr = lr_at(iteration, solver)
-        for group in optimizer.param_groups:
-            group["lr"] = lr
-        torch.manual_seed(iteration_seed(solver.seed, iteration, info.rank))
-        b = _to_device(batch, dev)
-        logits, deltas3d, deltas2d = net(b["color"], b["depth"], b["rois"], b["context_rois"])
+    def loop(self) -> TrainResult:
+        solver, log, info = self.config.solver, self.config.log, self.info
+        bar = tqdm(total=solver.iterations, initial=self.start, unit="it", dynamic_ncols=True, desc="train",
+                   disable=not (info.is_main and log.progress))  # fmt: skip
+        postfix: dict[str, str] = {}
+        window: dict[str, float] = {}
+        window_n, window_start = 0, time.perf_counter()
+        last_loss, val_map = None, None
+        self.net.train()
+        for iteration, batch in zip(range(self.start, solver.iterations), self.loader, strict=False):
+            values = self.step(iteration, batch)
+            done = iteration + 1
+            final = done == solver.iterations
+            for key, value in values.items():
+                window[key] = window.get(key, 0.0) + value
+            window_n += 1
+            postfix.update({short: f"{values[key]:.3f}" for short, key in _POSTFIX})
+            if done % log.log_every == 0 or final:
+                means = mean_over_ranks({k: v / window_n for k, v in window.items()}, info, self.dev)
+                speed = window_n / (time.perf_counter() - window_start)
+                last_loss = means["loss"]
+                if self.metrics:
+                    lr = lr_at(iteration, solver)
+                    self.metrics.write({"kind": "train", "iter": done, "lr": lr, **means, "it_per_s": speed})
+                window, window_n, window_start = {}, 0, time.perf_counter()
+            if self.val_data is not None and ((log.val_every and done % log.val_every == 0) or final):
+                if info.is_main:
+                    val_map = self.validate(done)
+                    postfix["val_map25"] = f"{100 * val_map:.1f}"
+                barrier(info)
+            if done % log.checkpoint_every == 0 or final:
+                self.checkpoint(done)
+            bar.set_postfix(postfix, refresh=False)
+            bar.update(1)
+        bar.close()
+        return TrainResult(self.run, max(self.start, solver.iterations), last_loss, val_map)
+
+    def step(self, iteration: int, batch: dict) -> dict[str, float]:
+        """One SGD step; returns the loss terms and the foreground count."""
+        solver = self.config.solver
+        for group in self.optimizer.param_groups:
+            group["lr"] = lr_at(iteration, solver)
+        torch.manual_seed(iteration_seed(solver.seed, iteration, self.info.rank))
+        b = _to_device(batch, self.dev)
+        logits, deltas3d, deltas2d = self.net(b["color"], b["depth"], b["rois"], b["context_rois"])
         terms = detection_loss(logits, deltas3d, deltas2d, b["labels"], b["targets3d"], b["targets2d"],
                                b["weights3d"], solver.lambda_3d, solver.lambda_2d)  # fmt: skip
         if not torch.isfinite(terms.total):
-            raise FloatingPointError(
-                f"iteration {iteration}: loss is {float(terms.total)} (frames {batch['frames']}); lower solver.lr"
-            )
-        optimizer.zero_grad(set_to_none=True)
+            loss = float(terms.total.detach())
+            raise FloatingPointError(f"iteration {iteration}: loss {loss} on {batch['frames']}; lower the lr")
+        self.optimizer.zero_grad(set_to_none=True)
         terms.total.backward()
-        optimizer.step()
+        self.optimizer.step()
+        return {**terms.as_floats(), "fg": float((batch["labels"] > 0).sum())}
 
-        done = iteration + 1
-        values = terms.as_floats()
-        values["fg"] = float((b["labels"] > 0).sum())
-        for key, value in values.items():
-            window[key] = window.get(key, 0.0) + value
-        window_n += 1
-        bar.update(1)
-        bar.set_postfix(loss=f"{values['loss']:.3f}", cls=f"{values['loss_cls']:.3f}",
-                        l3d=f"{values['loss_3d']:.3f}", l2d=f"{values['loss_2d']:.3f}", refresh=False)  # fmt: skip
-        final = done == solver.iterations
-        if done % log.log_every == 0 or final:
-            means = mean_over_ranks({k: v / window_n for k, v in window.items()}, info, dev)
-            elapsed = time.perf_counter() - window_start
-            last_loss = means["loss"]
-            if metrics:
-                metrics.write({"kind": "train", "iter": done, "lr": lr, **means, "it_per_s": window_n / elapsed})
-            window, window_n, window_start = {}, 0, time.perf_counter()
-        if val_data is not None and ((log.val_every and done % log.val_every == 0) or final):
-            if info.is_main:
-                val_map = _validate(net, config, stats, roidb.mean_sizes, val_data, cache, dev, done, metrics)
-                bar.set_postfix(val_map25=f"{100 * val_map:.1f}", refresh=False)
-            barrier(info)
-        if done % log.checkpoint_every == 0 or final:
-            digests = check_in_sync(net, info)
-            if info.is_main:
-                save_checkpoint(ckpt_path, payload(done))
-                if info.enabled:
-                    metrics.write({"kind": "sync", "iter": done, "digests": digests})
-                plot_losses(run / METRICS_NAME, run / PLOT_NAME)
-    bar.close()
-    return TrainResult(run, max(start, solver.iterations), last_loss, val_map)
+    def checkpoint(self, done: int) -> None:
+        """Check the ranks agree, then (rank 0) write the checkpoint and the loss plot."""
+        digests = check_in_sync(self.net, self.info)
+        if not self.info.is_main:
+            return
+        save_checkpoint(self.ckpt_path, {
+            "iteration": done,
+            "config": self.config.to_json(),
+            "model": unwrap(self.net).state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "target_stats": self.stats.to_tensors(),
+            "mean_sizes": torch.from_numpy(np.asarray(self.roidb.mean_sizes, np.float64)),
+            "classes": list(CLASSES),
+        })  # fmt: skip
+        if self.info.enabled:
+            self.metrics.write({"kind": "sync", "iter": done, "digests": digests})
+        plot_losses(self.run / METRICS_NAME, self.run / PLOT_NAME)
 
-
-def _validate(net, config, stats, mean_sizes, val_data, cache, dev, done, metrics) -> float:
-    """mAP of the current weights on the validation frames (rank 0), logged as a "val" line."""
-    t0 = time.perf_counter()
-    detector = TorchDetector(unwrap(net), config, stats, mean_sizes, dev)
-    result = validate(detector, val_data, config.log.val_frames, cache)
-    record = {
-        "kind": "val",
-        "iter": done,
-        "map25": result.map_all(0.25),
-        "map25_present": result.map_present(0.25),
-        "map50": result.map_all(0.5),
-        "frames": result.num_frames,
-        "seconds": time.perf_counter() - t0,
-        "ap25": {c.name: c.ap[0.25] for c in result.classes if c.present},
-    }
-    if metrics:
-        metrics.write(record)
-    return record["map25"]
+    def validate(self, done: int) -> float:
+        """mAP of the current weights on the validation frames (rank 0), logged as a "val" line."""
+        t0 = time.perf_counter()
+        model = unwrap(self.net)
+        detector = TorchDetector.build(model, self.config, self.stats, self.roidb.mean_sizes, self.dev)
+        result = validate(detector, self.val_data, self.config.log.val_frames)
+        self.metrics.write({
+            "kind": "val",
+            "iter": done,
+            "map25": result.map_all(0.25),
+            "map25_present": result.map_present(0.25),
+            "map50": result.map_all(0.5),
+            "frames": result.num_frames,
+            "seconds": time.perf_counter() - t0,
+            "ap25": {c.name: c.ap[0.25] for c in result.classes if c.present},
+        })  # fmt: skip
+        return result.map_all(0.25)

@@ -8,9 +8,11 @@ Per frame (SPEC.md "Proposals and 3D box initialisation", "Training"):
 - Labels by 2D IoU with the visible boxes: foreground (the best box's class) at IoU >= fg_iou,
   background for IoU in [bg_iou_low, fg_iou); other proposals are dropped.
 - Each RoI's segment (a ground truth's instance mask, a proposal's segment) is lifted to a 3D
-  centre by the runtime (``a3d.runtime.lifting``); a foreground RoI's initial 3D box is that
-  centre with the mean size of its ground truth's class over the training set (theta 0). Its
-  3D target is the matched ground-truth box, its 2D target the ground truth's amodal 2D box.
+  centre by the runtime (``a3d.runtime.lifting``; proposals through the runtime's own front end,
+  ``a3d.runtime.pipeline.prepare``, which drops proposals without any depth); a foreground
+  RoI's initial 3D box is that centre with the mean size of its ground truth's class over the
+  training set (theta 0). Its 3D target is the matched ground-truth box, its 2D target the
+  ground truth's amodal 2D box.
 
 The expensive part, proposals and lifting, depends on the frame and the proposal configuration
 only: it is cached per frame as ``CACHE/NAME-KEY.npz`` where KEY hashes the proposal config and
@@ -29,52 +31,26 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+from tqdm import tqdm
+
 from a3d.runtime.classes import CLASSES, NUM_CLASSES
 from a3d.runtime.depth import fill_depth
 from a3d.runtime.errors import InputError
 from a3d.runtime.frames import (
-    Frame,
     FrameRef,
     GroundTruth,
     list_frames,
     read_folder_intrinsics,
-    read_frame,
     read_ground_truth,
     read_instances,
-    read_precomputed_proposals,
 )
 from a3d.runtime.geometry import Intrinsics, iou_2d
 from a3d.runtime.lifting import initial_boxes, lift
-from a3d.runtime.proposals import ProposalConfig, propose
-from tqdm import tqdm
+from a3d.runtime.pipeline import PipelineConfig, prepare
+from a3d.runtime.proposals import ProposalConfig
 
-CACHE_VERSION = 1
+CACHE_VERSION = 2
 MIN_VISIBLE_AREA = 1.0  # px^2: a ground truth with a smaller visible box has no RoI
-
-
-@dataclass
-class Segments:
-    """A frame's proposal boxes (N, 4) and their lifted centres (N, 3) (valid (N,): liftable)."""
-
-    boxes: np.ndarray
-    centers: np.ndarray
-    valid: np.ndarray
-
-
-def frame_segments(frame: Frame, depth_filled: np.ndarray, config: ProposalConfig) -> Segments:
-    """Proposals of a frame, its ``NAME.proposals.npz`` when it has one, else the runtime's
-    proposal stage, each lifted to an initial 3D centre (a3d.runtime.lifting)."""
-    if frame.ref.proposals_path is not None:
-        pre = read_precomputed_proposals(frame.ref.proposals_path, frame.image_size)
-        segments = pre if pre.superpixels is not None else np.stack([pre.mask(i) for i in range(len(pre))])
-        boxes = pre.boxes
-    else:
-        segments = propose(frame.color, depth_filled, frame.intrinsics, config)
-        boxes = segments.boxes
-    if len(boxes) == 0:
-        return Segments(np.zeros((0, 4)), np.zeros((0, 3)), np.zeros(0, dtype=bool))
-    lifted = lift(segments, frame.depth, depth_filled, frame.intrinsics)
-    return Segments(np.asarray(boxes, np.float64), lifted.centers, lifted.valid)
 
 
 @dataclass
@@ -82,9 +58,8 @@ class FrontEnd:
     """What a training frame needs from the (slow) front end: lifted proposals and GT segments."""
 
     image_size: tuple[int, int]
-    proposal_boxes: np.ndarray  # (N, 4)
+    proposal_boxes: np.ndarray  # (N, 4) liftable proposals only (the runtime drops the others)
     proposal_centers: np.ndarray  # (N, 3)
-    proposal_valid: np.ndarray  # (N,) bool
     gt_centers: np.ndarray  # (G, 3), one per ground-truth object
     gt_valid: np.ndarray  # (G,) bool
 
@@ -107,15 +82,19 @@ def ground_truth_masks(ref: FrameRef, gt: GroundTruth, image_size: tuple[int, in
 def compute_front_end(
     ref: FrameRef, gt: GroundTruth, intrinsics: Intrinsics | None, config: ProposalConfig
 ) -> FrontEnd:
-    frame = read_frame(ref, intrinsics)
-    filled = fill_depth(frame.depth)
-    segments = frame_segments(frame, filled, config)
+    """The runtime's own front end (a3d.runtime.pipeline.prepare: proposals or NAME.proposals.npz,
+    lifting), plus the lifted ground-truth segments."""
+    pipeline = PipelineConfig(mean_sizes=np.ones((NUM_CLASSES, 3)), proposals=config,
+                              max_proposals=config.max_proposals)  # fmt: skip
+    prepared = prepare(ref, intrinsics, pipeline)
+    frame = prepared.frame
     if len(gt.class_ids):
-        lifted = lift(ground_truth_masks(ref, gt, frame.image_size), frame.depth, filled, frame.intrinsics)
+        masks = ground_truth_masks(ref, gt, frame.image_size)
+        lifted = lift(masks, frame.depth, fill_depth(frame.depth), frame.intrinsics)
         gt_centers, gt_valid = lifted.centers, lifted.valid
     else:
         gt_centers, gt_valid = np.zeros((0, 3)), np.zeros(0, dtype=bool)
-    return FrontEnd(frame.image_size, segments.boxes, segments.centers, segments.valid, gt_centers, gt_valid)
+    return FrontEnd(frame.image_size, prepared.boxes, prepared.centers, gt_centers, gt_valid)
 
 
 @dataclass
@@ -191,7 +170,7 @@ def frame_rois(
     gt_rows = np.flatnonzero(has_pixels)
     boxes = np.concatenate([visible[gt_rows], np.asarray(front.proposal_boxes, np.float64)])
     centers = np.concatenate([front.gt_centers[gt_rows], front.proposal_centers])
-    valid = np.concatenate([front.gt_valid[gt_rows], front.proposal_valid])
+    valid = np.concatenate([front.gt_valid[gt_rows], np.ones(len(front.proposal_boxes), bool)])
     keep, labels, overlaps, gt_index = label_rois(boxes, gt, fg_iou, bg_iou_low)
     boxes, centers, valid = boxes[keep], centers[keep], valid[keep]
     labels, overlaps, gt_index = labels[keep], overlaps[keep], gt_index[keep]

@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
 from a3d.runtime.errors import InputError
 from a3d.runtime.frames import PrecomputedProposals
 from a3d.train.data.nyuv2 import load_mat, matlab_boxes_to_pixels

@@ -43,6 +43,7 @@ from typing import Any
 
 import numpy as np
 import scipy.io
+
 from a3d.runtime.classes import CLASSES
 from a3d.runtime.errors import InputError
 from a3d.runtime.frames import NPY_MILLIMETRE_MEDIAN, GroundTruth, read_color_bytes

@@ -25,11 +25,12 @@ statistics are folded in), the 2D deltas are Fast R-CNN deltas toward the amodal
 from __future__ import annotations
 
 import torch
+from torch import nn
+
 from a3d.runtime.classes import NUM_OUTPUTS
 from a3d.train.model.config import NetConfig
 from a3d.train.model.roi_pool import roi_align
 from a3d.train.model.vgg import FEATURE_STRIDE, VGG16Trunk
-from torch import nn
 
 BOX3D_SIZE = 7
 BOX2D_SIZE = 4

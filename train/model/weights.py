@@ -33,6 +33,7 @@ from pathlib import Path
 from typing import Literal
 
 import torch
+
 from a3d.train.model.net import A3DNet
 
 IMAGENET_POOL = 7

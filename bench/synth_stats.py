@@ -1,0 +1,38 @@
+"""Statistics of a synthetic set against the NYUv2-like targets (a3d.synth.stats).
+
+Either summarise a set written by ``a3d-synth`` (its ``synth_objects.jsonl``), or render
+``--frames N`` frames in memory (seeds as a3d-synth would use with ``--seed S``) and summarise:
+
+    .venv/bin/a3d-synth /tmp/synth1000 --frames 1000 --seed 0 --workers 2
+    .venv/bin/python bench/synth_stats.py /tmp/synth1000
+    .venv/bin/python bench/synth_stats.py --frames 100 --seed 0
+"""
+
+import argparse
+from pathlib import Path
+
+from tqdm import tqdm
+
+from a3d.synth import generate_frame
+from a3d.synth.cli import frame_seed
+from a3d.synth.stats import format_summary, frame_record, read_records, summarise
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("folder", nargs="?", type=Path, help="a folder written by a3d-synth")
+    parser.add_argument("--frames", type=int, default=100, help="frames to render when no folder is given")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    if args.folder is not None:
+        records = read_records(args.folder)
+    else:
+        records = []
+        for i in tqdm(range(args.frames), unit="frame"):
+            seed = frame_seed(args.seed, i)
+            records.append(frame_record(f"synth_{i:06d}", "-", seed, generate_frame(seed)))
+    print(format_summary(summarise(records)))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,200 @@
+"""a3d-export: a trained checkpoint -> one self-contained model.onnx for a3d-run.
+
+    a3d-export CHECKPOINT -o model.onnx [--verify-frames FOLDER] [--svd RANK]
+               [--int8 --calib FOLDER [--calib-frames N]] [--opset 18] [--score-threshold S]
+
+1. load the checkpoint (a3d.train.checkpoint), optionally factorise fc6/fc7 (``--svd``, svd.py);
+2. export the runtime graph with the target statistics folded in (onnx_export.py), onnx.checker;
+3. verify the float32 file as the runtime opens it against eager torch on the first frames of
+   ``--verify-frames`` (or a synthetic image): above the tolerances of verify.py it stops with
+   exit code 1 and writes nothing; with ``--svd`` the difference to the uncompressed network is
+   reported too;
+4. ``--int8``: static QDQ quantisation calibrated on ``--calib`` frames (quantize.py), checked
+   to load and give finite outputs, its difference to torch reported;
+5. write the model with its metadata (metadata.py; the verification numbers go into the
+   provenance) atomically to ``-o``, load it back, and print the a3d-run command that uses it.
+
+Exit codes: 0 ok, 1 verification failed, 2 usage or bad input (one line naming the file).
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import shlex
+import sys
+import tempfile
+from collections.abc import Iterable
+from pathlib import Path
+
+import onnx
+
+from a3d.export.metadata import build_metadata
+from a3d.export.onnx_export import (
+    MAX_IR_VERSION,
+    MIN_OPSET,
+    ExportError,
+    RuntimeGraph,
+    export_graph,
+    load_trained,
+    save_model,
+)
+from a3d.export.quantize import CALIB_ROIS, quantize_int8
+from a3d.export.svd import svd_compress
+from a3d.export.verify import (
+    DELTA_RTOL,
+    PROB_ATOL,
+    NetworkInputs,
+    VerificationError,
+    check_graph,
+    compare,
+    folder_inputs,
+    synthetic_inputs,
+)
+from a3d.runtime.errors import InputError, ModelError
+from a3d.runtime.model import DetectorModel, ModelMetadata
+from a3d.runtime.pipeline import PipelineConfig
+from a3d.train.inference import TorchNetwork
+
+PROG = "a3d-export"
+VERIFY_FRAMES = 2  # frames of --verify-frames compared (each with all its proposals)
+CALIB_FRAMES = 16
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
+    p.add_argument("checkpoint", type=Path, help="a3d-train checkpoint (RUN_DIR/checkpoint.pt)")
+    p.add_argument("-o", "--output", type=Path, required=True, help="the model file to write (model.onnx)")
+    p.add_argument(
+        "--verify-frames",
+        type=Path,
+        metavar="FOLDER",
+        help=f"verify on the first {VERIFY_FRAMES} frames of FOLDER (default: a synthetic image)",
+    )
+    p.add_argument("--svd", type=int, metavar="RANK", help="truncated SVD of fc6 and fc7 at this rank")
+    p.add_argument("--int8", action="store_true", help="static int8 quantisation (QDQ, per channel)")
+    p.add_argument("--calib", type=Path, metavar="FOLDER", help="frame folder for the int8 calibration")
+    p.add_argument(
+        "--calib-frames",
+        type=int,
+        default=CALIB_FRAMES,
+        metavar="N",
+        help=f"calibration frames (default {CALIB_FRAMES})",
+    )
+    p.add_argument(
+        "--opset", type=int, default=MIN_OPSET, help=f"ONNX opset >= {MIN_OPSET} (default {MIN_OPSET})"
+    )
+    p.add_argument(
+        "--score-threshold",
+        type=float,
+        metavar="S",
+        help="detections below S are dropped at run time (default: the training config's)",
+    )
+    p.add_argument("--threads", type=int, default=2, help="ONNX Runtime threads for verification (default 2)")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.int8 != (args.calib is not None):
+        parser.error("--int8 and --calib FOLDER go together")
+    if args.calib_frames < 1:
+        parser.error(f"--calib-frames must be positive, got {args.calib_frames}")
+    try:
+        path = export(args)
+    except VerificationError as e:
+        print(f"{PROG}: verification failed: {e}", file=sys.stderr)
+        return 1
+    except (ExportError, InputError, ModelError, ValueError, FileNotFoundError) as e:
+        print(f"{PROG}: error: {e}", file=sys.stderr)
+        return 2
+    print(f"{PROG}: wrote {path}; run it with:", file=sys.stderr)
+    print(f"a3d-run FRAMES --model {shlex.quote(str(path.resolve()))} --out detections.jsonl")
+    return 0
+
+
+def export(args: argparse.Namespace) -> Path:
+    """Steps 1-5 of the module docstring; returns the path written."""
+    trained = load_trained(args.checkpoint)
+    reference = trained.net
+    options: dict = {"opset": args.opset, "int8": args.int8, "svd_rank": args.svd}
+    if args.svd is not None:
+        reference, options["svd"] = svd_compress(trained.net, args.svd)
+        for name, info in options["svd"].items():
+            kept = 100 * info["energy_kept"]
+            _log(f"svd {name} {info['shape']} rank {info['rank']}: {info['parameters']} -> "
+                 f"{info['parameters_svd']} weights, {kept:.2f}% of the energy kept")  # fmt: skip
+    metadata = build_metadata(
+        trained.state, trained.config, args.checkpoint, score_threshold=args.score_threshold
+    )
+    pipeline = PipelineConfig.from_metadata(metadata)  # the front end a3d-run will use with this model
+    regress_3d = trained.config.inference.regress_3d
+    torch_net = TorchNetwork(reference, trained.stats, regress_3d)
+    if args.verify_frames is not None:
+        inputs = list(folder_inputs(args.verify_frames, pipeline, VERIFY_FRAMES))
+    else:
+        inputs = [synthetic_inputs(metadata.input_scale)]
+    report: dict = {"inputs": [i.name for i in inputs], "prob_atol": PROB_ATOL, "delta_rtol": DELTA_RTOL}
+    with tempfile.TemporaryDirectory(prefix="a3d-export-") as tmp:
+        work = Path(tmp)
+        model = export_graph(
+            RuntimeGraph(reference, trained.stats, regress_3d), work / "graph.onnx", args.opset
+        )
+        check_graph(work / "graph.onnx")
+        opened = _open(model, metadata, work / "float.onnx", args.threads)
+        parity = compare(opened, torch_net, inputs)
+        _log(f"float32 ONNX Runtime vs torch: {parity.describe()}")
+        if not parity.within():
+            limits = f"probs {PROB_ATOL:g} abs, deltas {DELTA_RTOL:g} rel"
+            raise VerificationError(f"{parity.describe()} exceeds {limits}; nothing written")
+        report["float32_vs_torch"] = parity.to_dict()
+        if args.svd is not None:
+            lossy = compare(opened, TorchNetwork(trained.net, trained.stats, regress_3d), inputs)
+            _log(f"svd rank {args.svd} vs the uncompressed network: {lossy.describe()}")
+            report["float32_vs_uncompressed"] = lossy.to_dict()
+        if args.int8:
+            calibration = folder_inputs(args.calib, pipeline, args.calib_frames)
+            model, options["calibration"], report["int8_vs_torch"] = _int8(
+                args, calibration, torch_net, metadata, inputs, work
+            )
+    provenance = {**metadata.provenance, "export": {**metadata.provenance["export"], **options}}
+    metadata = dataclasses.replace(metadata, provenance={**provenance, "verification": report})
+    save_model(model, metadata, args.output)
+    DetectorModel.load(args.output, args.threads)  # the bytes on disk open as the runtime opens them
+    return args.output
+
+
+def _int8(
+    args: argparse.Namespace,
+    calibration: Iterable[NetworkInputs],
+    reference: TorchNetwork,
+    metadata: ModelMetadata,
+    inputs: list[NetworkInputs],
+    work: Path,
+) -> tuple[onnx.ModelProto, dict, dict]:
+    """Quantise work/graph.onnx; the int8 model, the calibration summary and its comparison to torch."""
+    frames = quantize_int8(work / "graph.onnx", work / "int8.onnx", calibration)
+    check_graph(work / "int8.onnx")
+    model = onnx.load(str(work / "int8.onnx"))
+    model.ir_version = min(model.ir_version, MAX_IR_VERSION)
+    quantized = compare(_open(model, metadata, work / "int8.a3d.onnx", args.threads), reference, inputs)
+    _log(f"int8 ({frames} calibration frames) vs torch: {quantized.describe()}")
+    if not quantized.finite():
+        raise VerificationError(f"the int8 model gives non-finite outputs ({quantized.describe()})")
+    calibration_info = {"folder": str(args.calib.resolve()), "frames": frames, "rois_per_frame": CALIB_ROIS}
+    return model, calibration_info, quantized.to_dict()
+
+
+def _open(model: onnx.ModelProto, metadata: ModelMetadata, path: Path, threads: int) -> DetectorModel:
+    """Write ``model`` with ``metadata`` to ``path`` and open it as the runtime does."""
+    save_model(model, metadata, path)
+    return DetectorModel.load(path, threads)
+
+
+def _log(message: str) -> None:
+    print(f"{PROG}: {message}", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,91 @@
+"""Static int8 quantisation of the exported graph (``a3d-export --int8 --calib FOLDER``).
+
+ONNX Runtime's ``quantize_static`` in QDQ format, per-channel int8 weights and uint8 activations
+(the U8S8 path of x86 VNNI, PLATFORM.md "Compute ceilings"), MinMax ranges calibrated on real
+frames through the runtime's own front end (a3d.export.verify.folder_inputs), RoIs capped per
+frame to bound the calibration's memory. Quantised: the convolutions and the fully connected
+layers (Gemm, and MatMul with a constant weight, which the SVD factors become). The RoI pooling
+products (MatMul of two computed tensors: the bilinear weights and the feature maps) stay float.
+
+``quant_pre_process`` runs first (graph optimisation, ONNX shape inference) with ORT's symbolic
+shape inference skipped: it does not complete on the dynamo exporter's graphs. The float model
+must hold its weights inline (external_data=False at export).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable
+from pathlib import Path
+
+import numpy as np
+import onnx
+from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_static
+from onnxruntime.quantization.shape_inference import quant_pre_process
+
+from a3d.export.onnx_export import ExportError
+from a3d.export.verify import NetworkInputs
+
+CALIB_ROIS = 300  # RoIs per calibration frame (the best-ranked proposals)
+QUANTIZED_OPS = ("Conv", "Gemm", "MatMul")
+
+
+class _FeedReader(CalibrationDataReader):
+    """Feeds one frame's inputs per call (the graph's input names, batch of one, RoIs capped)."""
+
+    def __init__(self, inputs: list[NetworkInputs], rois: int) -> None:
+        self._items = iter(inputs)
+        self._rois = rois
+
+    def get_next(self) -> dict[str, np.ndarray] | None:
+        item = next(self._items, None)
+        if item is None:
+            return None
+        return {
+            "color": np.ascontiguousarray(item.color, np.float32),
+            "depth": np.ascontiguousarray(item.depth, np.float32),
+            "rois": np.ascontiguousarray(item.rois[: self._rois], np.float32),
+            "context_rois": np.ascontiguousarray(item.context_rois[: self._rois], np.float32),
+        }
+
+
+def computed_matmuls(model: onnx.ModelProto) -> list[str]:
+    """Names of the MatMul nodes none of whose inputs is a weight (initializer or Constant)."""
+    graph = model.graph
+    constants = {i.name for i in graph.initializer}
+    constants |= {out for n in graph.node if n.op_type == "Constant" for out in n.output}
+    nodes = [n for n in graph.node if n.op_type == "MatMul" and not constants.intersection(n.input)]
+    if any(not n.name for n in nodes):
+        raise ExportError("an unnamed MatMul node in the graph cannot be kept out of quantisation")
+    return [n.name for n in nodes]
+
+
+def quantize_int8(
+    float_model: str | os.PathLike,
+    out: str | os.PathLike,
+    calibration: Iterable[NetworkInputs],
+    rois_per_frame: int = CALIB_ROIS,
+) -> int:
+    """Write the int8 QDQ model of ``float_model`` to ``out``; returns the number of frames used."""
+    inputs = list(calibration)
+    if not inputs:
+        raise ExportError("--calib: no calibration frame with a usable proposal")
+    out = Path(out)
+    prepared = out.with_name(out.stem + ".pre.onnx")
+    quant_pre_process(str(float_model), str(prepared), skip_symbolic_shape=True)
+    try:
+        quantize_static(
+            str(prepared),
+            str(out),
+            _FeedReader(inputs, rois_per_frame),
+            quant_format=QuantFormat.QDQ,
+            per_channel=True,
+            activation_type=QuantType.QUInt8,
+            weight_type=QuantType.QInt8,
+            op_types_to_quantize=list(QUANTIZED_OPS),
+            nodes_to_exclude=computed_matmuls(onnx.load(str(prepared))),
+            extra_options={"CalibMaxIntermediateOutputs": 1},  # fold each frame's ranges in at once
+        )
+    finally:
+        prepared.unlink(missing_ok=True)
+    return len(inputs)

@@ -1,0 +1,288 @@
+"""a3d-run: detect the objects in every frame of a folder; one JSON line per frame, live rerun view.
+
+    a3d-run FOLDER [--model model.onnx] [--output detections.jsonl] [--threads 2]
+            [--proposals auto|compute|precomputed] [--max-proposals N] [--score-threshold S]
+            [--resume] [--overlap] [--headless] [--connect] [--url URL] [--serve] [--save FILE.rrd] [--stdout]
+
+FOLDER is a frame folder (README "Frame format"); the model defaults to FOLDER/model.onnx. The
+model is loaded and checked before any frame is read. Each frame goes through
+a3d.runtime.pipeline and its line (README "Detections format") is appended to the output as one
+write, then flushed and fsynced, so an interrupted run leaves only complete lines (at most a
+partial last one, which ``--resume`` cuts off before it skips the frames already written). Without
+``--resume`` the output starts empty. ``--output -`` writes the lines to stdout; the progress bar
+and all messages go to stderr.
+
+The rerun flags are the SDK's standard ones: with none the viewer is spawned, ``--save`` writes an
+.rrd, ``--headless`` alone logs nothing. Frames are logged as they are processed (colour, depth,
+point cloud, detections and, where the frame has it, ground truth).
+
+A bad frame never stops the run: it is named on stderr as ``a3d-run: PATH: problem`` and the rest
+are processed. Exit codes: 0 every frame done, 1 some frames failed, 2 usage error (bad flags, no
+or unusable model, missing folder, unreadable output) before any frame is processed, 130 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import logging
+import os
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import cv2
+import rerun as rr
+from tqdm import tqdm
+
+from a3d.runtime import viewer
+from a3d.runtime.detections_io import format_line, parse_line
+from a3d.runtime.errors import InputError, ModelError
+from a3d.runtime.frames import FrameRef, read_folder_intrinsics, read_ground_truth, scan_folder
+from a3d.runtime.model import DetectorModel
+from a3d.runtime.pipeline import PROPOSAL_SOURCES, FrameOutcome, PipelineConfig, detect_frames
+
+PROG = "a3d-run"
+DEFAULT_MODEL = "model.onnx"
+DEFAULT_OUTPUT = "detections.jsonl"
+# Files of a folder that are not frames and are no problem (the model, notes, the output itself).
+_NOT_FRAME_REASONS = ("unknown file type", "a folder (frames are not searched for in sub-folders)")
+
+load_model = DetectorModel.load  # the model loader (tests substitute a fake model here)
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
+    p.add_argument("folder", type=Path, help="frame folder (README 'Frame format')")
+    p.add_argument("--model", type=Path, help=f"model file (default: FOLDER/{DEFAULT_MODEL})")
+    p.add_argument("--output", default=DEFAULT_OUTPUT, help="JSON lines file, '-': stdout (%(default)s)")
+    p.add_argument("--threads", type=int, default=2, help="CPU threads, OpenCV and ONNX Runtime (default: 2)")
+    p.add_argument(
+        "--proposals",
+        choices=PROPOSAL_SOURCES,
+        default="auto",
+        help="auto: NAME.proposals.npz where present, else computed; compute: always computed; "
+        "precomputed: NAME.proposals.npz required (default: auto)",
+    )
+    p.add_argument("--max-proposals", type=int, metavar="N", help="proposals per frame (default: model)")
+    p.add_argument("--score-threshold", type=float, metavar="S", help="drop scores below S (default: model)")
+    p.add_argument("--resume", action="store_true", help="skip the frames the output already has")
+    p.add_argument(
+        "--overlap",
+        action="store_true",
+        help="prepare the next frame on a background thread during the network call "
+        "(the network then gets THREADS - 1 threads)",
+    )
+    viewer.add_viewer_args(p)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = _parser()
+    args = parser.parse_args(argv)
+    if args.threads < 1:
+        parser.error("--threads must be at least 1")
+    if args.max_proposals is not None and args.max_proposals < 1:
+        parser.error("--max-proposals must be at least 1")
+    if args.score_threshold is not None and not 0.0 <= args.score_threshold <= 1.0:
+        parser.error("--score-threshold must be in [0, 1]")
+    if args.output == "-" and (args.resume or args.stdout):
+        parser.error("--output - cannot be combined with --resume or --stdout")
+    model_path = args.model if args.model is not None else args.folder / DEFAULT_MODEL
+    if args.model is None and not model_path.is_file():
+        parser.error(f"no model given and {model_path} does not exist; pass --model FILE")
+
+    network_threads = max(1, args.threads - 1) if args.overlap else args.threads
+    try:
+        listing = scan_folder(args.folder)
+        folder_intrinsics = read_folder_intrinsics(args.folder)
+        model = load_model(model_path, threads=network_threads)
+        config = PipelineConfig.from_metadata(
+            model.metadata,
+            proposal_source=args.proposals,
+            max_proposals=args.max_proposals,
+            min_score=args.score_threshold,
+        )
+        done = set() if args.output == "-" or not args.resume else completed_frames(Path(args.output))
+    except (InputError, ModelError) as e:
+        print(f"{PROG}: error: {e}", file=sys.stderr)
+        return 2
+    incomplete = [s for s in listing.skipped if s.reason not in _NOT_FRAME_REASONS]
+    if not listing.frames and not incomplete:
+        print(f"{PROG}: error: {args.folder}: no frames (NAME.color.png + NAME.depth.png)", file=sys.stderr)
+        return 2
+
+    indices = {ref.name: i for i, ref in enumerate(listing.frames)}
+    todo = [ref for ref in listing.frames if ref.name not in done]
+    failures = [f"{s.path}: {s.reason}" for s in incomplete]
+    for problem in failures:
+        print(f"{PROG}: {problem}", file=sys.stderr)
+    written = 0
+    with _threads(1 if args.overlap else args.threads), _warnings_to_stderr():
+        try:
+            output = _open_output(args.output, append=args.resume)
+        except OSError as e:
+            print(f"{PROG}: error: {args.output}: cannot write ({e.strerror or e})", file=sys.stderr)
+            return 2
+        recording = None
+        if viewer.viewer_requested(args):
+            recording = viewer.open_recording(args)
+            viewer.log_static(recording)
+        bar = tqdm(total=len(todo), desc=PROG, unit="frame", file=sys.stderr, disable=None)
+        try:
+            for outcome in detect_frames(todo, model, config, folder_intrinsics, overlap=args.overlap):
+                if outcome.detections is not None:
+                    output.write(format_line(outcome.detections))
+                    written += 1
+                    if recording is not None:
+                        _log(recording, indices[outcome.ref.name], outcome)
+                else:
+                    failures.append(outcome.problem)
+                    tqdm.write(f"{PROG}: {outcome.problem}", file=sys.stderr)
+                bar.update()
+        except KeyboardInterrupt:
+            bar.close()
+            print(f"{PROG}: interrupted after {written} frames; --resume continues", file=sys.stderr)
+            return 130
+        finally:
+            bar.close()
+            output.close()
+            if recording is not None:
+                recording.flush()
+        if recording is not None:
+            rr.script_teardown(args)
+            rr.disconnect(recording)
+    skipped = f", {len(done)} already in the output" if done else ""
+    where = "stdout" if args.output == "-" else args.output
+    print(f"{PROG}: {written} frames written to {where}{skipped}, {len(failures)} failed", file=sys.stderr)
+    return 1 if failures else 0
+
+
+# ----------------------------------------------------------------------------- output file
+
+
+class _LineSink:
+    """Appends lines to a file (one write per line, then flush and fsync) or to stdout."""
+
+    def __init__(self, fd: int | None) -> None:
+        self.fd = fd
+
+    def write(self, line: str) -> None:
+        data = (line + "\n").encode("utf-8")
+        if self.fd is None:
+            sys.stdout.buffer.write(data)
+            sys.stdout.buffer.flush()
+            return
+        view = memoryview(data)
+        while view:  # a regular file takes the whole line in one call; the loop only guards EINTR-like cases
+            view = view[os.write(self.fd, view) :]
+        os.fsync(self.fd)
+
+    def close(self) -> None:
+        if self.fd is not None:
+            os.close(self.fd)
+
+
+def _open_output(target: str, append: bool) -> _LineSink:
+    if target == "-":
+        return _LineSink(None)
+    path = Path(target)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    flags = os.O_WRONLY | os.O_CREAT | os.O_APPEND | (0 if append else os.O_TRUNC)
+    return _LineSink(os.open(path, flags, 0o666))
+
+
+def completed_frames(path: Path) -> set[str]:
+    """Frames that already have a complete line in ``path`` (for --resume); empty if it does not exist.
+
+    A partial last line (no newline: the run was killed while writing it) is cut off the file.
+    Every complete line must be a valid detections line, else InputError: resuming appends to
+    the file, so it must be one a3d-run wrote.
+    """
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        return set()
+    except OSError as e:
+        raise InputError(f"{path}: cannot read ({e.strerror or e})") from None
+    end = data.rfind(b"\n") + 1
+    if end < len(data):
+        os.truncate(path, end)
+    names: set[str] = set()
+    for number, raw in enumerate(data[:end].split(b"\n")[:-1], start=1):
+        if not raw.strip():
+            continue
+        try:
+            text = raw.decode("utf-8")
+        except UnicodeDecodeError:
+            raise InputError(f"{path}:{number}: not UTF-8 text; not a detections file to resume") from None
+        names.add(parse_line(text, f"{path}:{number}").frame)
+    return names
+
+
+# ----------------------------------------------------------------------------- viewer, environment
+
+
+def _log(recording: rr.RecordingStream, index: int, outcome: FrameOutcome) -> None:
+    """Log one processed frame, with its ground truth when it has readable ground truth."""
+    assert outcome.prepared is not None and outcome.detections is not None
+    frame, det = outcome.prepared.frame, outcome.detections
+    gt = _ground_truth(frame.ref)
+    viewer.log_frame(
+        recording,
+        index,
+        color=frame.color,
+        depth_m=frame.depth,
+        K=frame.intrinsics,
+        R_tilt=det.R_tilt,
+        class_ids=det.class_ids,
+        scores=det.scores,
+        boxes2d=det.boxes2d,
+        boxes3d=det.boxes3d,
+        gt_class_ids=None if gt is None else gt.class_ids,
+        gt_boxes3d=None if gt is None else gt.boxes3d,
+        proposals=outcome.prepared.boxes,
+    )
+
+
+def _ground_truth(ref: FrameRef):
+    """The frame's ground truth for the view; a bad gt.json only costs the view its boxes."""
+    try:
+        return read_ground_truth(ref)
+    except InputError as e:
+        tqdm.write(f"{PROG}: warning: {e} (ground truth not shown)", file=sys.stderr)
+        return None
+
+
+@contextlib.contextmanager
+def _threads(n: int) -> Iterator[None]:
+    """OpenCV's thread count for the run (restored after)."""
+    before = cv2.getNumThreads()
+    cv2.setNumThreads(n)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(before)
+
+
+class _TqdmHandler(logging.Handler):
+    def emit(self, record: logging.LogRecord) -> None:
+        tqdm.write(f"{PROG}: warning: {record.getMessage()}", file=sys.stderr)
+
+
+@contextlib.contextmanager
+def _warnings_to_stderr() -> Iterator[None]:
+    """a3d's logged warnings (e.g. a frame without valid depth) as one stderr line each, above the bar."""
+    logger = logging.getLogger("a3d")
+    handler = _TqdmHandler(logging.WARNING)
+    logger.addHandler(handler)
+    propagate, logger.propagate = logger.propagate, False
+    try:
+        yield
+    finally:
+        logger.removeHandler(handler)
+        logger.propagate = propagate
+
+
+if __name__ == "__main__":
+    sys.exit(main())

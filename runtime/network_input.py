@@ -1,0 +1,47 @@
+"""The network's image and RoI inputs at the model's input scale (numpy + OpenCV).
+
+The trunks may run on a resized image (``input_scale``, e.g. 0.5 for the CPU models) while
+proposals, lifting and every 3D quantity stay at native resolution; only the images and the RoIs
+handed to the network are rescaled. Boxes follow the README pixel convention, so an image of
+width ``W`` spans ``[-0.5, W - 0.5]`` and a resize by ``s`` maps ``x -> (x + 0.5) s - 0.5``.
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from a3d.runtime.preprocess import color_input, depth_input
+
+
+def network_inputs(
+    color_bgr: np.ndarray, depth_filled: np.ndarray, scale: float, truncation: float
+) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
+    """Colour and depth trunk inputs (3, h, w) float32 at ``scale`` and the exact (sx, sy) box scaling.
+
+    ``color_bgr`` (H, W, 3) uint8, ``depth_filled`` (H, W) float32 metres (hole-filled);
+    ``truncation`` metres map to 255 in the depth input (a3d.runtime.preprocess). The size is
+    ``round(W * scale) x round(H * scale)`` (at least 1), so (sx, sy) = (w / W, h / H) differ
+    slightly from ``scale``. Down-scaling averages areas (no aliasing), up-scaling is bilinear.
+    """
+    if not (np.isfinite(scale) and scale > 0):
+        raise ValueError(f"network_inputs: scale must be a positive number, got {scale}")
+    h, w = depth_filled.shape
+    size = (max(1, round(w * scale)), max(1, round(h * scale)))
+    if size != (w, h):
+        interp = cv2.INTER_AREA if scale < 1.0 else cv2.INTER_LINEAR
+        color_bgr = cv2.resize(color_bgr, size, interpolation=interp)
+        depth_filled = cv2.resize(depth_filled, size, interpolation=interp)
+    return color_input(color_bgr), depth_input(depth_filled, truncation), (size[0] / w, size[1] / h)
+
+
+def scale_boxes(boxes: np.ndarray, sx: float, sy: float) -> np.ndarray:
+    """Boxes (N, 4) in native pixel coordinates -> the resized image's: ``(b + 0.5) * s - 0.5``."""
+    factors = np.array([sx, sy, sx, sy])
+    return (np.asarray(boxes, np.float64).reshape(-1, 4) + 0.5) * factors - 0.5
+
+
+def with_batch_index(boxes: np.ndarray, index: int) -> np.ndarray:
+    """(N, 4) -> (N, 5) rows ``[index, x1, y1, x2, y2]``, the RoI layout of the training network."""
+    boxes = np.asarray(boxes, np.float64).reshape(-1, 4)
+    return np.concatenate([np.full((len(boxes), 1), float(index)), boxes], axis=1)
