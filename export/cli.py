@@ -110,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 2
     print(f"{PROG}: wrote {path}; run it with:", file=sys.stderr)
-    print(f"a3d-run FRAMES --model {shlex.quote(str(path.resolve()))} --out detections.jsonl")
+    print(f"a3d-run FRAMES --model {shlex.quote(str(path.resolve()))} --output detections.jsonl")
     return 0
 
 

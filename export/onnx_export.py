@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import logging
 import os
 import warnings
 from dataclasses import dataclass
@@ -137,6 +138,9 @@ def export_graph(graph: RuntimeGraph, path: str | os.PathLike, opset: int = MIN_
         raise ExportError(f"--opset {opset}: the exporter supports opset {MIN_OPSET} or newer")
     graph = graph.eval()
     dims = {2: "height", 3: "width"}
+    registry_log = logging.getLogger("torch.onnx._internal.exporter._registration")
+    level = registry_log.level
+    registry_log.setLevel(logging.ERROR)  # "torchvision is not installed" for every torchvision op
     with warnings.catch_warnings(), torch.no_grad():
         warnings.simplefilter("ignore")  # the exporter's deprecation and dynamic-shape chatter
         torch.onnx.export(
@@ -151,6 +155,7 @@ def export_graph(graph: RuntimeGraph, path: str | os.PathLike, opset: int = MIN_
             external_data=False,
             verbose=False,
         )
+    registry_log.setLevel(level)
     model = onnx.load(str(path))
     got = next((o.version for o in model.opset_import if o.domain in ("", "ai.onnx")), None)
     if got != opset:

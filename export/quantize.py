@@ -2,14 +2,17 @@
 
 ONNX Runtime's ``quantize_static`` in QDQ format, per-channel int8 weights and uint8 activations
 (the U8S8 path of x86 VNNI, PLATFORM.md "Compute ceilings"), MinMax ranges calibrated on real
-frames through the runtime's own front end (a3d.export.verify.folder_inputs), RoIs capped per
-frame to bound the calibration's memory. Quantised: the convolutions and the fully connected
-layers (Gemm, and MatMul with a constant weight, which the SVD factors become). The RoI pooling
-products (MatMul of two computed tensors: the bilinear weights and the feature maps) stay float.
+frames through the runtime's own front end (a3d.export.verify.folder_inputs), at most
+``CALIB_ROIS`` RoIs per frame (the best-ranked proposals) to bound the calibration run's memory.
+Quantised: the convolutions and the fully connected layers (Gemm, and MatMul with a constant
+weight, which the SVD factors become). The RoI pooling products (MatMul of two computed tensors:
+the bilinear weights and the feature maps) stay float.
 
 ``quant_pre_process`` runs first (graph optimisation, ONNX shape inference) with ORT's symbolic
 shape inference skipped: it does not complete on the dynamo exporter's graphs. The float model
-must hold its weights inline (external_data=False at export).
+must hold its weights inline (external_data=False at export). ORT 1.31's
+``CalibMaxIntermediateOutputs`` option drops the collected ranges instead of merging them, so it
+is not used (MinMax keeps two numbers per tensor and frame anyway).
 """
 
 from __future__ import annotations
@@ -84,8 +87,13 @@ def quantize_int8(
             weight_type=QuantType.QInt8,
             op_types_to_quantize=list(QUANTIZED_OPS),
             nodes_to_exclude=computed_matmuls(onnx.load(str(prepared))),
-            extra_options={"CalibMaxIntermediateOutputs": 1},  # fold each frame's ranges in at once
         )
     finally:
         prepared.unlink(missing_ok=True)
+    model = onnx.load(str(out))
+    used = {"", *(n.domain for n in model.graph.node)}
+    kept = [o for o in model.opset_import if o.domain in used]  # the pre-processing declares ORT's domains
+    del model.opset_import[:]
+    model.opset_import.extend(kept)
+    onnx.save(model, str(out))
     return len(inputs)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from a3d.runtime.box_coder import decode_2d, decode_3d
-from a3d.runtime.geometry import canonical_boxes, iou_2d
+from a3d.runtime.geometry import batched_nms_2d, canonical_boxes
 from a3d.runtime.lifting import initial_boxes
 
 
@@ -30,9 +30,6 @@ def select_detections(
     better-scored candidate of its class is > ``nms_iou`` (a3d.runtime.geometry.nms_2d's rule);
     ties in score go to the lower proposal index. Returns (rows (K,) proposal indices,
     class_idx (K,), scores (K,)) by descending score (ties: class order, then rank).
-
-    NMS runs for all classes at once, one step per rank (at most ``top_k`` steps), instead of one
-    step per kept detection.
     """
     scores = np.asarray(scores, np.float64)
     boxes2d = np.asarray(boxes2d, np.float64).reshape(-1, 4)
@@ -40,19 +37,13 @@ def select_detections(
     k = min(int(top_k), n)
     if k <= 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
-    order = np.argsort(-scores, axis=0, kind="stable")[:k].T  # (C, k) rows, best first
-    cand = np.take_along_axis(scores.T, order, axis=1)  # (C, k)
+    rows = np.argsort(-scores, axis=0, kind="stable")[:k].T.reshape(-1)  # class-major, best first
+    classes = np.repeat(np.arange(c, dtype=np.int64), k)
+    cand = scores[rows, classes]
     alive = cand >= min_score
-    iou = np.stack([iou_2d(boxes2d[rows], boxes2d[rows]) for rows in order])  # (C, k, k)
-    overlaps = (iou > nms_iou) & np.triu(np.ones((k, k), bool), 1)  # only later ranks are suppressed
-    keep = np.zeros((c, k), bool)
-    for rank in range(k):
-        keep[:, rank] = alive[:, rank]
-        alive &= ~(keep[:, rank, None] & overlaps[:, rank])
-    class_idx, rank = np.nonzero(keep)
-    kept = cand[class_idx, rank]
-    by_score = np.argsort(-kept, kind="stable")
-    return order[class_idx, rank][by_score], class_idx[by_score].astype(np.int64), kept[by_score]
+    rows, classes, cand = rows[alive], classes[alive], cand[alive]
+    keep = batched_nms_2d(boxes2d[rows], cand, classes, nms_iou)
+    return rows[keep], classes[keep], cand[keep]
 
 
 def decode_detections(

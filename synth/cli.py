@@ -34,7 +34,7 @@ def frame_seed(seed: int, index: int) -> int:
     return int(np.random.SeedSequence([seed, index]).generate_state(1, np.uint64)[0] >> np.uint64(1))
 
 
-def test_indices(seed: int, n: int, share: float) -> set[int]:
+def held_out_indices(seed: int, n: int, share: float) -> set[int]:
     """Which of frames 0..n-1 go to the test split (round(n * share) of them, fixed by seed)."""
     order = np.random.default_rng(np.random.SeedSequence([seed, 0x7E57])).permutation(n)
     return {int(i) for i in order[: round(n * share)]}
@@ -100,7 +100,7 @@ def generate(
     progress: bool = True,
 ) -> list[dict]:
     """Render and write a set (see the module docstring); returns its statistics records."""
-    test = test_indices(seed, frames, test_share)
+    test = held_out_indices(seed, frames, test_share)
     jobs = []
     for i in range(frames):
         split = "test" if i in test else "train"

@@ -20,7 +20,8 @@ from a3d.synth.parts import BOX, Furniture, Part, Surface, box, cbox, cyl
 Rng = np.random.Generator
 
 
-def _u(rng: Rng, lo: float, hi: float) -> float:
+def uniform(rng: Rng, lo: float, hi: float) -> float:
+    """A float drawn uniformly from [lo, hi)."""
     return float(rng.uniform(lo, hi))
 
 
@@ -44,13 +45,13 @@ def _top_surface(w: float, d: float, h: float, inset: float = 0.03) -> Surface:
     return Surface(-w / 2 + inset, w / 2 - inset, -d / 2 + inset, d / 2 - inset, h)
 
 
-def _drawer_front(
+def drawer_front(
     rng: Rng, x0: float, x1: float, h0: float, h1: float, z: float, slot: int, handle_slot: int
 ) -> list[Part]:
     """A drawer or cabinet door on the front plane z: a slightly proud panel and a handle."""
-    gap, proud = 0.004, _u(rng, 0.008, 0.02)
+    gap, proud = 0.004, uniform(rng, 0.008, 0.02)
     parts = [box(x0 + gap, x1 - gap, h0 + gap, h1 - gap, z, z + proud, slot)]
-    hw = min(_u(rng, 0.06, 0.16), (x1 - x0) * 0.6)
+    hw = min(uniform(rng, 0.06, 0.16), (x1 - x0) * 0.6)
     hc = h1 - min(0.06, (h1 - h0) / 2) if h1 - h0 > 0.3 else (h0 + h1) / 2
     if rng.random() < 0.5:
         parts.append(cbox(hw, 0.025, hc - 0.008, hc + 0.008, (x0 + x1) / 2, z + proud + 0.0125, handle_slot))
@@ -67,60 +68,73 @@ def _drawer_front(
 def table(rng: Rng, style: str | None = None) -> Furniture:
     """Dining, coffee, round pedestal or side table: a top on legs (apron or shelf optional)."""
     style = style or str(rng.choice(["dining", "coffee", "round", "side"], p=[0.45, 0.25, 0.15, 0.15]))
-    t = _u(rng, 0.025, 0.05)
+    t = uniform(rng, 0.025, 0.05)
     if style == "round":
-        r, h = _u(rng, 0.35, 0.6), _u(rng, 0.70, 0.76)
-        parts = [cyl(0, 0, r, h - t, h, 0), cyl(0, 0, _u(rng, 0.03, 0.07), 0.03, h - t, 1)]
-        parts.append(cyl(0, 0, _u(rng, 0.2, 0.75 * r), 0, 0.03, 1))
+        r, h = uniform(rng, 0.35, 0.6), uniform(rng, 0.70, 0.76)
+        parts = [cyl(0, 0, r, h - t, h, 0), cyl(0, 0, uniform(rng, 0.03, 0.07), 0.03, h - t, 1)]
+        parts.append(cyl(0, 0, uniform(rng, 0.2, 0.75 * r), 0, 0.03, 1))
         s = r / math.sqrt(2)
         return Furniture("table", parts, [Surface(-s, s, -s, s, h)])
     if style == "dining":
-        w = _u(rng, 0.9, 1.9)
-        d, h = _u(rng, 0.6, min(1.0, w)), _u(rng, 0.70, 0.78)
+        w = uniform(rng, 0.9, 1.9)
+        d, h = uniform(rng, 0.6, min(1.0, w)), uniform(rng, 0.70, 0.78)
     elif style == "coffee":
-        w = _u(rng, 0.7, 1.3)
-        d, h = _u(rng, 0.4, min(0.75, w)), _u(rng, 0.35, 0.5)
+        w = uniform(rng, 0.7, 1.3)
+        d, h = uniform(rng, 0.4, min(0.75, w)), uniform(rng, 0.35, 0.5)
     else:
-        w = _u(rng, 0.4, 0.65)
-        d, h = _u(rng, 0.4, w), _u(rng, 0.45, 0.7)
-    lt, inset = _u(rng, 0.035, 0.08), _u(rng, 0.0, 0.06)
+        w = uniform(rng, 0.4, 0.65)
+        d, h = uniform(rng, 0.4, w), uniform(rng, 0.45, 0.7)
+    lt, inset = uniform(rng, 0.035, 0.08), uniform(rng, 0.0, 0.06)
     parts = [cbox(w, d, h - t, h, slot=0), *_legs(rng, w, d, h - t, inset, lt, 1)]
     if rng.random() < 0.5 and h > 0.6:  # apron boards under the top
-        ah = _u(rng, 0.06, 0.12)
+        ah = uniform(rng, 0.06, 0.12)
         parts.append(cbox(w - 2 * (inset + lt * 0.3), d - 2 * (inset + lt * 0.3), h - t - ah, h - t, slot=0))
     if style == "coffee" and rng.random() < 0.5:  # lower shelf
-        sh = _u(rng, 0.08, 0.15)
+        sh = uniform(rng, 0.08, 0.15)
         parts.append(cbox(w - 2 * inset, d - 2 * inset, sh, sh + 0.02, slot=0))
     return Furniture("table", parts, [_top_surface(w, d, h)])
 
 
 def desk(rng: Rng) -> Furniture:
     """A desk top on legs, side panels or a drawer pedestal, with an optional modesty panel."""
-    w, d, h, t = _u(rng, 1.0, 1.8), _u(rng, 0.55, 0.8), _u(rng, 0.71, 0.77), _u(rng, 0.02, 0.04)
+    w, d, h, t = (
+        uniform(rng, 1.0, 1.8),
+        uniform(rng, 0.55, 0.8),
+        uniform(rng, 0.71, 0.77),
+        uniform(rng, 0.02, 0.04),
+    )
     parts = [cbox(w, d, h - t, h, slot=0)]
     style = rng.choice(["legs", "panels", "pedestal"])
-    pt = _u(rng, 0.02, 0.04)
+    pt = uniform(rng, 0.02, 0.04)
     if style == "legs":
-        parts += _legs(rng, w, d, h - t, _u(rng, 0.0, 0.04), _u(rng, 0.035, 0.06), 1)
+        parts += _legs(rng, w, d, h - t, uniform(rng, 0.0, 0.04), uniform(rng, 0.035, 0.06), 1)
     elif style == "panels":
         parts += [
             box(-w / 2, -w / 2 + pt, 0, h - t, -d / 2, d / 2, 0),
             box(w / 2 - pt, w / 2, 0, h - t, -d / 2, d / 2, 0),
         ]
     else:
-        pw = _u(rng, 0.35, 0.45)
+        pw = uniform(rng, 0.35, 0.45)
         side = rng.choice([-1.0, 1.0])
         x0, x1 = (w / 2 - pw, w / 2) if side > 0 else (-w / 2, -w / 2 + pw)
         parts.append(box(x0, x1, 0.0, h - t, -d / 2, d / 2 - 0.02, 0))
         n = int(rng.integers(2, 5))
         edges = np.linspace(0.03, h - t, n + 1)
         for a, b in itertools.pairwise(edges):
-            parts += _drawer_front(rng, x0, x1, float(a), float(b), d / 2 - 0.02, 2, 1)
+            parts += drawer_front(rng, x0, x1, float(a), float(b), d / 2 - 0.02, 2, 1)
         xo = -w / 2 + pt if side > 0 else w / 2 - pt
         parts.append(box(min(xo, xo - side * pt), max(xo, xo - side * pt), 0, h - t, -d / 2, d / 2, 0))
     if rng.random() < 0.5:
         parts.append(
-            box(-w / 2 + pt, w / 2 - pt, h * _u(rng, 0.3, 0.6), h - t, -d / 2 + 0.02, -d / 2 + 0.02 + pt, 0)
+            box(
+                -w / 2 + pt,
+                w / 2 - pt,
+                h * uniform(rng, 0.3, 0.6),
+                h - t,
+                -d / 2 + 0.02,
+                -d / 2 + 0.02 + pt,
+                0,
+            )
         )
     return Furniture("desk", parts, [_top_surface(w, d, h)])
 
@@ -132,9 +146,14 @@ def chair(rng: Rng, style: str | None = None) -> Furniture:
     """A four-legged chair, an office chair on a star base, or an upholstered armchair."""
     style = style or str(rng.choice(["legs", "office", "armchair"], p=[0.6, 0.28, 0.12]))
     if style == "armchair":
-        w, d = _u(rng, 0.7, 0.95), _u(rng, 0.7, 0.9)
-        sh, bh, ah, aw = _u(rng, 0.38, 0.45), _u(rng, 0.75, 1.0), _u(rng, 0.55, 0.68), _u(rng, 0.1, 0.2)
-        bt, lh = _u(rng, 0.12, 0.2), _u(rng, 0.0, 0.12)
+        w, d = uniform(rng, 0.7, 0.95), uniform(rng, 0.7, 0.9)
+        sh, bh, ah, aw = (
+            uniform(rng, 0.38, 0.45),
+            uniform(rng, 0.75, 1.0),
+            uniform(rng, 0.55, 0.68),
+            uniform(rng, 0.1, 0.2),
+        )
+        bt, lh = uniform(rng, 0.12, 0.2), uniform(rng, 0.0, 0.12)
         parts = [cbox(w - 2 * aw, d - bt, lh, sh - 0.1, z=bt / 2, slot=0)]
         parts.append(cbox(w - 2 * aw, d - bt - 0.02, sh - 0.1, sh, z=bt / 2 + 0.01, slot=2))
         parts.append(box(-w / 2, w / 2, lh, bh, -d / 2, -d / 2 + bt, 0))
@@ -145,17 +164,17 @@ def chair(rng: Rng, style: str | None = None) -> Furniture:
         if lh > 0.02:
             parts += _legs(rng, w, d, lh, 0.03, 0.04, 1)
         return Furniture("chair", parts)
-    w, d = _u(rng, 0.4, 0.52), _u(rng, 0.4, 0.52)
-    sh, st = _u(rng, 0.42, 0.49), _u(rng, 0.025, 0.07)
-    back = _u(rng, 0.32, 0.55)
-    bt = _u(rng, 0.02, 0.05)
+    w, d = uniform(rng, 0.4, 0.52), uniform(rng, 0.4, 0.52)
+    sh, st = uniform(rng, 0.42, 0.49), uniform(rng, 0.025, 0.07)
+    back = uniform(rng, 0.32, 0.55)
+    bt = uniform(rng, 0.02, 0.05)
     if style == "office":
         parts = [cbox(w, d, sh - st, sh, slot=2)]
         parts.append(box(-w / 2 + 0.02, w / 2 - 0.02, sh + 0.04, sh + 0.04 + back, -d / 2 - bt, -d / 2, 2))
         parts.append(cbox(0.05, 0.02, sh - st - 0.02, sh + 0.06, z=-d / 2 - bt / 2, slot=1))  # back spine
-        parts.append(cyl(0, 0, _u(rng, 0.02, 0.035), 0.09, sh - st, 1))
+        parts.append(cyl(0, 0, uniform(rng, 0.02, 0.035), 0.09, sh - st, 1))
         parts.append(cyl(0, 0, 0.045, 0.07, 0.2, 1))
-        arm_r, yaw0 = _u(rng, 0.26, 0.33), _u(rng, 0, 2 * math.pi / 5)
+        arm_r, yaw0 = uniform(rng, 0.26, 0.33), uniform(rng, 0, 2 * math.pi / 5)
         for k in range(5):
             a = yaw0 + 2 * math.pi * k / 5
             c = (arm_r / 2 * math.sin(a), 0.075, arm_r / 2 * math.cos(a))
@@ -168,7 +187,7 @@ def chair(rng: Rng, style: str | None = None) -> Furniture:
                 )
                 parts.append(box(sx * w / 2 - 0.015, sx * w / 2 + 0.015, sh - st, sh + 0.18, -0.03, 0.0, 1))
         return Furniture("chair", parts)
-    lt = _u(rng, 0.025, 0.045)
+    lt = uniform(rng, 0.025, 0.045)
     parts = [cbox(w, d, sh - st, sh, slot=0 if rng.random() < 0.6 else 2)]
     parts += _legs(rng, w, d, sh - st, 0.01, lt, 1)
     top = sh + back
@@ -182,7 +201,7 @@ def chair(rng: Rng, style: str | None = None) -> Furniture:
             box(
                 -w / 2 + 0.01 + lt / 2,
                 w / 2 - 0.01 - lt / 2,
-                sh + back * _u(rng, 0.15, 0.4),
+                sh + back * uniform(rng, 0.15, 0.4),
                 top - 0.01,
                 -d / 2 + 0.015,
                 -d / 2 + 0.01 + bt,
@@ -203,7 +222,7 @@ def chair(rng: Rng, style: str | None = None) -> Furniture:
                 )
             )
     if rng.random() < 0.3:  # side stretchers joining the front and back legs
-        sh2, xs = _u(rng, 0.1, 0.2), w / 2 - 0.01 - lt / 2
+        sh2, xs = uniform(rng, 0.1, 0.2), w / 2 - 0.01 - lt / 2
         parts += [cbox(lt * 0.6, d - 0.02 - lt, sh2, sh2 + 0.02, x=sx * xs, slot=1) for sx in (-1, 1)]
     return Furniture("chair", parts)
 
@@ -211,10 +230,10 @@ def chair(rng: Rng, style: str | None = None) -> Furniture:
 def sofa(rng: Rng) -> Furniture:
     """A two- or three-seater: base, seat and back cushions, back frame, arms, optional legs."""
     n = int(rng.integers(2, 4))
-    w = n * _u(rng, 0.55, 0.7) + 2 * _u(rng, 0.1, 0.25)
-    d, sh = _u(rng, 0.8, 1.0), _u(rng, 0.38, 0.46)
-    bh, ah, aw = _u(rng, 0.75, 0.95), _u(rng, 0.52, 0.68), _u(rng, 0.1, 0.25)
-    bt, lh, ct = _u(rng, 0.14, 0.22), _u(rng, 0.0, 0.12), _u(rng, 0.1, 0.16)
+    w = n * uniform(rng, 0.55, 0.7) + 2 * uniform(rng, 0.1, 0.25)
+    d, sh = uniform(rng, 0.8, 1.0), uniform(rng, 0.38, 0.46)
+    bh, ah, aw = uniform(rng, 0.75, 0.95), uniform(rng, 0.52, 0.68), uniform(rng, 0.1, 0.25)
+    bt, lh, ct = uniform(rng, 0.14, 0.22), uniform(rng, 0.0, 0.12), uniform(rng, 0.1, 0.16)
     if lh < 0.03:
         lh = 0.0
     parts = [box(-w / 2 + aw, w / 2 - aw, lh, sh - ct, -d / 2 + bt, d / 2, 0)]
@@ -224,7 +243,7 @@ def sofa(rng: Rng) -> Furniture:
         box(w / 2 - aw, w / 2, lh, ah, -d / 2, d / 2, 0),
     ]
     inner = np.linspace(-w / 2 + aw, w / 2 - aw, n + 1)
-    ct2 = _u(rng, 0.1, 0.17)
+    ct2 = uniform(rng, 0.1, 0.17)
     for a, b in itertools.pairwise(inner):
         parts.append(box(float(a) + 0.005, float(b) - 0.005, sh - ct, sh, -d / 2 + bt + ct2, d / 2 - 0.01, 2))
         parts.append(
@@ -232,7 +251,7 @@ def sofa(rng: Rng) -> Furniture:
                 float(a) + 0.01,
                 float(b) - 0.01,
                 sh,
-                bh - _u(rng, 0.02, 0.08),
+                bh - uniform(rng, 0.02, 0.08),
                 -d / 2 + bt,
                 -d / 2 + bt + ct2,
                 2,
@@ -248,10 +267,13 @@ def sofa(rng: Rng) -> Furniture:
 
 def bed(rng: Rng) -> Furniture:
     """Frame, mattress, headboard at the back (-z), optional footboard, legs and blanket."""
-    w, length = float(rng.choice([_u(rng, 0.9, 1.1), _u(rng, 1.35, 1.95)])), _u(rng, 1.95, 2.15)
-    fh, mt = _u(rng, 0.18, 0.35), _u(rng, 0.15, 0.3)
-    hb, ht = _u(rng, 0.8, 1.3), _u(rng, 0.04, 0.1)
-    lh = _u(rng, 0.05, 0.15) if rng.random() < 0.5 else 0.0
+    w, length = (
+        float(rng.choice([uniform(rng, 0.9, 1.1), uniform(rng, 1.35, 1.95)])),
+        uniform(rng, 1.95, 2.15),
+    )
+    fh, mt = uniform(rng, 0.18, 0.35), uniform(rng, 0.15, 0.3)
+    hb, ht = uniform(rng, 0.8, 1.3), uniform(rng, 0.04, 0.1)
+    lh = uniform(rng, 0.05, 0.15) if rng.random() < 0.5 else 0.0
     top = fh + mt
     z0 = -length / 2
     parts = [box(-w / 2, w / 2, 0, hb, z0, z0 + ht, 0)]
@@ -260,10 +282,12 @@ def bed(rng: Rng) -> Furniture:
     if lh > 0:
         parts += _legs(rng, w, length, lh, 0.02, 0.06, 1)
     if rng.random() < 0.4:
-        parts.append(box(-w / 2, w / 2, 0, top + _u(rng, 0.05, 0.3), length / 2 - ht, length / 2 + 0.01, 0))
-    pillow_end = z0 + ht + _u(rng, 0.45, 0.7)
+        parts.append(
+            box(-w / 2, w / 2, 0, top + uniform(rng, 0.05, 0.3), length / 2 - ht, length / 2 + 0.01, 0)
+        )
+    pillow_end = z0 + ht + uniform(rng, 0.45, 0.7)
     if rng.random() < 0.7:  # blanket over the foot part, hanging over the sides
-        hang = _u(rng, 0.1, 0.25)
+        hang = uniform(rng, 0.1, 0.25)
         parts.append(
             box(
                 -w / 2 - 0.03,
@@ -282,7 +306,7 @@ def bed(rng: Rng) -> Furniture:
 
 def pillow(rng: Rng, upright: bool = False) -> Furniture:
     """A cushion: a puffy core on a thinner rim; lying flat, or upright (thin along z)."""
-    w, l_, t = _u(rng, 0.35, 0.7), _u(rng, 0.3, 0.5), _u(rng, 0.1, 0.2)
+    w, l_, t = uniform(rng, 0.35, 0.7), uniform(rng, 0.3, 0.5), uniform(rng, 0.1, 0.2)
     if upright:
         w = min(w, 0.55)
         l_ = min(l_, w)
@@ -303,8 +327,13 @@ def pillow(rng: Rng, upright: bool = False) -> Furniture:
 
 def bookshelf(rng: Rng) -> Furniture:
     """Sides, top, plinth, optional back, shelves, and runs of books standing on them."""
-    w, d, h, t = _u(rng, 0.6, 1.2), _u(rng, 0.25, 0.4), _u(rng, 0.8, 2.0), _u(rng, 0.015, 0.03)
-    plinth = _u(rng, 0.03, 0.1)
+    w, d, h, t = (
+        uniform(rng, 0.6, 1.2),
+        uniform(rng, 0.25, 0.4),
+        uniform(rng, 0.8, 2.0),
+        uniform(rng, 0.015, 0.03),
+    )
+    plinth = uniform(rng, 0.03, 0.1)
     parts = [box(-w / 2, -w / 2 + t, 0, h, -d / 2, d / 2, 0), box(w / 2 - t, w / 2, 0, h, -d / 2, d / 2, 0)]
     parts += [
         box(-w / 2 + t, w / 2 - t, h - t, h, -d / 2, d / 2, 0),
@@ -312,7 +341,7 @@ def bookshelf(rng: Rng) -> Furniture:
     ]
     if rng.random() < 0.75:
         parts.append(box(-w / 2 + t, w / 2 - t, plinth, h - t, -d / 2, -d / 2 + 0.01, 1))
-    n = max(2, round((h - plinth) / _u(rng, 0.28, 0.4)))
+    n = max(2, round((h - plinth) / uniform(rng, 0.28, 0.4)))
     levels = np.linspace(plinth, h - t, n + 1)
     for i, (a, b) in enumerate(itertools.pairwise(levels)):
         a, b = float(a), float(b)
@@ -324,19 +353,19 @@ def bookshelf(rng: Rng) -> Furniture:
 
 def _books(rng: Rng, x0: float, x1: float, h0: float, h_max: float, d: float) -> list[Part]:
     """Runs of books standing on a shelf between x0 and x1 (gaps between runs)."""
-    parts, x = [], x0 + _u(rng, 0.0, 0.1)
+    parts, x = [], x0 + uniform(rng, 0.0, 0.1)
     room = h_max - h0
     while x < x1 - 0.03:
         if rng.random() < 0.3:
-            x += _u(rng, 0.05, 0.3)
+            x += uniform(rng, 0.05, 0.3)
             continue
         slot = int(rng.integers(2, 4))
         for _ in range(int(rng.integers(2, 8))):
-            bw = _u(rng, 0.02, 0.06)
+            bw = uniform(rng, 0.02, 0.06)
             if x + bw > x1:
                 break
-            bh, bd = room * _u(rng, 0.55, 0.95), min(_u(rng, 0.15, 0.25), d - 0.03)
-            front = d / 2 - _u(rng, 0.005, 0.03)  # spines near the shelf's front edge
+            bh, bd = room * uniform(rng, 0.55, 0.95), min(uniform(rng, 0.15, 0.25), d - 0.03)
+            front = d / 2 - uniform(rng, 0.005, 0.03)  # spines near the shelf's front edge
             parts.append(box(x, x + bw, h0, h0 + bh, front - bd, front, slot))
             x += bw + 0.002
     return parts
@@ -344,9 +373,9 @@ def _books(rng: Rng, x0: float, x1: float, h0: float, h_max: float, d: float) ->
 
 def _chest(rng: Rng, cls: str, w: float, d: float, h: float, rows: int, cols: int) -> Furniture:
     """Body, overhanging top, plinth or legs and a grid of drawers on the front (dresser, night stand)."""
-    t = _u(rng, 0.015, 0.04)
-    base = _u(rng, 0.03, 0.15)
-    body_d = d - _u(rng, 0.0, 0.03)
+    t = uniform(rng, 0.015, 0.04)
+    base = uniform(rng, 0.03, 0.15)
+    body_d = d - uniform(rng, 0.0, 0.03)
     parts = [cbox(w, d, h - t, h, slot=0)]
     parts.append(box(-w / 2 + 0.01, w / 2 - 0.01, base, h - t, -d / 2, -d / 2 + body_d - 0.02, 0))
     if rng.random() < 0.5:
@@ -361,7 +390,7 @@ def _chest(rng: Rng, cls: str, w: float, d: float, h: float, rows: int, cols: in
         for c in range(cols):
             if open_shelf and r == 0:
                 continue
-            parts += _drawer_front(
+            parts += drawer_front(
                 rng, float(xs[c]), float(xs[c + 1]), float(hs[r]), float(hs[r + 1]), fz, 2, 1
             )
     if open_shelf:  # the body is hollow below the drawer: its sides and back stay
@@ -376,12 +405,12 @@ def _chest(rng: Rng, cls: str, w: float, d: float, h: float, rows: int, cols: in
 
 
 def dresser(rng: Rng) -> Furniture:
-    w, h = _u(rng, 0.7, 1.6), _u(rng, 0.7, 1.3)
+    w, h = uniform(rng, 0.7, 1.6), uniform(rng, 0.7, 1.3)
     return _chest(
         rng,
         "dresser",
         w,
-        _u(rng, 0.4, 0.55),
+        uniform(rng, 0.4, 0.55),
         h,
         int(np.clip(round(h / 0.22), 3, 6)),
         1 if w < 0.9 else int(rng.integers(1, 4)),
@@ -392,9 +421,9 @@ def night_stand(rng: Rng) -> Furniture:
     return _chest(
         rng,
         "night stand",
-        _u(rng, 0.4, 0.6),
-        _u(rng, 0.35, 0.5),
-        _u(rng, 0.45, 0.7),
+        uniform(rng, 0.4, 0.6),
+        uniform(rng, 0.35, 0.5),
+        uniform(rng, 0.45, 0.7),
         int(rng.integers(1, 4)),
         1,
     )
@@ -402,10 +431,10 @@ def night_stand(rng: Rng) -> Furniture:
 
 def box_(rng: Rng) -> Furniture:
     """A carton: closed (with a lid seam or flaps) or open (hollow walls)."""
-    w = _u(rng, 0.2, 0.7)
-    d, h = _u(rng, 0.2, min(w, 0.6)), _u(rng, 0.15, 0.6)
+    w = uniform(rng, 0.2, 0.7)
+    d, h = uniform(rng, 0.2, min(w, 0.6)), uniform(rng, 0.15, 0.6)
     if rng.random() < 0.25:
-        t = _u(rng, 0.004, 0.012)
+        t = uniform(rng, 0.004, 0.012)
         parts = [
             cbox(w, d, 0, t),
             box(-w / 2, -w / 2 + t, 0, h, -d / 2, d / 2),
@@ -419,7 +448,7 @@ def box_(rng: Rng) -> Furniture:
     parts = [cbox(w, d, 0, h, slot=0)]
     if rng.random() < 0.4:
         parts.append(
-            cbox(w + 0.01, d + 0.01, h - _u(rng, 0.03, 0.08), h + 0.004, slot=int(rng.integers(0, 2)))
+            cbox(w + 0.01, d + 0.01, h - uniform(rng, 0.03, 0.08), h + 0.004, slot=int(rng.integers(0, 2)))
         )
     return Furniture("box", parts, [_top_surface(w, d, h + 0.004 * (len(parts) - 1), 0.02)])
 
@@ -437,7 +466,12 @@ def counter(
     ``hole = (x0, x1, z0, z1)`` is a sink opening in the top; the body under it is lowered to
     ``basin_bottom`` so that the sink basin hanging in the hole is not buried in a solid.
     """
-    t, kick, rec, over = _u(rng, 0.02, 0.045), _u(rng, 0.07, 0.12), _u(rng, 0.04, 0.08), _u(rng, 0.01, 0.04)
+    t, kick, rec, over = (
+        uniform(rng, 0.02, 0.045),
+        uniform(rng, 0.07, 0.12),
+        uniform(rng, 0.04, 0.08),
+        uniform(rng, 0.01, 0.04),
+    )
     L, D, H = length, depth, height
     zf = D / 2 - over  # front plane of the body
     parts = [box(-L / 2, L / 2, 0, kick, -D / 2, zf - rec, 1)]
@@ -462,14 +496,14 @@ def counter(
             box(x0, x1, H - t, H, -D / 2, z0, 1),
             box(x0, x1, H - t, H, z1, D / 2, 1),
         ]
-    n = max(1, round(L / _u(rng, 0.4, 0.6)))
+    n = max(1, round(L / uniform(rng, 0.4, 0.6)))
     xs = np.linspace(-L / 2, L / 2, n + 1)
     drawers = rng.random() < 0.5
     for a, b in itertools.pairwise(xs):
         top_d = H - t - (0.17 if drawers else 0.0)
-        parts += _drawer_front(rng, float(a), float(b), kick, top_d, zf, 2, 3)
+        parts += drawer_front(rng, float(a), float(b), kick, top_d, zf, 2, 3)
         if drawers:
-            parts += _drawer_front(rng, float(a), float(b), top_d, H - t, zf, 2, 3)
+            parts += drawer_front(rng, float(a), float(b), top_d, H - t, zf, 2, 3)
     surf = [Surface(-L / 2 + 0.03, L / 2 - 0.03, -D / 2 + 0.03, D / 2 - 0.03, H)]
     if hole is not None:
         surf = [
@@ -496,7 +530,7 @@ def _basin(rng: Rng, w: float, d: float, depth: float, wall: float, h0: float) -
 
 def _faucet(rng: Rng, z_back: float, h0: float, reach: float) -> list[Part]:
     """Base, riser and spout of a tap standing at z_back on height h0, reaching forward."""
-    r, rise = _u(rng, 0.015, 0.03), _u(rng, 0.1, 0.3)
+    r, rise = uniform(rng, 0.015, 0.03), uniform(rng, 0.1, 0.3)
     return [
         cyl(0, z_back, r * 1.4, h0, h0 + 0.03, 1),
         cyl(0, z_back, r, h0, h0 + rise, 1),
@@ -506,12 +540,12 @@ def _faucet(rng: Rng, z_back: float, h0: float, reach: float) -> list[Part]:
 
 def counter_with_sink(rng: Rng, length: float) -> tuple[Furniture, Furniture, tuple[float, float, float]]:
     """A counter and the drop-in sink in it: (counter, sink, sink pose (x, z, base) in the counter frame)."""
-    depth, height = _u(rng, 0.55, 0.65), _u(rng, 0.82, 0.94)
-    sw = min(_u(rng, 0.4, 0.8), length - 0.2)
-    sd = min(_u(rng, 0.32, 0.45), depth - 0.2)  # keeps the hole clear of the front doors and the tap
-    basin = _u(rng, 0.12, 0.22)
-    sx = _u(rng, -length / 2 + sw / 2 + 0.05, length / 2 - sw / 2 - 0.05)
-    sz = _u(rng, -0.02, 0.0)
+    depth, height = uniform(rng, 0.55, 0.65), uniform(rng, 0.82, 0.94)
+    sw = min(uniform(rng, 0.4, 0.8), length - 0.2)
+    sd = min(uniform(rng, 0.32, 0.45), depth - 0.2)  # keeps the hole clear of the front doors and the tap
+    basin = uniform(rng, 0.12, 0.22)
+    sx = uniform(rng, -length / 2 + sw / 2 + 0.05, length / 2 - sw / 2 - 0.05)
+    sz = uniform(rng, -0.02, 0.0)
     wall = 0.015
     rim = 0.012
     hole = (sx - sw / 2, sx + sw / 2, sz - sd / 2, sz + sd / 2)
@@ -531,19 +565,19 @@ def counter_with_sink(rng: Rng, length: float) -> tuple[Furniture, Furniture, tu
 
 def pedestal_sink(rng: Rng) -> Furniture:
     """A wall-hung basin on a column (bathroom), with a tap at the back."""
-    w, d, h = _u(rng, 0.45, 0.65), _u(rng, 0.35, 0.5), _u(rng, 0.78, 0.9)
-    depth = _u(rng, 0.14, 0.2)
-    parts = _basin(rng, w, d, depth, _u(rng, 0.02, 0.05), h - depth)
-    parts.append(cyl(0, -d / 2 + 0.12, _u(rng, 0.08, 0.12), 0, h - depth, 0, rz=_u(rng, 0.07, 0.1)))
+    w, d, h = uniform(rng, 0.45, 0.65), uniform(rng, 0.35, 0.5), uniform(rng, 0.78, 0.9)
+    depth = uniform(rng, 0.14, 0.2)
+    parts = _basin(rng, w, d, depth, uniform(rng, 0.02, 0.05), h - depth)
+    parts.append(cyl(0, -d / 2 + 0.12, uniform(rng, 0.08, 0.12), 0, h - depth, 0, rz=uniform(rng, 0.07, 0.1)))
     parts += _faucet(rng, -d / 2 + 0.035, h, d * 0.35)
     return Furniture("sink", parts)
 
 
 def toilet(rng: Rng) -> Furniture:
     """Tank against the wall (-z), elliptic bowl on a pedestal, seat, optional raised lid."""
-    tw, td = _u(rng, 0.36, 0.5), _u(rng, 0.15, 0.22)
-    t0, t1 = _u(rng, 0.38, 0.45), _u(rng, 0.7, 0.85)
-    rx, rz, bh = _u(rng, 0.17, 0.2), _u(rng, 0.21, 0.27), _u(rng, 0.36, 0.41)
+    tw, td = uniform(rng, 0.36, 0.5), uniform(rng, 0.15, 0.22)
+    t0, t1 = uniform(rng, 0.38, 0.45), uniform(rng, 0.7, 0.85)
+    rx, rz, bh = uniform(rng, 0.17, 0.2), uniform(rng, 0.21, 0.27), uniform(rng, 0.36, 0.41)
     zb = -0.35 + td + rz - 0.06
     parts = [
         box(-tw / 2, tw / 2, t0, t1, -0.35, -0.35 + td, 0),
@@ -564,8 +598,8 @@ def toilet(rng: Rng) -> Furniture:
 
 def bathtub(rng: Rng) -> Furniture:
     """A hollow tub (walls, floor) on an apron, long side along x; a tap at one end."""
-    L, W, H = _u(rng, 1.4, 1.8), _u(rng, 0.7, 0.85), _u(rng, 0.45, 0.6)
-    wall, floor = _u(rng, 0.06, 0.12), _u(rng, 0.08, 0.15)
+    L, W, H = uniform(rng, 1.4, 1.8), uniform(rng, 0.7, 0.85), uniform(rng, 0.45, 0.6)
+    wall, floor = uniform(rng, 0.06, 0.12), uniform(rng, 0.08, 0.15)
     parts = [box(-L / 2, L / 2, 0, floor, -W / 2, W / 2, 0)]
     parts += [
         box(-L / 2, -L / 2 + wall, floor, H, -W / 2, W / 2, 0),
@@ -591,15 +625,22 @@ def bathtub(rng: Rng) -> Furniture:
 
 def garbage_bin(rng: Rng) -> Furniture:
     """A round bin with a rim or lid, or a square open bin (hollow)."""
-    h = _u(rng, 0.3, 0.7)
+    h = uniform(rng, 0.3, 0.7)
     if rng.random() < 0.6:
-        r = _u(rng, 0.12, 0.22)
+        r = uniform(rng, 0.12, 0.22)
         parts = [cyl(0, 0, r, 0, h, 0)]
         parts.append(
-            cyl(0, 0, r + _u(rng, 0.005, 0.015), h - 0.02, h + _u(rng, 0.0, 0.04), int(rng.integers(0, 2)))
+            cyl(
+                0,
+                0,
+                r + uniform(rng, 0.005, 0.015),
+                h - 0.02,
+                h + uniform(rng, 0.0, 0.04),
+                int(rng.integers(0, 2)),
+            )
         )
         return Furniture("garbage bin", parts)
-    w, d = _u(rng, 0.22, 0.4), _u(rng, 0.2, 0.35)
+    w, d = uniform(rng, 0.22, 0.4), uniform(rng, 0.2, 0.35)
     return Furniture("garbage bin", _basin(rng, w, d, h, 0.01, 0.0))
 
 
@@ -610,15 +651,15 @@ def lamp(rng: Rng, floor: bool | None = None) -> Furniture:
     """A table or floor lamp: base, stem, a shade of two stacked cylinders (a stepped cone)."""
     floor = bool(rng.random() < 0.35) if floor is None else floor
     if floor:
-        br, stem, sr = _u(rng, 0.12, 0.18), _u(rng, 1.2, 1.6), _u(rng, 0.15, 0.25)
+        br, stem, sr = uniform(rng, 0.12, 0.18), uniform(rng, 1.2, 1.6), uniform(rng, 0.15, 0.25)
     else:
-        br, stem, sr = _u(rng, 0.05, 0.1), _u(rng, 0.15, 0.35), _u(rng, 0.1, 0.2)
-    sh = sr * _u(rng, 0.9, 1.6)
-    parts = [cyl(0, 0, br, 0, _u(rng, 0.02, 0.05), 1)]
+        br, stem, sr = uniform(rng, 0.05, 0.1), uniform(rng, 0.15, 0.35), uniform(rng, 0.1, 0.2)
+    sh = sr * uniform(rng, 0.9, 1.6)
+    parts = [cyl(0, 0, br, 0, uniform(rng, 0.02, 0.05), 1)]
     if not floor and rng.random() < 0.5:  # a vase-like body
-        parts.append(cyl(0, 0, br * _u(rng, 0.6, 1.0), 0.02, stem * 0.7, 0))
-    parts.append(cyl(0, 0, _u(rng, 0.008, 0.02), 0, stem + sh * 0.5, 1))
-    top_r = sr * _u(rng, 0.6, 0.95)
+        parts.append(cyl(0, 0, br * uniform(rng, 0.6, 1.0), 0.02, stem * 0.7, 0))
+    parts.append(cyl(0, 0, uniform(rng, 0.008, 0.02), 0, stem + sh * 0.5, 1))
+    top_r = sr * uniform(rng, 0.6, 0.95)
     parts += [
         cyl(0, 0, sr, stem, stem + sh * 0.5, 2),
         cyl(0, 0, (sr + top_r) / 2, stem + sh * 0.5, stem + sh, 2),
@@ -628,18 +669,20 @@ def lamp(rng: Rng, floor: bool | None = None) -> Furniture:
 
 def monitor(rng: Rng) -> Furniture:
     """A flat screen on a neck and base plate; the screen faces +z."""
-    w = _u(rng, 0.4, 0.65)
-    sh, st = w * _u(rng, 0.55, 0.68), _u(rng, 0.015, 0.04)
-    lift = _u(rng, 0.05, 0.15)
-    bw, bd = _u(rng, 0.16, 0.3), _u(rng, 0.14, 0.22)
+    w = uniform(rng, 0.4, 0.65)
+    sh, st = w * uniform(rng, 0.55, 0.68), uniform(rng, 0.015, 0.04)
+    lift = uniform(rng, 0.05, 0.15)
+    bw, bd = uniform(rng, 0.16, 0.3), uniform(rng, 0.14, 0.22)
     face = -0.01 + st  # screen front plane; the neck stands behind the panel's back at z = -0.01
-    parts = [cbox(bw, bd, 0, _u(rng, 0.008, 0.02), slot=1)]
-    parts.append(box(-_u(rng, 0.015, 0.04), _u(rng, 0.015, 0.04), 0, lift + sh * 0.5, -0.035, -0.01, 1))
+    parts = [cbox(bw, bd, 0, uniform(rng, 0.008, 0.02), slot=1)]
+    parts.append(
+        box(-uniform(rng, 0.015, 0.04), uniform(rng, 0.015, 0.04), 0, lift + sh * 0.5, -0.035, -0.01, 1)
+    )
     parts.append(box(-w / 2, w / 2, lift, lift + sh, -0.01, face, 0))
     parts.append(box(-w / 2 + 0.02, w / 2 - 0.02, lift + 0.02, lift + sh - 0.02, face, face + 0.004, 2))
     if rng.random() < 0.5:  # bulge at the back
         parts.append(
-            box(-w / 3, w / 3, lift + sh * 0.2, lift + sh * 0.8, -0.01 - _u(rng, 0.02, 0.06), -0.01, 0)
+            box(-w / 3, w / 3, lift + sh * 0.2, lift + sh * 0.8, -0.01 - uniform(rng, 0.02, 0.06), -0.01, 0)
         )
     return Furniture("monitor", parts)
 
@@ -650,22 +693,22 @@ def television(rng: Rng, on_stand: bool = True, max_width: float = 1.4) -> Furni
     ``max_width`` (>= 0.5 m) bounds its width, to fit the furniture it stands on."""
     max_width = max(max_width, 0.5)
     if on_stand and rng.random() < 0.2:  # CRT: a bezel box and a narrower tube box behind it
-        w, d = _u(rng, 0.45, min(0.75, max_width)), _u(rng, 0.38, 0.5)
-        h = w * _u(rng, 0.8, 0.9)
+        w, d = uniform(rng, 0.45, min(0.75, max_width)), uniform(rng, 0.38, 0.5)
+        h = w * uniform(rng, 0.8, 0.9)
         parts = [
             box(-w / 2, w / 2, 0, h, d / 2 - 0.1, d / 2, 0),
             box(-w / 2 + 0.08, w / 2 - 0.08, 0.05, h - 0.06, -d / 2, d / 2 - 0.1, 0),
         ]
         parts.append(box(-w / 2 + 0.05, w / 2 - 0.05, 0.05, h - 0.05, d / 2, d / 2 + 0.005, 2))
         return Furniture("television", parts)
-    w = _u(rng, 0.5, min(1.4, max_width))
-    h, t = w * _u(rng, 0.56, 0.62), _u(rng, 0.04, 0.1)
-    lift = _u(rng, 0.05, 0.12) if on_stand else 0.0
+    w = uniform(rng, 0.5, min(1.4, max_width))
+    h, t = w * uniform(rng, 0.56, 0.62), uniform(rng, 0.04, 0.1)
+    lift = uniform(rng, 0.05, 0.12) if on_stand else 0.0
     parts = [box(-w / 2, w / 2, lift, lift + h, -t / 2, t / 2, 0)]
     parts.append(box(-w / 2 + 0.02, w / 2 - 0.02, lift + 0.02, lift + h - 0.02, t / 2, t / 2 + 0.004, 2))
     if on_stand:
         parts += [
-            cbox(_u(rng, 0.3, 0.5), _u(rng, 0.18, 0.25), 0, 0.02, slot=1),
+            cbox(uniform(rng, 0.3, 0.5), uniform(rng, 0.18, 0.25), 0, 0.02, slot=1),
             cbox(0.08, 0.03, 0, lift + 0.1, z=-t / 2 - 0.015, slot=1),
         ]
     return Furniture("television", parts)
@@ -673,15 +716,15 @@ def television(rng: Rng, on_stand: bool = True, max_width: float = 1.4) -> Furni
 
 def door(rng: Rng) -> Furniture:
     """A closed door leaf standing proud of the wall plane z = 0, its frame and a handle."""
-    w, h = _u(rng, 0.75, 0.95), _u(rng, 1.98, 2.12)
-    fw, fd, proud = _u(rng, 0.04, 0.09), _u(rng, 0.01, 0.03), _u(rng, 0.008, 0.02)
+    w, h = uniform(rng, 0.75, 0.95), uniform(rng, 1.98, 2.12)
+    fw, fd, proud = uniform(rng, 0.04, 0.09), uniform(rng, 0.01, 0.03), uniform(rng, 0.008, 0.02)
     parts = [box(-w / 2, w / 2, 0, h, 0, proud, 0)]
     parts += [
         box(-w / 2 - fw, -w / 2, 0, h + fw, 0, fd, 1),
         box(w / 2, w / 2 + fw, 0, h + fw, 0, fd, 1),
         box(-w / 2, w / 2, h, h + fw, 0, fd, 1),
     ]
-    side, hh = float(rng.choice([-1.0, 1.0])), _u(rng, 0.92, 1.06)
+    side, hh = float(rng.choice([-1.0, 1.0])), uniform(rng, 0.92, 1.06)
     hx = side * (w / 2 - 0.07)
     parts.append(cyl(hx, proud + 0.004, 0.03, hh - 0.03, hh + 0.03, 1, rz=0.004))
     if rng.random() < 0.5:  # lever
@@ -703,75 +746,6 @@ def door(rng: Rng) -> Furniture:
         for a, b in ((0.15, h * 0.45), (h * 0.52, h - 0.15)):
             parts.append(box(-w / 2 + 0.12, w / 2 - 0.12, a, b, proud, proud + 0.006, 0))
     return Furniture("door", parts)
-
-
-# ----------------------------------------------------------------------------- unannotated clutter
-
-
-def picture(rng: Rng) -> Furniture:
-    """A framed picture (hung on a wall: back at z = 0)."""
-    w, h, f = _u(rng, 0.25, 1.0), _u(rng, 0.2, 0.8), _u(rng, 0.015, 0.05)
-    return Furniture(
-        None, [box(-w / 2, w / 2, 0, h, 0, 0.02, 1), box(-w / 2 + f, w / 2 - f, f, h - f, 0.02, 0.024, 2)]
-    )
-
-
-def window(rng: Rng) -> Furniture:
-    """A window on a wall: frame bars, glass pane and sill (back at z = 0)."""
-    w, h, f = _u(rng, 0.6, 1.8), _u(rng, 0.8, 1.4), _u(rng, 0.04, 0.08)
-    parts = [box(-w / 2 + f, w / 2 - f, f, h - f, 0, 0.005, 3)]
-    parts += [
-        box(-w / 2, w / 2, 0, f, 0, 0.04, 1),
-        box(-w / 2, w / 2, h - f, h, 0, 0.04, 1),
-        box(-w / 2, -w / 2 + f, 0, h, 0, 0.04, 1),
-        box(w / 2 - f, w / 2, 0, h, 0, 0.04, 1),
-    ]
-    if w > 1.0:
-        parts.append(box(-f / 3, f / 3, 0, h, 0, 0.03, 1))
-    parts.append(box(-w / 2 - 0.05, w / 2 + 0.05, -0.03, 0.0, 0, _u(rng, 0.08, 0.2), 1))
-    return Furniture(None, parts)
-
-
-def rug(rng: Rng) -> Furniture:
-    w, d = _u(rng, 1.0, 2.5), _u(rng, 0.8, 2.0)
-    return Furniture(None, [cbox(w, d, 0, 0.004, slot=int(rng.integers(0, 4)))], collides=False)
-
-
-def cabinet(rng: Rng, wall_hung: bool = False) -> Furniture:
-    """A wardrobe, or a kitchen wall cabinet (hung: hung items have their base at h = 0 too)."""
-    w = _u(rng, 0.6, 1.5)
-    d, h = (_u(rng, 0.3, 0.38), _u(rng, 0.6, 0.9)) if wall_hung else (_u(rng, 0.5, 0.65), _u(rng, 1.6, 2.1))
-    n = max(1, round(w / 0.5))
-    parts = [box(-w / 2, w / 2, 0, h, -d / 2, d / 2 - 0.02, 0)]
-    xs = np.linspace(-w / 2, w / 2, n + 1)
-    for a, b in itertools.pairwise(xs):
-        parts += _drawer_front(rng, float(a), float(b), 0.0, h, d / 2 - 0.02, 2, 1)
-    return Furniture(None, parts)
-
-
-def small_item(rng: Rng) -> Furniture:
-    """Cup, bottle, vase, book stack or potted plant: tabletop clutter that is no annotated class."""
-    kind = rng.choice(["cup", "bottle", "vase", "books", "plant"])
-    if kind == "cup":
-        r = _u(rng, 0.03, 0.05)
-        return Furniture(None, [cyl(0, 0, r, 0, _u(rng, 0.07, 0.12), int(rng.integers(0, 4)))])
-    if kind == "bottle":
-        r, h = _u(rng, 0.03, 0.05), _u(rng, 0.15, 0.3)
-        return Furniture(None, [cyl(0, 0, r, 0, h * 0.7, 0), cyl(0, 0, r * 0.35, h * 0.7, h, 1)])
-    if kind == "vase":
-        r, h = _u(rng, 0.04, 0.1), _u(rng, 0.15, 0.4)
-        return Furniture(None, [cyl(0, 0, r, 0, h * 0.6, 0), cyl(0, 0, r * 0.6, h * 0.6, h, 0)])
-    if kind == "plant":
-        r = _u(rng, 0.06, 0.14)
-        return Furniture(
-            None, [cyl(0, 0, r, 0, r * 1.5, 0), cyl(0, 0, r * 1.6, r * 1.5, r * 3.5, 3, rz=r * 1.3)]
-        )
-    parts, h = [], 0.0
-    for _ in range(int(rng.integers(1, 5))):
-        t = _u(rng, 0.015, 0.05)
-        parts.append(cbox(_u(rng, 0.15, 0.3), _u(rng, 0.12, 0.22), h, h + t, slot=int(rng.integers(0, 4))))
-        h += t
-    return Furniture(None, parts)
 
 
 BUILDERS: dict[str, Callable[[Rng], Furniture]] = {

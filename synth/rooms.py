@@ -12,6 +12,7 @@ import math
 
 import numpy as np
 
+from a3d.synth import clutter as cl
 from a3d.synth import furniture as fu
 from a3d.synth.layout import Layout, Placed, Room
 from a3d.synth.parts import Furniture, box
@@ -78,12 +79,12 @@ def _doors_windows(L: Layout) -> None:
                 L.objects += [p, keep]
                 break
     for _ in range(_n(rng, 0, 2)):
-        L.place_wall(fu.window(rng), base=float(rng.uniform(0.75, 1.0)), gap=(0, 0), tries=8, corner=0)
+        L.place_wall(cl.window(rng), base=float(rng.uniform(0.75, 1.0)), gap=(0, 0), tries=8, corner=0)
 
 
 def _pictures(L: Layout, n: int) -> None:
     for _ in range(n):
-        L.place_wall(fu.picture(L.rng), base=float(L.rng.uniform(1.1, 1.7)), gap=(0, 0), tries=6, corner=0)
+        L.place_wall(cl.picture(L.rng), base=float(L.rng.uniform(1.1, 1.7)), gap=(0, 0), tries=6, corner=0)
 
 
 def _tv_on(L: Layout, idx: int | None) -> int | None:
@@ -99,7 +100,7 @@ def _clutter(L: Layout, idx: int | None, n: int) -> None:
     if idx is None:
         return
     for _ in range(n):
-        item = fu.box_(L.rng) if _p(L.rng, 0.25) else fu.small_item(L.rng)
+        item = fu.box_(L.rng) if _p(L.rng, 0.25) else cl.small_item(L.rng)
         L.place_on(item, idx, tries=4)
 
 
@@ -251,7 +252,7 @@ def _extras(L: Layout) -> None:
     if _p(rng, 0.25):
         L.place_wall(fu.lamp(rng, floor=True), corner=0.7, gap=(0.05, 0.2))
     if _p(rng, 0.3):
-        L.place_wall(fu.cabinet(rng), tries=10)
+        L.place_wall(cl.cabinet(rng), tries=10)
     for _ in range(_n(rng, 1, 3)):
         L.place_free(fu.chair(rng), tries=10)
     _storage(L, 0, _n(rng, 0, 2))
@@ -337,12 +338,12 @@ def _counter(
             x, z = par.to_room(sx, sz)
             L.objects.append(Placed(s, x, z, sbase, par.yaw, parent=idx))
         for _ in range(_n(rng, 0, 4)):
-            item = fu.box_(rng) if _p(rng, 0.35) else fu.small_item(rng)
+            item = fu.box_(rng) if _p(rng, 0.35) else cl.small_item(rng)
             if _p(rng, 0.08):
                 item = fu.television(rng, max_width=0.8)
             L.place_on(item, idx, jitter=0.4)
         if _p(rng, 0.5):
-            cab = fu.cabinet(rng, wall_hung=True)
+            cab = cl.cabinet(rng, wall_hung=True)
             for _ in range(3):
                 q = L.at_wall(cab, par.wall, 0.0, 0.0, float(rng.uniform(1.4, 1.55)))
                 lx = (
@@ -368,7 +369,7 @@ def _kitchen(L: Layout) -> None:
     if _p(rng, 0.6):
         _counter(L, sink=_p(rng, 0.15), stools=0.3)
     if _p(rng, 0.4):
-        L.place_wall(fu.cabinet(rng), tries=10)  # a fridge-like tall block
+        L.place_wall(cl.cabinet(rng), tries=10)  # a fridge-like tall block
     if _p(rng, 0.8):
         _dining_set(L, (2, 6))
     if _p(rng, 0.7):
@@ -401,7 +402,7 @@ def _bathroom(L: Layout) -> None:
         L.place_wall(fu.garbage_bin(rng), corner=0.6)
     _storage(L, 0, _n(rng, 0, 2))
     if _p(rng, 0.3):
-        L.place_wall(fu.cabinet(rng, wall_hung=True), base=float(rng.uniform(1.3, 1.6)), corner=0)
+        L.place_wall(cl.cabinet(rng, wall_hung=True), base=float(rng.uniform(1.3, 1.6)), corner=0)
 
 
 def _classroom(L: Layout) -> None:
@@ -442,6 +443,6 @@ def furnish(rng: np.random.Generator, kind: str | None = None) -> tuple[str, Lay
     if kind != "bathroom":
         _extras(L)
     if _p(rng, 0.4):
-        L.place_free(fu.rug(rng))
+        L.place_free(cl.rug(rng))
     _pictures(L, _n(rng, 0, 3))
     return kind, L

@@ -127,7 +127,10 @@ def generate_frame(seed: int, config: SceneConfig = SceneConfig()) -> SynthFrame
 
     all_parts = _with_room(parts, room_centre, room_half, -pose.heading)
     surf = shading.surfaces(grid, t, part, all_parts)
-    alb = shading.albedo(surf, part, all_parts, mats, room_faces)
+    ray = grid.d / np.linalg.norm(grid.d, axis=0, keepdims=True)
+    cos_inc = np.sum(surf.normal * ray, axis=0)
+    footprint = t * np.linalg.norm(grid.d, axis=0) / (config.intrinsics.fx * np.maximum(np.abs(cos_inc), 0.2))
+    alb = shading.albedo(surf, part, all_parts, mats, room_faces, footprint)
     gloss = np.where(surf.face >= 0, 0.0, mats.gloss[all_parts.material[part]]).astype(np.float32)
     corners = pose.room_to_tilt(
         np.array([0, room.width, room.width, 0.0]), np.zeros(4), np.array([0, 0, room.depth, room.depth])
@@ -136,8 +139,6 @@ def generate_frame(seed: int, config: SceneConfig = SceneConfig()) -> SynthFrame
     lit = shading.shadow_factor(surf.point, lights.positions[0], parts, n_obj)
     radiance = shading.illuminate(surf, alb, gloss, lights, t, lit)
 
-    ray = grid.d / np.linalg.norm(grid.d, axis=0, keepdims=True)
-    cos_inc = np.sum(surf.normal * ray, axis=0)
     lum = 0.2126 * alb[..., 0] + 0.7152 * alb[..., 1] + 0.0722 * alb[..., 2]
     if config.noise:
         color = sense_colour(rng, radiance)

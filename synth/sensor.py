@@ -2,10 +2,11 @@
 
 Depth (metres, 0 = missing), from the exact z-depth of the rendered scene:
 
-* axial noise, Gaussian with sigma(z) = 0.0012 + 0.0019 (z - 0.4)^2 (Nguyen et al. 2012), partly
-  correlated over a few pixels (the sensor matches 9x9 speckle windows);
-* disparity quantisation: the depth is snapped to the 1/8-pixel disparity steps of a
-  7.5 cm-baseline stereo pair at the colour camera's focal length, d = f b / z;
+* axial error with standard deviation sigma(z) = 0.0012 + 0.0019 (z - 0.4)^2 (Nguyen et al. 2012):
+  Gaussian noise, partly correlated over a few pixels (the sensor matches 9x9 speckle windows),
+  followed by disparity quantisation: the depth is snapped to the 1/8-pixel disparity steps of a
+  7.5 cm-baseline stereo pair at the colour camera's focal length, d = f b / z; the Gaussian part
+  is reduced by the rounding's variance (step^2 / 12) so that the total matches sigma(z);
 * missing depth: outside the 0.45-8 m range; in the projector's shadow beside occluding edges
   (the band of background pixels a nearer surface hides from a projector 7.5 cm to the right);
   randomly at depth discontinuities (a 1-2 pixel band); on dark surfaces (low IR return) and at
@@ -73,7 +74,10 @@ def sense_depth(
     fb = fx * s.baseline
     white = gaussian(rng, (H, W))
     smooth = cv2.GaussianBlur(gaussian(rng, (H, W)), (0, 0), 2.0) * np.float32(2.0 * 2.0 * np.sqrt(np.pi))
-    noisy = z + depth_sigma(z, s).astype(np.float32) * (np.float32(0.7) * white + np.float32(0.7) * smooth)
+    # sigma(z) is the sensor's total axial error; the disparity rounding below adds step^2 / 12 of variance
+    step = z * z / (fb * s.subpixel)
+    sigma = np.sqrt(np.maximum(depth_sigma(z, s) ** 2 - step * step / 12, (0.3 * depth_sigma(z, s)) ** 2))
+    noisy = z + sigma.astype(np.float32) * (np.float32(0.7) * white + np.float32(0.7) * smooth)
     disp = np.round(fb / np.maximum(noisy, 0.1) * s.subpixel) / s.subpixel
     out = (fb / np.maximum(disp, 1e-3)).astype(np.float32)
     drop = (z < s.min_depth) | (z > s.max_depth)

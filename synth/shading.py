@@ -23,14 +23,17 @@ from a3d.synth.raycast import PartArrays, RayGrid, cast
 
 ROOM = 2  # part kind of the room box (seen from inside)
 TEX = 128  # texture side (texels)
+MIP_SIGMA = (0.0, 1.0, 2.0, 4.0)  # blur (texels) of the texture levels chosen by pixel footprint
+MIP_LEVELS = len(MIP_SIGMA)
 KINDS = ("plain", "mottled", "wood", "fabric", "checker", "stripes", "speckle", "metal")
 FLOOR, CEILING, WALL = 0, 1, 2  # room surfaces
 
 
 @dataclass(frozen=True)
 class Materials:
-    """M materials: ``texture`` (M, TEX, TEX, 3) float32 linear albedo, ``tile`` (M,) metres per
-    texture repeat, ``gloss`` (M,) specular strength, ``kind`` (M,) index into KINDS."""
+    """M materials: ``texture`` (M, MIP_LEVELS, TEX, TEX, 3) float32 linear albedo (level k
+    blurred by MIP_SIGMA[k] texels, for surfaces seen from afar), ``tile`` (M,) metres per texture
+    repeat, ``gloss`` (M,) specular strength, ``kind`` (M,) index into KINDS."""
 
     texture: np.ndarray
     tile: np.ndarray
@@ -108,6 +111,14 @@ def make_texture(rng: np.random.Generator, kind: str, base: np.ndarray, other: n
     return grey * (1 + 0.08 * _noise(rng, 1.0, aniso=30.0))[..., None]
 
 
+def _mip_levels(texture: np.ndarray) -> np.ndarray:
+    """(MIP_LEVELS, TEX, TEX, 3) copies of a tileable texture, blurred with wrap-around."""
+    pad = 12
+    wrapped = np.pad(texture, ((pad, pad), (pad, pad), (0, 0)), mode="wrap")
+    levels = [texture] + [cv2.GaussianBlur(wrapped, (0, 0), sg)[pad:-pad, pad:-pad] for sg in MIP_SIGMA[1:]]
+    return np.stack(levels)
+
+
 def draw_materials(rng: np.random.Generator, n: int, surface: str = "object") -> Materials:
     """n materials for ``surface`` in "object", "floor", "wall", "ceiling" (the same draw for every class)."""
     kinds = {
@@ -125,7 +136,7 @@ def draw_materials(rng: np.random.Generator, n: int, surface: str = "object") ->
         k = str(rng.choice(kinds[0], p=kinds[1]))
         base = _hsv_colour(rng, sat, val)
         other = _hsv_colour(rng, sat, val) if rng.random() < 0.6 else base * float(rng.uniform(0.3, 0.7))
-        tex.append(np.clip(make_texture(rng, k, base, other), 0.0, 1.0))
+        tex.append(_mip_levels(np.clip(make_texture(rng, k, base, other), 0.0, 1.0)))
         tile.append(
             float(rng.uniform(0.25, 1.2)) if k not in ("fabric", "speckle") else float(rng.uniform(0.15, 0.5))
         )
@@ -209,14 +220,24 @@ def surfaces(grid: RayGrid, t: np.ndarray, part: np.ndarray, parts: PartArrays) 
 
 
 def albedo(
-    s: Surfaces, part: np.ndarray, parts: PartArrays, mats: Materials, room_faces: np.ndarray
+    s: Surfaces,
+    part: np.ndarray,
+    parts: PartArrays,
+    mats: Materials,
+    room_faces: np.ndarray,
+    footprint: np.ndarray,
 ) -> np.ndarray:
-    """(H, W, 3) linear albedo: each part's material (the room's per face) sampled at its uv, tinted."""
+    """(H, W, 3) linear albedo: each part's material (the room's per face) sampled at its uv, tinted.
+
+    ``footprint`` (H, W) is the size of a pixel on the surface (metres); the texture level
+    whose blur matches the texels per pixel is used, which avoids moire on distant surfaces.
+    """
     m = np.where(s.face >= 0, room_faces[np.maximum(s.face, 0)], np.take(parts.material, part))
-    inv_tile = (1.0 / mats.tile).astype(np.float32)[m] * TEX
-    iu = (s.uv[0] * inv_tile).astype(np.int64) % TEX
-    iv = (s.uv[1] * inv_tile).astype(np.int64) % TEX
-    flat = (m * TEX + iv) * TEX + iu
+    texels = (TEX / mats.tile).astype(np.float32)[m]  # texels per metre
+    level = np.searchsorted(np.array([1.5, 3.0, 6.0], np.float32), footprint * texels)
+    iu = (s.uv[0] * texels).astype(np.int64) % TEX
+    iv = (s.uv[1] * texels).astype(np.int64) % TEX
+    flat = ((m * MIP_LEVELS + level) * TEX + iv) * TEX + iu
     tex = mats.texture.reshape(-1, 3)
     return np.take(tex, flat, axis=0) * np.take(parts.tint.astype(np.float32), part, axis=0)
 

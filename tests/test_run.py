@@ -8,6 +8,7 @@ written here with a fake model (same interface as DetectorModel: ``.metadata``, 
 from __future__ import annotations
 
 import dataclasses
+import json
 from pathlib import Path
 
 import numpy as np
@@ -316,8 +317,6 @@ def test_pipeline_detections_round_trip_and_score(tmp_path: Path) -> None:
     assert from_file.map_present(0.25) == in_memory.map_present(0.25)
     assert eval_cli.main([str(folder), "--detections", str(path), "--out", str(tmp_path / "eval")]) == 0
     report = (tmp_path / "eval" / "eval.json").read_text()
-    import json
-
     assert json.loads(report)["map"]["0.25"]["present_classes"] == pytest.approx(in_memory.map_present(0.25))
 
 

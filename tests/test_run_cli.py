@@ -15,7 +15,7 @@ import pytest
 
 from a3d.runtime.cli import run as run_cli
 from a3d.runtime.detections_io import read_detections
-from a3d.runtime.frames import GroundTruth, write_frame
+from a3d.runtime.frames import GroundTruth, list_frames, read_folder_intrinsics, write_frame
 from a3d.runtime.geometry import rtilt_from_pitch_roll
 from tests.rrd_reader import as_array, read_columns
 from tests.test_run import (
@@ -239,8 +239,6 @@ def test_exported_model_end_to_end(tmp_path: Path) -> None:
 
     eager = TorchNetwork(net, stats)
     config = PipelineConfig.from_metadata(fake_metadata())
-    from a3d.runtime.frames import list_frames, read_folder_intrinsics
-
     intrinsics = read_folder_intrinsics(folder)
     for det, ref in zip(got, list_frames(folder), strict=True):
         reference = detect(ref, eager, config, intrinsics)

@@ -29,6 +29,7 @@ import logging
 import os
 import sys
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -38,7 +39,8 @@ from tqdm import tqdm
 from a3d.runtime import viewer
 from a3d.runtime.detections_io import format_line, parse_line
 from a3d.runtime.errors import InputError, ModelError
-from a3d.runtime.frames import FrameRef, read_folder_intrinsics, read_ground_truth, scan_folder
+from a3d.runtime.frames import FrameRef, GroundTruth, read_folder_intrinsics, read_ground_truth, scan_folder
+from a3d.runtime.geometry import Intrinsics
 from a3d.runtime.model import DetectorModel
 from a3d.runtime.pipeline import PROPOSAL_SOURCES, FrameOutcome, PipelineConfig, detect_frames
 
@@ -77,7 +79,8 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
-def main(argv: list[str] | None = None) -> int:
+def _arguments(argv: list[str] | None) -> argparse.Namespace:
+    """Parsed and checked flags (argparse exits with status 2 on a usage error)."""
     parser = _parser()
     args = parser.parse_args(argv)
     if args.threads < 1:
@@ -88,73 +91,91 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--score-threshold must be in [0, 1]")
     if args.output == "-" and (args.resume or args.stdout):
         parser.error("--output - cannot be combined with --resume or --stdout")
-    model_path = args.model if args.model is not None else args.folder / DEFAULT_MODEL
-    if args.model is None and not model_path.is_file():
-        parser.error(f"no model given and {model_path} does not exist; pass --model FILE")
+    if args.model is None:
+        args.model = args.folder / DEFAULT_MODEL
+        if not args.model.is_file():
+            parser.error(f"no model given and {args.model} does not exist; pass --model FILE")
+    return args
 
-    network_threads = max(1, args.threads - 1) if args.overlap else args.threads
+
+@dataclass(frozen=True)
+class _Job:
+    """What a run needs, all checked before the first frame: the frames, the model, the settings."""
+
+    frames: list[FrameRef]  # every complete frame of the folder, sorted (rerun timeline index)
+    todo: list[FrameRef]  # the frames to process (without those --resume found in the output)
+    incomplete: list[str]  # "PATH: reason" of files that belong to an incomplete frame
+    intrinsics: Intrinsics | None
+    model: DetectorModel
+    config: PipelineConfig
+
+
+def _job(args: argparse.Namespace) -> _Job:
+    """Scan the folder, load the model and read the output to resume (InputError / ModelError)."""
+    listing = scan_folder(args.folder)
+    incomplete = [f"{s.path}: {s.reason}" for s in listing.skipped if s.reason not in _NOT_FRAME_REASONS]
+    if not listing.frames and not incomplete:
+        raise InputError(f"{args.folder}: no frames (NAME.color.png + NAME.depth.png)")
+    intrinsics = read_folder_intrinsics(args.folder)
+    # With --overlap one thread prepares frames, so the network gets one fewer (no oversubscription).
+    model = load_model(args.model, threads=max(1, args.threads - 1) if args.overlap else args.threads)
+    config = PipelineConfig.from_metadata(
+        model.metadata,
+        proposal_source=args.proposals,
+        max_proposals=args.max_proposals,
+        min_score=args.score_threshold,
+    )
+    done = completed_frames(Path(args.output)) if args.resume else set()
+    todo = [ref for ref in listing.frames if ref.name not in done]
+    return _Job(listing.frames, todo, incomplete, intrinsics, model, config)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _arguments(argv)
     try:
-        listing = scan_folder(args.folder)
-        folder_intrinsics = read_folder_intrinsics(args.folder)
-        model = load_model(model_path, threads=network_threads)
-        config = PipelineConfig.from_metadata(
-            model.metadata,
-            proposal_source=args.proposals,
-            max_proposals=args.max_proposals,
-            min_score=args.score_threshold,
-        )
-        done = set() if args.output == "-" or not args.resume else completed_frames(Path(args.output))
+        job = _job(args)
+        recording = _open_recording(args)
+        output = _open_output(args.output, append=args.resume)
     except (InputError, ModelError) as e:
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 2
-    incomplete = [s for s in listing.skipped if s.reason not in _NOT_FRAME_REASONS]
-    if not listing.frames and not incomplete:
-        print(f"{PROG}: error: {args.folder}: no frames (NAME.color.png + NAME.depth.png)", file=sys.stderr)
-        return 2
-
-    indices = {ref.name: i for i, ref in enumerate(listing.frames)}
-    todo = [ref for ref in listing.frames if ref.name not in done]
-    failures = [f"{s.path}: {s.reason}" for s in incomplete]
+    failures = list(job.incomplete)
     for problem in failures:
         print(f"{PROG}: {problem}", file=sys.stderr)
+    index = {ref.name: i for i, ref in enumerate(job.frames)}
     written = 0
-    with _threads(1 if args.overlap else args.threads), _warnings_to_stderr():
-        try:
-            output = _open_output(args.output, append=args.resume)
-        except OSError as e:
-            print(f"{PROG}: error: {args.output}: cannot write ({e.strerror or e})", file=sys.stderr)
-            return 2
-        recording = None
-        if viewer.viewer_requested(args):
-            recording = viewer.open_recording(args)
-            viewer.log_static(recording)
-        bar = tqdm(total=len(todo), desc=PROG, unit="frame", file=sys.stderr, disable=None)
-        try:
-            for outcome in detect_frames(todo, model, config, folder_intrinsics, overlap=args.overlap):
+    bar = tqdm(total=len(job.todo), desc=PROG, unit="frame", file=sys.stderr, disable=None)
+    try:
+        with _threads(1 if args.overlap else args.threads), _warnings_to_stderr():
+            for outcome in detect_frames(
+                job.todo, job.model, job.config, job.intrinsics, overlap=args.overlap
+            ):
+                problem = outcome.problem
                 if outcome.detections is not None:
                     output.write(format_line(outcome.detections))
                     written += 1
-                    if recording is not None:
-                        _log(recording, indices[outcome.ref.name], outcome)
-                else:
-                    failures.append(outcome.problem)
-                    tqdm.write(f"{PROG}: {outcome.problem}", file=sys.stderr)
+                    problem = _log(recording, index[outcome.ref.name], outcome)
+                if problem:
+                    failures.append(problem)
+                    tqdm.write(f"{PROG}: {problem}", file=sys.stderr)
                 bar.update()
-        except KeyboardInterrupt:
-            bar.close()
-            print(f"{PROG}: interrupted after {written} frames; --resume continues", file=sys.stderr)
-            return 130
-        finally:
-            bar.close()
-            output.close()
-            if recording is not None:
-                recording.flush()
+    except KeyboardInterrupt:
+        print(f"\n{PROG}: interrupted after {written} frames; --resume continues", file=sys.stderr)
+        return 130
+    except OSError as e:
+        print(f"{PROG}: error: {args.output}: cannot write ({e.strerror or e}); stopped", file=sys.stderr)
+        return 1
+    finally:
+        bar.close()
+        output.close()
         if recording is not None:
-            rr.script_teardown(args)
-            rr.disconnect(recording)
-    skipped = f", {len(done)} already in the output" if done else ""
+            recording.flush()
+    if recording is not None:
+        rr.script_teardown(args)  # --serve: keeps serving until Ctrl-C
+        rr.disconnect(recording)
+    resumed = f", {len(job.frames) - len(job.todo)} already there" if args.resume else ""
     where = "stdout" if args.output == "-" else args.output
-    print(f"{PROG}: {written} frames written to {where}{skipped}, {len(failures)} failed", file=sys.stderr)
+    print(f"{PROG}: {written} frames written to {where}{resumed}, {len(failures)} failed", file=sys.stderr)
     return 1 if failures else 0
 
 
@@ -184,12 +205,16 @@ class _LineSink:
 
 
 def _open_output(target: str, append: bool) -> _LineSink:
+    """stdout for "-", else the file, emptied first unless ``append`` (InputError if it cannot be)."""
     if target == "-":
         return _LineSink(None)
     path = Path(target)
-    path.parent.mkdir(parents=True, exist_ok=True)
     flags = os.O_WRONLY | os.O_CREAT | os.O_APPEND | (0 if append else os.O_TRUNC)
-    return _LineSink(os.open(path, flags, 0o666))
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        return _LineSink(os.open(path, flags, 0o666))
+    except OSError as e:
+        raise InputError(f"{path}: cannot write ({e.strerror or e})") from None
 
 
 def completed_frames(path: Path) -> set[str]:
@@ -206,8 +231,6 @@ def completed_frames(path: Path) -> set[str]:
     except OSError as e:
         raise InputError(f"{path}: cannot read ({e.strerror or e})") from None
     end = data.rfind(b"\n") + 1
-    if end < len(data):
-        os.truncate(path, end)
     names: set[str] = set()
     for number, raw in enumerate(data[:end].split(b"\n")[:-1], start=1):
         if not raw.strip():
@@ -217,35 +240,56 @@ def completed_frames(path: Path) -> set[str]:
         except UnicodeDecodeError:
             raise InputError(f"{path}:{number}: not UTF-8 text; not a detections file to resume") from None
         names.add(parse_line(text, f"{path}:{number}").frame)
+    if end < len(data):
+        os.truncate(path, end)
     return names
 
 
 # ----------------------------------------------------------------------------- viewer, environment
 
 
-def _log(recording: rr.RecordingStream, index: int, outcome: FrameOutcome) -> None:
-    """Log one processed frame, with its ground truth when it has readable ground truth."""
+def _open_recording(args: argparse.Namespace) -> rr.RecordingStream | None:
+    """The rerun recording the flags ask for, with the static entities logged; None for none."""
+    if not viewer.viewer_requested(args):
+        return None
+    try:
+        recording = viewer.open_recording(args)
+        viewer.log_static(recording)
+    except (OSError, RuntimeError, ValueError) as e:
+        raise InputError(f"rerun: cannot open the recording ({e})") from None
+    return recording
+
+
+def _log(recording: rr.RecordingStream | None, index: int, outcome: FrameOutcome) -> str:
+    """Log one processed frame (with its ground truth when it has readable ground truth); the
+    problem, if logging failed, else ""."""
+    if recording is None:
+        return ""
     assert outcome.prepared is not None and outcome.detections is not None
     frame, det = outcome.prepared.frame, outcome.detections
     gt = _ground_truth(frame.ref)
-    viewer.log_frame(
-        recording,
-        index,
-        color=frame.color,
-        depth_m=frame.depth,
-        K=frame.intrinsics,
-        R_tilt=det.R_tilt,
-        class_ids=det.class_ids,
-        scores=det.scores,
-        boxes2d=det.boxes2d,
-        boxes3d=det.boxes3d,
-        gt_class_ids=None if gt is None else gt.class_ids,
-        gt_boxes3d=None if gt is None else gt.boxes3d,
-        proposals=outcome.prepared.boxes,
-    )
+    try:
+        viewer.log_frame(
+            recording,
+            index,
+            color=frame.color,
+            depth_m=frame.depth,
+            K=frame.intrinsics,
+            R_tilt=det.R_tilt,
+            class_ids=det.class_ids,
+            scores=det.scores,
+            boxes2d=det.boxes2d,
+            boxes3d=det.boxes3d,
+            gt_class_ids=None if gt is None else gt.class_ids,
+            gt_boxes3d=None if gt is None else gt.boxes3d,
+            proposals=outcome.prepared.boxes,
+        )
+    except Exception as e:  # the line is written; a viewer problem must not stop the run
+        return f"{frame.ref.color_path}: rerun: cannot log the frame ({type(e).__name__}: {e})"
+    return ""
 
 
-def _ground_truth(ref: FrameRef):
+def _ground_truth(ref: FrameRef) -> GroundTruth | None:
     """The frame's ground truth for the view; a bad gt.json only costs the view its boxes."""
     try:
         return read_ground_truth(ref)

@@ -1,0 +1,511 @@
+"""Real-browser check: rerun's web viewer, served on 127.0.0.1, shows an a3d recording.
+
+Starts ``rerun --serve-web`` on loopback, opens the viewer in headless Debian Chromium (WebGL on
+SwiftShader: WebGPU there crashes), waits for it to load and render, and saves a screenshot taken
+over the Chrome DevTools protocol (plain ``chromium --screenshot`` only catches the loader). The
+screenshot is then judged by its pixels: a loader-only or blank page has almost one colour and none
+of the class colours of the boxes. Opt-in, slow (~1 min), not part of the test suite.
+
+    .venv/bin/python bench/browser_check.py RUN.rrd --out /tmp/a3d_screens/web.png [--wait 45]
+    .venv/bin/python bench/browser_check.py RUN.rrd --out /tmp/a3d_screens/native.png --native
+
+``--native`` is the faster second route: the native viewer headless on Mesa's lavapipe Vulkan
+(``apt-get install -y mesa-vulkan-drivers``), ``rerun FILE --headless --screenshot-to``.
+Nothing here talks to anything but 127.0.0.1: Chromium's host resolver maps every other name to
+NOT FOUND (the viewer page asks for web fonts), and the rerun child is killed by process group.
+
+Exit status: 0 the screenshot shows the recording, 1 it looks blank or loader-only, 2 a setup error.
+"""
+
+from __future__ import annotations
+
+import argparse
+import base64
+import contextlib
+import hashlib
+import json
+import os
+import re
+import signal
+import socket
+import struct
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.parse
+import urllib.request
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from a3d.runtime.classes import CLASS_COLORS_RGB, CLASSES
+
+RERUN = Path(sys.prefix) / "bin" / "rerun"
+CHROMIUM = Path("/usr/bin/chromium")
+LOOPBACK = "127.0.0.1"
+WINDOW = (1600, 1000)
+CHROMIUM_FLAGS = (
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--no-first-run",
+    "--disable-sync",
+    "--disable-quic",
+    "--disable-extensions",
+    "--disable-default-apps",
+    "--no-default-browser-check",
+    "--metrics-recording-only",
+    f"--host-resolver-rules=MAP * ~NOTFOUND , EXCLUDE {LOOPBACK}",
+    # A dead proxy for everything; Chromium bypasses proxies for loopback by itself.
+    f"--proxy-server=http://{LOOPBACK}:9",
+)
+# Console lines worth reporting (the viewer logs its shader compiler at DEBUG level).
+CONSOLE_PATTERN = re.compile(r"\b(WARN|ERROR|panicked)\b|^exception:|Error:")
+# A pixel "has" a class colour when every channel is within this many levels of it.
+COLOUR_TOLERANCE = 12
+
+
+class SetupError(RuntimeError):
+    """Something the check needs is missing or did not start; the message says what to do."""
+
+
+# ----------------------------------------------------------------------------- processes
+
+
+def free_port() -> int:
+    """A TCP port free on loopback right now (the kernel's pick)."""
+    with socket.socket() as s:
+        s.bind((LOOPBACK, 0))
+        return s.getsockname()[1]
+
+
+def wait_for_port(port: int, deadline: float, proc: subprocess.Popen, what: str) -> None:
+    """Block until ``port`` accepts on loopback; SetupError if ``proc`` dies or time runs out."""
+    while time.monotonic() < deadline:
+        if proc.poll() is not None:
+            raise SetupError(f"{what} exited with status {proc.returncode} before listening on {port}")
+        with contextlib.suppress(OSError), socket.create_connection((LOOPBACK, port), timeout=1):
+            return
+        time.sleep(0.2)
+    raise SetupError(f"{what} did not listen on {LOOPBACK}:{port} in time")
+
+
+@contextlib.contextmanager
+def process_group(
+    cmd: Sequence[str], log: Path, env: dict[str, str] | None = None
+) -> Iterator[subprocess.Popen]:
+    """Run ``cmd`` in its own session and kill the whole group on exit (rerun's Python wrapper
+    execs a separate binary, Chromium forks helpers: killing the first pid alone leaves them)."""
+    with open(log, "wb") as out:
+        proc = subprocess.Popen(
+            list(cmd),
+            stdin=subprocess.DEVNULL,
+            stdout=out,
+            stderr=subprocess.STDOUT,
+            env=env,
+            start_new_session=True,
+        )
+    try:
+        yield proc
+    finally:
+        kill_group(proc)
+
+
+def kill_group(proc: subprocess.Popen, grace_s: float = 5.0) -> None:
+    """SIGTERM the process group, SIGKILL what is left after ``grace_s``."""
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, sig)
+        deadline = time.monotonic() + grace_s
+        while time.monotonic() < deadline and _group_alive(proc.pid):
+            proc.poll()
+            time.sleep(0.1)
+        if not _group_alive(proc.pid):
+            break
+    proc.wait(timeout=grace_s)
+
+
+def _group_alive(pgid: int) -> bool:
+    try:
+        os.killpg(pgid, 0)
+    except ProcessLookupError:
+        return False
+    return True
+
+
+def disable_analytics(rerun: Path) -> None:
+    """rerun's first run otherwise prints an analytics prompt (and would phone home later)."""
+    subprocess.run([str(rerun), "analytics", "disable"], capture_output=True, timeout=30, check=False)
+
+
+def wait_for_log(log: Path, pattern: str, deadline: float, proc: subprocess.Popen) -> re.Match[str]:
+    """First match of ``pattern`` in the process log; SetupError if it dies or time runs out."""
+    while time.monotonic() < deadline:
+        match = re.search(pattern, log.read_text(errors="replace"))
+        if match:
+            return match
+        if proc.poll() is not None:
+            raise SetupError(
+                f"rerun exited with status {proc.returncode}: {log.read_text(errors='replace')[-800:]}"
+            )
+        time.sleep(0.2)
+    raise SetupError(f"rerun printed no web-viewer address in time; log {log}")
+
+
+def viewer_url(printed: str, grpc_port: int) -> str:
+    """The address rerun printed, pointed at 127.0.0.1 (it prints ``localhost``), forced to WebGL."""
+    parts = urllib.parse.urlsplit(printed)
+    query = dict(urllib.parse.parse_qsl(parts.query))
+    query["url"] = f"rerun+http://{LOOPBACK}:{grpc_port}/proxy"
+    query["renderer"] = "webgl"
+    netloc = parts.netloc.replace("localhost", LOOPBACK)
+    return urllib.parse.urlunsplit(
+        (parts.scheme, netloc, parts.path or "/", urllib.parse.urlencode(query), "")
+    )
+
+
+# ----------------------------------------------------------------------------- DevTools over a WebSocket
+
+
+class WebSocket:
+    """The few parts of RFC 6455 the DevTools protocol needs: client handshake, masked text frames
+    out, unmasked (possibly fragmented, multi-megabyte) frames in, ping/pong and close."""
+
+    GUID = b"258EAFA5-E914-47DA-95CA-C5AB0DC85B11"
+
+    def __init__(self, url: str, timeout_s: float) -> None:
+        parts = urllib.parse.urlsplit(url)
+        if parts.hostname not in (LOOPBACK, "localhost"):
+            raise SetupError(f"refusing a DevTools socket off loopback: {url}")
+        self.sock = socket.create_connection((LOOPBACK, parts.port or 80), timeout=timeout_s)
+        key = base64.b64encode(os.urandom(16))
+        self.sock.sendall(
+            f"GET {parts.path} HTTP/1.1\r\nHost: {LOOPBACK}:{parts.port}\r\n"
+            "Upgrade: websocket\r\nConnection: Upgrade\r\n"
+            f"Sec-WebSocket-Key: {key.decode()}\r\nSec-WebSocket-Version: 13\r\n\r\n".encode()
+        )
+        head = b""
+        while b"\r\n\r\n" not in head:
+            chunk = self.sock.recv(4096)
+            if not chunk:
+                raise SetupError("DevTools closed the socket during the WebSocket handshake")
+            head += chunk
+        head, rest = head.split(b"\r\n\r\n", 1)
+        self.pending = bytearray(rest)
+        accept = base64.b64encode(hashlib.sha1(key + self.GUID).digest())
+        if not head.startswith(b"HTTP/1.1 101") or accept not in head:
+            raise SetupError(f"DevTools refused the WebSocket upgrade: {head[:200]!r}")
+
+    def _read(self, n: int) -> bytes:
+        while len(self.pending) < n:
+            chunk = self.sock.recv(max(65536, n - len(self.pending)))
+            if not chunk:
+                raise ConnectionError("DevTools closed the WebSocket")
+            self.pending += chunk
+        out = bytes(self.pending[:n])
+        del self.pending[:n]
+        return out
+
+    def _send_frame(self, opcode: int, payload: bytes) -> None:
+        n = len(payload)
+        if n < 126:
+            header = struct.pack("!BB", 0x80 | opcode, 0x80 | n)
+        elif n < 1 << 16:
+            header = struct.pack("!BBH", 0x80 | opcode, 0x80 | 126, n)
+        else:
+            header = struct.pack("!BBQ", 0x80 | opcode, 0x80 | 127, n)
+        mask = os.urandom(4)
+        masked = np.frombuffer(payload, np.uint8) ^ np.resize(np.frombuffer(mask, np.uint8), n)
+        self.sock.sendall(header + mask + masked.tobytes())
+
+    def send_text(self, text: str) -> None:
+        self._send_frame(0x1, text.encode())
+
+    def recv_text(self) -> str:
+        """The next whole text message (control frames are answered or raise on close)."""
+        message = bytearray()
+        while True:
+            b0, b1 = self._read(2)
+            opcode, n = b0 & 0x0F, b1 & 0x7F
+            if n == 126:
+                (n,) = struct.unpack("!H", self._read(2))
+            elif n == 127:
+                (n,) = struct.unpack("!Q", self._read(8))
+            mask = self._read(4) if b1 & 0x80 else b""
+            payload = self._read(n)
+            if mask:
+                payload = (
+                    np.frombuffer(payload, np.uint8) ^ np.resize(np.frombuffer(mask, np.uint8), n)
+                ).tobytes()
+            if opcode == 0x8:
+                raise ConnectionError("DevTools closed the WebSocket")
+            if opcode == 0x9:
+                self._send_frame(0xA, payload)
+                continue
+            if opcode in (0x0, 0x1):
+                message += payload
+                if b0 & 0x80:
+                    return message.decode()
+
+    def close(self) -> None:
+        with contextlib.suppress(OSError):
+            self._send_frame(0x8, b"")
+        self.sock.close()
+
+
+class DevTools:
+    """Synchronous DevTools calls on one page; events that arrive meanwhile are kept for the report."""
+
+    def __init__(self, ws: WebSocket) -> None:
+        self.ws = ws
+        self.next_id = 0
+        self.console: list[str] = []
+        self.off_loopback: list[str] = []  # requests the page tried beyond 127.0.0.1 (all blocked)
+
+    def call(self, method: str, timeout_s: float = 30.0, **params: object) -> dict:
+        self.next_id += 1
+        self.ws.send_text(json.dumps({"id": self.next_id, "method": method, "params": params}))
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            message = self._receive(deadline)
+            if message is not None and message.get("id") == self.next_id:
+                if "error" in message:
+                    raise SetupError(f"DevTools {method} failed: {message['error']}")
+                return message.get("result", {})
+        raise SetupError(f"DevTools {method} got no answer in {timeout_s:.0f} s")
+
+    def idle(self, seconds: float) -> None:
+        """Let the page run for ``seconds``, reading (and keeping) the events it sends."""
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline:
+            self._receive(deadline)
+
+    def _receive(self, deadline: float) -> dict | None:
+        self.ws.sock.settimeout(max(0.05, min(1.0, deadline - time.monotonic())))
+        try:
+            message = json.loads(self.ws.recv_text())
+        except TimeoutError:
+            return None
+        if message.get("method") == "Runtime.consoleAPICalled":
+            args = message["params"].get("args", [])
+            line = " ".join(str(a.get("value", a.get("description", ""))) for a in args)
+            if CONSOLE_PATTERN.search(line):
+                self.console.append(line)
+        elif message.get("method") == "Runtime.exceptionThrown":
+            self.console.append("exception: " + message["params"]["exceptionDetails"].get("text", ""))
+        elif message.get("method") == "Network.requestWillBeSent":
+            url = message["params"]["request"]["url"]
+            if urllib.parse.urlsplit(url).hostname not in (LOOPBACK, None):
+                self.off_loopback.append(url)
+        return message
+
+
+def devtools_json(port: int, path: str, timeout_s: float = 5.0) -> object:
+    with urllib.request.urlopen(f"http://{LOOPBACK}:{port}{path}", timeout=timeout_s) as response:
+        return json.loads(response.read())
+
+
+def page_socket_url(port: int, deadline: float) -> str:
+    """The DevTools WebSocket of Chromium's first page target (it opens about:blank)."""
+    while time.monotonic() < deadline:
+        with contextlib.suppress(OSError, ValueError):
+            pages = [t for t in devtools_json(port, "/json/list") if t.get("type") == "page"]
+            if pages:
+                return pages[0]["webSocketDebuggerUrl"]
+        time.sleep(0.3)
+    raise SetupError(f"Chromium's DevTools on {LOOPBACK}:{port} listed no page in time")
+
+
+# ----------------------------------------------------------------------------- the two routes
+
+
+def browser_screenshot(
+    recording: Path, out: Path, *, port: int, web_port: int, wait_s: float, chromium: Path
+) -> str:
+    """Serve ``recording``, let Chromium render the web viewer for ``wait_s``, save a PNG; return the URL."""
+    if not chromium.exists():
+        raise SetupError(f"{chromium} missing: run `apt-get update && apt-get install -y chromium` (as root)")
+    disable_analytics(RERUN)
+    with tempfile.TemporaryDirectory(prefix="a3d_browser_") as tmp:
+        tmp_dir = Path(tmp)
+        server_log = tmp_dir / "rerun.log"
+        serve = [str(RERUN), "--serve-web", "--bind", LOOPBACK, "--port", str(port)]
+        serve += ["--web-viewer-port", str(web_port), str(recording)]
+        with process_group(serve, server_log) as server:
+            deadline = time.monotonic() + 60
+            printed = wait_for_log(server_log, r"connect at (http://\S+)", deadline, server).group(1)
+            wait_for_port(web_port, deadline, server, "rerun's web viewer")
+            url = viewer_url(printed, port)
+            devtools_port = free_port()
+            browser = [str(chromium), *CHROMIUM_FLAGS, f"--user-data-dir={tmp_dir / 'profile'}"]
+            browser += [f"--remote-debugging-port={devtools_port}", f"--window-size={WINDOW[0]},{WINDOW[1]}"]
+            with process_group([*browser, "about:blank"], tmp_dir / "chromium.log") as chrome:
+                wait_for_port(devtools_port, time.monotonic() + 60, chrome, "Chromium's DevTools")
+                ws = WebSocket(page_socket_url(devtools_port, time.monotonic() + 30), timeout_s=10)
+                try:
+                    tools = DevTools(ws)
+                    tools.call("Runtime.enable")
+                    tools.call("Page.enable")
+                    tools.call("Network.enable")
+                    tools.call(
+                        "Emulation.setDeviceMetricsOverride",
+                        width=WINDOW[0],
+                        height=WINDOW[1],
+                        deviceScaleFactor=1,
+                        mobile=False,
+                    )
+                    tools.call("Page.navigate", url=url)
+                    tools.idle(wait_s)
+                    shot = tools.call("Page.captureScreenshot", timeout_s=60, format="png")
+                finally:
+                    ws.close()
+                for line in tools.console[-10:]:
+                    print(f"  console: {line.strip().splitlines()[0][:200]}")
+                for blocked in sorted(set(tools.off_loopback)):
+                    print(f"  blocked off-loopback request: {blocked[:200]}")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_bytes(base64.b64decode(shot["data"]))
+    return url
+
+
+def native_screenshot(recording: Path, out: Path, *, timeout_s: float) -> None:
+    """The native viewer, headless on lavapipe Vulkan, writes the screenshot itself and quits."""
+    if not any(Path("/usr/share/vulkan/icd.d").glob("lvp_icd*.json")):
+        raise SetupError(
+            "no lavapipe Vulkan driver: run `apt-get update && apt-get install -y mesa-vulkan-drivers`"
+        )
+    disable_analytics(RERUN)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.unlink(missing_ok=True)
+    env = {**os.environ, "WGPU_BACKEND": "vulkan"}
+    cmd = [str(RERUN), str(recording), "--headless", "--screenshot-to", str(out), "--window-size", "1280x800"]
+    with tempfile.TemporaryDirectory(prefix="a3d_native_") as tmp:
+        log = Path(tmp) / "rerun.log"
+        with process_group(cmd, log, env=env) as viewer:
+            try:
+                viewer.wait(timeout=timeout_s)
+            except subprocess.TimeoutExpired as err:
+                raise SetupError(f"native viewer wrote no screenshot in {timeout_s:.0f} s") from err
+        if not out.exists():
+            raise SetupError(
+                f"native viewer exited {viewer.returncode} without a screenshot: {log.read_text()[-800:]}"
+            )
+
+
+# ----------------------------------------------------------------------------- judging the pixels
+
+
+@dataclass(frozen=True)
+class ScreenshotStats:
+    """What the pixels say: a loader or blank page is one flat colour with no class colours."""
+
+    size: tuple[int, int]  # (H, W)
+    dominant_fraction: float  # share of pixels in the most common (quantised) colour
+    distinct_colours: int  # distinct colours after quantising each channel to 32 levels
+    class_pixels: dict[str, int]  # class name -> pixels within COLOUR_TOLERANCE of its colour
+
+    def looks_rendered(self, expected: Sequence[str] = (), min_class_px: int = 50) -> bool:
+        """Varied pixels, and every expected class colour (or any, with none expected) on screen."""
+        varied = self.dominant_fraction < 0.9 and self.distinct_colours > 100
+        if expected:
+            coloured = all(self.class_pixels.get(name, 0) >= min_class_px for name in expected)
+        else:
+            coloured = any(n >= min_class_px for n in self.class_pixels.values())
+        return varied and coloured
+
+
+def screenshot_stats(png: Path) -> ScreenshotStats:
+    bgr = cv2.imread(str(png), cv2.IMREAD_COLOR)
+    if bgr is None:
+        raise SetupError(f"{png}: not a readable image")
+    rgb = bgr[..., ::-1].reshape(-1, 3).astype(np.int16)
+    quantised = (rgb // 8) @ np.array([1024, 32, 1])
+    counts = np.bincount(quantised)
+    colours = np.asarray(CLASS_COLORS_RGB, dtype=np.int16)
+    near = np.abs(rgb[:, None, :] - colours[None, :, :]).max(axis=2) <= COLOUR_TOLERANCE
+    per_class = near.sum(axis=0)
+    return ScreenshotStats(
+        size=bgr.shape[:2],
+        dominant_fraction=float(counts.max() / len(quantised)),
+        distinct_colours=int((counts > 0).sum()),
+        class_pixels={name: int(n) for name, n in zip(CLASSES, per_class, strict=True) if n},
+    )
+
+
+def recording_classes(recording: Path) -> list[str]:
+    """Class names of the detections logged in the recording (from the boxes' labels)."""
+    import rerun.chunk as rc
+
+    names: set[str] = set()
+    for chunk in rc.RrdReader(str(recording)).stream():
+        batch = chunk.to_record_batch()
+        if batch.schema.metadata.get(b"rerun:entity_path", b"").decode() != "/world/detections":
+            continue
+        if "Boxes3D:class_ids" in batch.schema.names:
+            for ids in batch.column("Boxes3D:class_ids").to_pylist():
+                names.update(CLASSES[i - 1] for i in ids or [])
+    return sorted(names)
+
+
+# ----------------------------------------------------------------------------- CLI
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "recording", type=Path, help="an .rrd from a3d-run --save (or bench/make_demo_recording.py)"
+    )
+    parser.add_argument("--out", type=Path, required=True, help="the screenshot PNG to write")
+    parser.add_argument("--port", type=int, default=0, help="rerun's gRPC port (0: a free one)")
+    parser.add_argument(
+        "--web-viewer-port", type=int, default=0, help="the web viewer's HTTP port (0: a free one)"
+    )
+    parser.add_argument(
+        "--wait", type=float, default=45.0, help="seconds the page renders before the screenshot"
+    )
+    parser.add_argument("--native", action="store_true", help="native headless viewer on lavapipe instead")
+    parser.add_argument("--timeout", type=float, default=120.0, help="--native: seconds before giving up")
+    parser.add_argument("--chromium", type=Path, default=CHROMIUM)
+    args = parser.parse_args(argv)
+    if not args.recording.is_file():
+        print(f"{args.recording}: no such file", file=sys.stderr)
+        return 2
+    started = time.monotonic()
+    try:
+        if args.native:
+            native_screenshot(args.recording, args.out, timeout_s=args.timeout)
+            print(f"native viewer -> {args.out}")
+        else:
+            port = args.port or free_port()
+            web_port = args.web_viewer_port or free_port()
+            url = browser_screenshot(
+                args.recording,
+                args.out,
+                port=port,
+                web_port=web_port,
+                wait_s=args.wait,
+                chromium=args.chromium,
+            )
+            print(f"{url} -> {args.out}")
+    except (SetupError, subprocess.TimeoutExpired, OSError) as err:
+        print(f"browser_check: {err}", file=sys.stderr)
+        return 2
+    expected = recording_classes(args.recording)
+    stats = screenshot_stats(args.out)
+    ok = stats.looks_rendered(expected)
+    print(
+        f"{'OK' if ok else 'BLANK?'} in {time.monotonic() - started:.0f} s: {stats.size[1]}x{stats.size[0]}, "
+        f"dominant colour {stats.dominant_fraction:.0%}, {stats.distinct_colours} colours; "
+        f"class-colour pixels {stats.class_pixels}; expected classes {expected}"
+    )
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
