@@ -173,6 +173,12 @@ def viewer_url(printed: str, grpc_port: int) -> str:
 # ----------------------------------------------------------------------------- DevTools over a WebSocket
 
 
+def xor_mask(payload: bytes, mask: bytes) -> bytes:
+    """RFC 6455 masking (its own inverse): byte i XOR mask[i % 4]."""
+    data = np.frombuffer(payload, np.uint8)
+    return (data ^ np.resize(np.frombuffer(mask, np.uint8), data.size)).tobytes()
+
+
 class WebSocket:
     """The few parts of RFC 6455 the DevTools protocol needs: client handshake, masked text frames
     out, unmasked (possibly fragmented, multi-megabyte) frames in, ping/pong and close."""
@@ -198,19 +204,10 @@ class WebSocket:
             head += chunk
         head, rest = head.split(b"\r\n\r\n", 1)
         self.pending = bytearray(rest)
+        self.message = bytearray()  # a fragmented text message being put together
         accept = base64.b64encode(hashlib.sha1(key + self.GUID).digest())
         if not head.startswith(b"HTTP/1.1 101") or accept not in head:
             raise SetupError(f"DevTools refused the WebSocket upgrade: {head[:200]!r}")
-
-    def _read(self, n: int) -> bytes:
-        while len(self.pending) < n:
-            chunk = self.sock.recv(max(65536, n - len(self.pending)))
-            if not chunk:
-                raise ConnectionError("DevTools closed the WebSocket")
-            self.pending += chunk
-        out = bytes(self.pending[:n])
-        del self.pending[:n]
-        return out
 
     def _send_frame(self, opcode: int, payload: bytes) -> None:
         n = len(payload)
@@ -221,37 +218,55 @@ class WebSocket:
         else:
             header = struct.pack("!BBQ", 0x80 | opcode, 0x80 | 127, n)
         mask = os.urandom(4)
-        masked = np.frombuffer(payload, np.uint8) ^ np.resize(np.frombuffer(mask, np.uint8), n)
-        self.sock.sendall(header + mask + masked.tobytes())
+        self.sock.sendall(header + mask + xor_mask(payload, mask))
 
     def send_text(self, text: str) -> None:
         self._send_frame(0x1, text.encode())
 
+    def _parse_frame(self) -> tuple[int, bool, bytes] | None:
+        """(opcode, final, payload) of the first whole frame in the buffer, consumed; None if incomplete.
+        Nothing is consumed until a whole frame is there, so a socket timeout never splits a frame."""
+        buf = self.pending
+        if len(buf) < 2:
+            return None
+        n, pos = buf[1] & 0x7F, 2
+        if n >= 126:
+            size = 2 if n == 126 else 8
+            if len(buf) < pos + size:
+                return None
+            n = int.from_bytes(buf[pos : pos + size], "big")
+            pos += size
+        mask = b""
+        if buf[1] & 0x80:
+            mask, pos = bytes(buf[pos : pos + 4]), pos + 4
+        if len(buf) < pos + n:
+            return None
+        payload = bytes(buf[pos : pos + n])
+        opcode, final = buf[0] & 0x0F, bool(buf[0] & 0x80)
+        del buf[: pos + n]
+        return opcode, final, xor_mask(payload, mask) if mask else payload
+
     def recv_text(self) -> str:
-        """The next whole text message (control frames are answered or raise on close)."""
-        message = bytearray()
+        """The next whole text message; pings are answered, a close frame raises ConnectionError.
+        A socket timeout (TimeoutError) leaves the stream intact: call again to go on."""
         while True:
-            b0, b1 = self._read(2)
-            opcode, n = b0 & 0x0F, b1 & 0x7F
-            if n == 126:
-                (n,) = struct.unpack("!H", self._read(2))
-            elif n == 127:
-                (n,) = struct.unpack("!Q", self._read(8))
-            mask = self._read(4) if b1 & 0x80 else b""
-            payload = self._read(n)
-            if mask:
-                payload = (
-                    np.frombuffer(payload, np.uint8) ^ np.resize(np.frombuffer(mask, np.uint8), n)
-                ).tobytes()
+            frame = self._parse_frame()
+            if frame is None:
+                chunk = self.sock.recv(1 << 20)
+                if not chunk:
+                    raise ConnectionError("DevTools closed the WebSocket")
+                self.pending += chunk
+                continue
+            opcode, final, payload = frame
             if opcode == 0x8:
                 raise ConnectionError("DevTools closed the WebSocket")
             if opcode == 0x9:
                 self._send_frame(0xA, payload)
-                continue
-            if opcode in (0x0, 0x1):
-                message += payload
-                if b0 & 0x80:
-                    return message.decode()
+            elif opcode in (0x0, 0x1):
+                self.message += payload
+                if final:
+                    text, self.message = self.message.decode(), bytearray()
+                    return text
 
     def close(self) -> None:
         with contextlib.suppress(OSError):
@@ -384,14 +399,17 @@ def native_screenshot(recording: Path, out: Path, *, timeout_s: float) -> None:
     out.parent.mkdir(parents=True, exist_ok=True)
     out.unlink(missing_ok=True)
     env = {**os.environ, "WGPU_BACKEND": "vulkan"}
-    cmd = [str(RERUN), str(recording), "--headless", "--screenshot-to", str(out), "--window-size", "1280x800"]
+    # Its gRPC server would listen on 0.0.0.0:9876 by default (and hand the file to a viewer already there).
+    cmd = [str(RERUN), str(recording), "--headless", "--bind", LOOPBACK, "--port", str(free_port())]
+    cmd += ["--screenshot-to", str(out), "--window-size", "1280x800"]
     with tempfile.TemporaryDirectory(prefix="a3d_native_") as tmp:
         log = Path(tmp) / "rerun.log"
         with process_group(cmd, log, env=env) as viewer:
             try:
                 viewer.wait(timeout=timeout_s)
             except subprocess.TimeoutExpired as err:
-                raise SetupError(f"native viewer wrote no screenshot in {timeout_s:.0f} s") from err
+                tail = log.read_text(errors="replace")[-800:]
+                raise SetupError(f"native viewer wrote no screenshot in {timeout_s:.0f} s: {tail}") from err
         if not out.exists():
             raise SetupError(
                 f"native viewer exited {viewer.returncode} without a screenshot: {log.read_text()[-800:]}"

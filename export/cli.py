@@ -106,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
     except VerificationError as e:
         print(f"{PROG}: verification failed: {e}", file=sys.stderr)
         return 1
-    except (ExportError, InputError, ModelError, ValueError, FileNotFoundError) as e:
+    except (ExportError, InputError, ModelError, ValueError, OSError) as e:
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 2
     print(f"{PROG}: wrote {path}; run it with:", file=sys.stderr)

@@ -137,25 +137,27 @@ def export_graph(graph: RuntimeGraph, path: str | os.PathLike, opset: int = MIN_
     if opset < MIN_OPSET:
         raise ExportError(f"--opset {opset}: the exporter supports opset {MIN_OPSET} or newer")
     graph = graph.eval()
-    dims = {2: "height", 3: "width"}
+    image, count = {2: "height", 3: "width"}, {0: "rois"}
     registry_log = logging.getLogger("torch.onnx._internal.exporter._registration")
     level = registry_log.level
     registry_log.setLevel(logging.ERROR)  # "torchvision is not installed" for every torchvision op
-    with warnings.catch_warnings(), torch.no_grad():
-        warnings.simplefilter("ignore")  # the exporter's deprecation and dynamic-shape chatter
-        torch.onnx.export(
-            graph,
-            example_inputs(*EXAMPLE_SIZE, count=5),
-            str(path),
-            input_names=list(INPUT_NAMES),
-            output_names=list(OUTPUT_NAMES),
-            dynamic_shapes={"color": dims, "depth": dims, "rois": {0: "rois"}, "context_rois": {0: "rois"}},
-            opset_version=opset,
-            dynamo=True,
-            external_data=False,
-            verbose=False,
-        )
-    registry_log.setLevel(level)
+    try:
+        with warnings.catch_warnings(), torch.no_grad():
+            warnings.simplefilter("ignore")  # the exporter's deprecation and dynamic-shape chatter
+            torch.onnx.export(
+                graph,
+                example_inputs(*EXAMPLE_SIZE, count=5),
+                str(path),
+                input_names=list(INPUT_NAMES),
+                output_names=list(OUTPUT_NAMES),
+                dynamic_shapes={"color": image, "depth": image, "rois": count, "context_rois": count},
+                opset_version=opset,
+                dynamo=True,
+                external_data=False,
+                verbose=False,
+            )
+    finally:
+        registry_log.setLevel(level)
     model = onnx.load(str(path))
     got = next((o.version for o in model.opset_import if o.domain in ("", "ai.onnx")), None)
     if got != opset:

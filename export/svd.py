@@ -2,10 +2,11 @@
 
 A Linear layer y = W x + b with W (out, in) is replaced by two: y = U_r (S_r V_r^T x) + b, i.e.
 Linear(in, r, no bias) then Linear(r, out) with the original bias, which costs r (in + out)
-multiply-adds per RoI instead of in * out. The singular values are split evenly between the two
-factors (sqrt(S_r) on each side), which keeps both weight matrices in a similar range for int8
-quantisation; the product is the same as Fast R-CNN's S_r V_r^T / U_r split. At full rank
-r = min(in, out) the layer is reproduced to float rounding.
+multiply-adds per RoI instead of in * out (a saving for r < in * out / (in + out)). The singular
+values are split evenly between the two factors (sqrt(S_r) on each side), which keeps both
+weight matrices in a similar range for int8 quantisation; the product is the same as Fast
+R-CNN's S_r V_r^T / U_r split. At full rank r = min(in, out) the layer is reproduced to float
+rounding; a larger rank is capped there.
 
 The factorisation is done on the torch model before export, so the export is verified against
 the compressed torch model, and compared to the uncompressed one separately (a3d.export.cli).
@@ -23,14 +24,13 @@ from a3d.train.model.net import A3DNet
 SVD_LAYERS = ("fc6", "fc7")
 
 
-def truncated_svd(layer: nn.Linear, rank: int, name: str = "layer") -> tuple[nn.Sequential, dict]:
-    """Two Linears equal to ``layer`` at rank ``rank``, and a summary (shape, parameters, energy kept)."""
+def truncated_svd(layer: nn.Linear, rank: int) -> tuple[nn.Sequential, dict]:
+    """Two Linears equal to ``layer`` at ``rank`` (at most its full rank min(out, in)), and a
+    summary: shape, rank used, weights before and after, fraction of the squared singular values kept."""
+    if rank < 1:
+        raise ValueError(f"--svd {rank}: the rank must be a positive integer")
     weight = layer.weight.detach().double()
-    full = min(weight.shape)
-    if not 1 <= rank <= full:
-        raise ValueError(
-            f"--svd {rank}: {name} is {weight.shape[0]}x{weight.shape[1]}, rank must be in [1, {full}]"
-        )
+    rank = min(rank, *weight.shape)
     u, s, vh = torch.linalg.svd(weight, full_matrices=False)
     root = s[:rank].sqrt()
     first = nn.Linear(weight.shape[1], rank, bias=False)
@@ -52,10 +52,11 @@ def truncated_svd(layer: nn.Linear, rank: int, name: str = "layer") -> tuple[nn.
 
 
 def svd_compress(net: A3DNet, rank: int) -> tuple[A3DNet, dict[str, dict]]:
-    """An eval-mode copy of ``net`` with fc6 and fc7 factorised at ``rank``, and per-layer summaries."""
+    """An eval-mode copy of ``net`` with fc6 and fc7 factorised at ``rank`` (capped at each layer's
+    full rank, where the factorisation is exact), and per-layer summaries."""
     out = copy.deepcopy(net).eval()
     summaries = {}
     for name in SVD_LAYERS:
-        factored, summaries[name] = truncated_svd(getattr(net, name), rank, name)
+        factored, summaries[name] = truncated_svd(getattr(net, name), rank)
         setattr(out, name, factored)
     return out, summaries

@@ -44,6 +44,7 @@ class SuperpixelConfig:
     barrier_width: int = 2
     depth_weight: float = 1000.0
     depth_phase: float = 8.0
+    smooth: float = 0.0
 
 
 def geometric_edges(
@@ -92,6 +93,8 @@ def oversegment(
     if config.barrier_width > 1:
         kernel = np.ones((config.barrier_width, config.barrier_width), np.uint8)
         barrier = cv2.dilate(barrier.view(np.uint8), kernel).astype(bool)
+    if config.smooth > 0:
+        lab = cv2.GaussianBlur(lab, (0, 0), config.smooth)
     image = lab.copy()
     checker = ((np.indices((h, w)).sum(0) & 1) * 255).astype(np.uint8)
     image[barrier] = 128

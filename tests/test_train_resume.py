@@ -14,7 +14,7 @@ from a3d.train.checkpoint import load_checkpoint
 from a3d.train.loop import read_metrics
 from tests.test_train_scenes import TINY, write_scenes
 
-ITERATIONS = 20
+ITERATIONS = 12
 
 
 def _cli(*args: str) -> list[str]:
@@ -22,7 +22,7 @@ def _cli(*args: str) -> list[str]:
 
 
 def _args(frames, run, cache) -> list[str]:
-    sets = [*TINY, f"solver.iterations={ITERATIONS}", "solver.lr_steps=[10]", "log.checkpoint_every=4",
+    sets = [*TINY, f"solver.iterations={ITERATIONS}", "solver.lr_steps=[7]", "log.checkpoint_every=3",
             "data.workers=1", f"data.cache_dir={cache}"]  # fmt: skip
     return [str(frames), "--out", str(run), "--config", "vgg16", "--device", "cpu",
             *[a for s in sets for a in ("--set", s)]]  # fmt: skip
@@ -39,17 +39,17 @@ def test_kill_and_resume_is_bit_identical(tmp_path):
     done = subprocess.run(_cli(*_args(frames, straight, cache)), capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
 
-    # Same run, SIGKILLed (with its DataLoader worker) once it is past the checkpoint at iteration 4.
+    # Same run, SIGKILLed (with its DataLoader worker) once it is past the checkpoint at iteration 3.
     proc = subprocess.Popen(_cli(*_args(frames, killed, cache)), stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL, start_new_session=True)  # fmt: skip
     deadline = time.monotonic() + 120
-    while _last_iter(killed) < 6 and proc.poll() is None and time.monotonic() < deadline:
+    while _last_iter(killed) < 5 and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.01)
     assert proc.poll() is None, "the run ended before it could be killed"
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait()
     interrupted_at = load_checkpoint(killed / "checkpoint.pt")["iteration"]
-    assert 4 <= interrupted_at < ITERATIONS
+    assert 3 <= interrupted_at < ITERATIONS
 
     resumed = subprocess.run(_cli(str(frames), "--out", str(killed), "--resume", "--device", "cpu"),
                              capture_output=True, text=True, timeout=300)  # fmt: skip

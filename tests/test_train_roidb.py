@@ -34,6 +34,9 @@ def test_label_rois_known_answers():
     assert labels[keep].tolist() == [chair, chair, 0, 0, table]
     assert gt_index[keep].tolist() == [0, 0, -1, -1, 1]
     np.testing.assert_allclose(overlaps, [1, 0.5, 0.2, 0.1, 0.05, 0.6, 0], atol=1e-7)
+    nothing = GroundTruth.from_classes([], np.zeros((0, 7)), np.zeros((0, 4)), np.zeros((0, 4)))
+    keep, labels, _, _ = label_rois(rois, nothing, fg_iou=0.5, bg_iou_low=0.1)
+    assert not keep.any() and not labels.any()  # no ground truth: no foreground, and no background either
 
 
 def test_class_mean_sizes_with_absent_classes():

@@ -23,10 +23,10 @@ import torch
 
 from a3d.runtime.classes import NUM_OUTPUTS
 from a3d.runtime.cli.eval import load_truth
-from a3d.runtime.detections_io import FrameDetections
+from a3d.runtime.detections_io import FrameDetections, write_detections
 from a3d.runtime.evaluation import EvalConfig, EvalResult, evaluate
 from a3d.runtime.frames import FrameRef, list_frames, read_folder_intrinsics
-from a3d.runtime.pipeline import PipelineConfig, detect
+from a3d.runtime.pipeline import PipelineConfig, detect, detect_frames
 from a3d.train.checkpoint import load_checkpoint
 from a3d.train.config import TrainConfig
 from a3d.train.dataset import TargetStats
@@ -110,6 +110,24 @@ class TorchDetector:
 
     def detect_all(self, refs: Iterable[FrameRef], folder_intrinsics=None) -> dict[str, FrameDetections]:
         return {ref.name: self.detect(ref, folder_intrinsics) for ref in refs}
+
+
+def write_folder_detections(
+    detector: TorchDetector, folder: str | os.PathLike, out: str | os.PathLike, max_frames: int = 0
+) -> tuple[list[FrameDetections], list[str]]:
+    """Detections of the frames of ``folder`` written to ``out`` (JSON lines, as a3d-run writes
+    them); a bad frame is skipped and reported as "PATH: problem" instead of stopping the run."""
+    refs = list_frames(folder)
+    refs = refs[:max_frames] if max_frames > 0 else refs
+    outcomes = detect_frames(refs, detector.network, detector.pipeline, read_folder_intrinsics(folder))
+    done, problems = [], []
+    for outcome in outcomes:
+        if outcome.detections is None:
+            problems.append(outcome.problem)
+        else:
+            done.append(outcome.detections)
+    write_detections(out, done)
+    return done, problems
 
 
 def validate(detector: TorchDetector, folder: str | os.PathLike, max_frames: int = 0) -> EvalResult:

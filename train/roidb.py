@@ -148,15 +148,16 @@ def label_rois(
     foreground at IoU >= fg_iou, background at IoU in [bg_iou_low, fg_iou), the rest not kept.
     """
     n = len(rois)
-    if len(gt.class_ids) == 0:
-        overlaps, gt_index = np.zeros(n), np.full(n, -1, dtype=np.int64)
+    if n == 0 or len(gt.class_ids) == 0:
+        overlaps, gt_index = np.zeros(n), np.zeros(n, dtype=np.int64)
     else:
         iou = iou_2d(np.asarray(rois, np.float64), np.asarray(gt.boxes2d_visible, np.float64))
         gt_index = np.argmax(iou, axis=1)
         overlaps = iou[np.arange(n), gt_index]
     fg = overlaps >= fg_iou
     bg = (overlaps >= bg_iou_low) & ~fg
-    labels = np.where(fg, np.asarray(gt.class_ids, np.int64)[np.maximum(gt_index, 0)] + 1 if n else 0, 0)
+    labels = np.zeros(n, dtype=np.int64)
+    labels[fg] = np.asarray(gt.class_ids, np.int64)[gt_index[fg]] + 1
     gt_index = np.where(fg, gt_index, -1)
     return fg | bg, labels.astype(np.int64), overlaps.astype(np.float32), gt_index.astype(np.int64)
 

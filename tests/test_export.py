@@ -1,0 +1,240 @@
+"""a3d-export: a tiny trained checkpoint -> model.onnx that the runtime loads and that matches torch.
+
+Two exports (the dynamo exporter takes ~10 s CPU each): a float32 model verified on real frames,
+and an SVD (rank 8) + int8 model calibrated on the same frames. The reference everywhere is the
+eager checkpoint network with the softmax and the TargetStats de-normalisation applied outside
+it (a3d.train.inference.TorchNetwork), so the folded statistics are checked, not assumed.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import onnx
+import pytest
+import torch
+
+from a3d.export import cli
+from a3d.export.onnx_export import load_trained
+from a3d.export.svd import svd_compress
+from a3d.export.verify import folder_inputs
+from a3d.runtime.classes import CLASSES
+from a3d.runtime.frames import write_frame, write_intrinsics
+from a3d.runtime.geometry import Intrinsics
+from a3d.runtime.model import DetectorModel
+from a3d.runtime.pipeline import PipelineConfig
+from a3d.train.checkpoint import save_checkpoint
+from a3d.train.config import TrainConfig
+from a3d.train.dataset import TargetStats
+from a3d.train.inference import TorchNetwork
+from a3d.train.model import A3DNet
+
+pytestmark = pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")
+SVD_RANK = 8
+CONFIG = {
+    "net": {"width": 0.125, "fuse_channels": 32, "fc6": 64, "fc7": 48},
+    "data": {"input_scale": 0.75},
+    "proposals": {"min_area": 20, "max_proposals": 150},
+    "inference": {"top_k": 50, "nms_iou": 0.4, "min_score": 0.02},
+}
+
+
+def _frames(folder: Path, count: int, rng: np.random.Generator) -> None:
+    """Small RGB-D frames: coloured rectangles at their own depths, a few depth holes."""
+    height, width = 96, 128
+    write_intrinsics(folder, Intrinsics(110.0, 110.0, (width - 1) / 2, (height - 1) / 2))
+    for k in range(count):
+        color = np.empty((height, width, 3), np.uint8)
+        color[:] = rng.integers(60, 200, 3)
+        depth = np.full((height, width), 3.0, np.float32)
+        for _ in range(5):
+            y, x = rng.integers(0, height - 20), rng.integers(0, width - 20)
+            h, w = rng.integers(10, height // 2), rng.integers(10, width // 2)
+            color[y : y + h, x : x + w] = rng.integers(0, 255, 3)
+            depth[y : y + h, x : x + w] = rng.uniform(1.0, 3.0)
+        color = np.clip(color + rng.normal(0, 4, color.shape), 0, 255).astype(np.uint8)
+        depth[rng.random((height, width)) < 0.05] = 0.0
+        write_frame(folder, f"{k:04d}", color, depth)
+
+
+def _checkpoint(path: Path, rng: np.random.Generator, stats: TargetStats | None = None) -> None:
+    """A checkpoint as a3d.train.loop writes it, with non-trivial BatchNorm, heads and target stats."""
+    config = TrainConfig.from_dict(CONFIG)
+    torch.manual_seed(0)
+    net = A3DNet(config.net).eval()
+    with torch.no_grad():
+        for bn in (net.bn6, net.bn7):
+            bn.running_mean.normal_(0, 0.1)
+            bn.running_var.uniform_(0.5, 2.0)
+            bn.weight.uniform_(0.5, 1.5)
+        for head in (net.cls_score, net.bbox_pred_3d, net.bbox_pred_2d):
+            head.weight.normal_(0, 0.3)
+            head.bias.normal_(0, 0.1)
+    stats = stats or TargetStats(rng.normal(0, 0.3, (20, 7)), rng.uniform(0.05, 0.5, (20, 7)),
+                                 rng.normal(0, 0.1, (20, 4)), rng.uniform(0.05, 0.3, (20, 4)))  # fmt: skip
+    save_checkpoint(path, {
+        "iteration": 5, "config": config.to_json(), "model": net.state_dict(), "optimizer": {},
+        "target_stats": stats.to_tensors(), "mean_sizes": torch.from_numpy(rng.uniform(0.3, 2.0, (19, 3))),
+        "classes": list(CLASSES),
+    })  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory: pytest.TempPathFactory):
+    """The checkpoint, frames, and both exports (float32; svd + int8) with their CLI output."""
+    root = tmp_path_factory.mktemp("export")
+    rng = np.random.default_rng(0)
+    _frames(root / "frames", 3, rng)
+    _checkpoint(root / "run" / "checkpoint.pt", rng)
+    (root / "run" / "metrics.jsonl").write_text('{"kind": "data", "iter": 0, "frames": 3, "rois": 500}\n')
+    results, stdout = {}, {}
+    for name, extra in (
+        ("float", ["--verify-frames", str(root / "frames")]),
+        ("int8", ["--svd", str(SVD_RANK), "--int8", "--calib", str(root / "frames"),
+                  "--verify-frames", str(root / "frames")]),
+    ):  # fmt: skip
+        out = root / f"{name}.onnx"
+        with contextlib.redirect_stdout(io.StringIO()) as printed:
+            assert cli.main([str(root / "run" / "checkpoint.pt"), "-o", str(out), *extra]) == 0
+        results[name], stdout[name] = out, printed.getvalue()
+    return SimpleNamespace(
+        checkpoint=root / "run" / "checkpoint.pt", frames=root / "frames", stdout=stdout, **results
+    )
+
+
+def _reference(checkpoint: Path, net=None) -> TorchNetwork:
+    trained = load_trained(checkpoint)
+    return TorchNetwork(net if net is not None else trained.net, trained.stats)
+
+
+def test_float_model_passes_the_checker_and_the_runtime_loads_it(run) -> None:
+    model = onnx.load(str(run.float))
+    onnx.checker.check_model(model, full_check=True)
+    assert model.ir_version <= 13 and {(o.domain, o.version) for o in model.opset_import} == {("", 18)}
+    dims = [d.dim_param for d in model.graph.input[0].type.tensor_type.shape.dim[2:]]
+    assert dims == ["height", "width"] and model.graph.input[2].type.tensor_type.shape.dim[0].dim_param
+    assert {n.op_type for n in model.graph.node}.isdisjoint({"BatchNormalization", "Dropout"})
+    loaded = DetectorModel.load(run.float, threads=1)
+    assert loaded.metadata.content_sha256 and loaded.metadata.provenance["export"]["opset"] == 18
+
+
+def test_metadata_comes_from_the_checkpoint(run) -> None:
+    meta = DetectorModel.load(run.float, threads=1).metadata
+    state = torch.load(run.checkpoint, weights_only=True)
+    config = TrainConfig.from_json(state["config"])
+    np.testing.assert_array_equal(meta.mean_sizes, state["mean_sizes"].numpy())
+    assert meta.classes == CLASSES and meta.input_scale == 0.75 and meta.context_scale == 1.5
+    assert (meta.top_k, meta.nms_iou, meta.score_threshold) == (50, 0.4, 0.02)
+    assert meta.max_proposals == 150 and meta.depth_truncation_m == 10.0
+    # The runtime rebuilds the very proposal configuration the network was trained with.
+    assert PipelineConfig.from_metadata(meta).proposals == config.proposals
+    prov = meta.provenance
+    assert prov["checkpoint"]["iteration"] == 5 and len(prov["checkpoint"]["sha256"]) == 64
+    assert prov["training_config"] == json.loads(state["config"])
+    assert prov["training_data"] == {"frames": 3, "rois": 500}
+    assert prov["a3d_version"] and prov["export"]["torch"] and prov["exported_at"]
+    assert prov["verification"]["inputs"] == ["0000", "0001"]
+    assert prov["verification"]["float32_vs_torch"]["probs"]["max_abs"] <= 1e-4
+
+
+@pytest.mark.parametrize("count", [1, 37])
+def test_onnx_runtime_matches_torch_with_the_statistics_folded_in(run, count: int) -> None:
+    model = DetectorModel.load(run.float, threads=1)
+    reference = _reference(run.checkpoint)
+    item = next(folder_inputs(run.frames, PipelineConfig.from_metadata(model.metadata), 1))
+    assert len(item.rois) >= count
+    feeds = (item.color, item.depth, item.rois[:count], item.context_rois[:count])
+    probs, deltas3d, deltas2d = model.run(*feeds)
+    want = reference.run(*feeds)
+    assert (
+        probs.shape == (count, 20) and deltas3d.shape == (count, 20, 7) and deltas2d.shape == (count, 20, 4)
+    )
+    np.testing.assert_allclose(probs, want[0], rtol=0, atol=1e-4)
+    assert probs.max(1).min() < 0.99  # not a comparison of saturated softmaxes
+    for got, ref in ((deltas3d, want[1]), (deltas2d, want[2])):
+        np.testing.assert_allclose(got, ref, rtol=1e-4, atol=1e-4 * np.abs(ref).max())
+    # The fold matters: the network's own (normalised) deltas are far from the raw ones.
+    stats = load_trained(run.checkpoint).stats
+    normalised3d = (want[1] - stats.mean3d) / stats.std3d
+    assert np.abs(normalised3d - deltas3d).max() > 1000 * 1e-4 * np.abs(want[1]).max()
+
+
+def test_svd_at_full_rank_reproduces_the_network_and_low_rank_does_not(run) -> None:
+    trained = load_trained(run.checkpoint)
+    item = next(folder_inputs(run.frames, trained.config.pipeline(np.ones((19, 3))), 1))
+    feeds = (item.color, item.depth, item.rois, item.context_rois)
+    want = TorchNetwork(trained.net, trained.stats).run(*feeds)
+    full, summary = svd_compress(trained.net, 64)  # fc6 is 64 x 3136 (full rank 64), fc7 48 x 64 (48)
+    assert [summary[k]["rank"] for k in ("fc6", "fc7")] == [64, 48]
+    assert summary["fc6"]["energy_kept"] == pytest.approx(1.0)
+    got = TorchNetwork(full, trained.stats).run(*feeds)
+    np.testing.assert_allclose(got[0], want[0], rtol=0, atol=1e-4)
+    for g, w in zip(got[1:], want[1:], strict=True):
+        np.testing.assert_allclose(g, w, rtol=1e-4, atol=1e-4 * np.abs(w).max())
+    low, _ = svd_compress(trained.net, 2)
+    low_deltas = TorchNetwork(low, trained.stats).run(*feeds)[1]
+    assert np.abs(low_deltas - want[1]).max() > 1e-2 * np.abs(want[1]).max()
+    with pytest.raises(ValueError, match="rank must be a positive integer"):
+        svd_compress(trained.net, 0)
+
+
+def test_svd_int8_export_is_quantized_loads_and_stays_close(run) -> None:
+    model = onnx.load(str(run.int8))
+    ops = {n.op_type for n in model.graph.node}
+    assert {"QuantizeLinear", "DequantizeLinear"} <= ops or ops & {"QLinearConv", "QLinearMatMul"}
+    assert sum(n.op_type == "Gemm" for n in model.graph.node) >= 5  # fc6 and fc7 are two Gemms each
+    loaded = DetectorModel.load(run.int8, threads=1)
+    verification = loaded.metadata.provenance["verification"]
+    # The float SVD export matched its own torch model; rank 8 changed the network measurably.
+    assert verification["float32_vs_torch"]["deltas3d"]["rel"] <= 1e-4
+    assert verification["float32_vs_uncompressed"]["deltas3d"]["rel"] > 1e-2
+    assert loaded.metadata.provenance["export"]["calibration"]["frames"] == 3
+    trained = load_trained(run.checkpoint)
+    svd_net, _ = svd_compress(trained.net, SVD_RANK)
+    item = next(folder_inputs(run.frames, PipelineConfig.from_metadata(loaded.metadata), 1))
+    feeds = (item.color, item.depth, item.rois, item.context_rois)
+    got = loaded.run(*feeds)
+    want = TorchNetwork(svd_net, trained.stats).run(*feeds)
+    assert all(np.isfinite(g).all() for g in got)
+    probs_error = np.abs(got[0] - want[0]).max()
+    deltas_error = np.abs(got[1] - want[1]).max() / np.abs(want[1]).max()
+    assert 1e-5 < probs_error < 0.02 and deltas_error < 0.15  # quantised (not float), but close
+
+
+def test_cli_prints_the_run_command_and_refuses_bad_usage(run, capsys, tmp_path: Path) -> None:
+    with pytest.raises(SystemExit) as info:
+        cli.main([str(run.checkpoint), "-o", str(tmp_path / "m.onnx"), "--int8"])
+    assert info.value.code == 2
+    assert cli.main([str(tmp_path / "absent.pt"), "-o", str(tmp_path / "m.onnx")]) == 2
+    assert "absent.pt: no such checkpoint file" in capsys.readouterr().err
+    assert cli.main([str(run.checkpoint), "-o", str(tmp_path / "m.onnx"), "--svd", "0"]) == 2
+    assert "--svd 0: the rank must be a positive integer" in capsys.readouterr().err
+    assert not (tmp_path / "m.onnx").exists()
+    command = run.stdout["float"].strip().splitlines()[-1]
+    assert command.startswith("a3d-run FRAMES --model ") and str(run.float.resolve()) in command
+
+
+def test_a_graph_unlike_torch_fails_verification_and_writes_nothing(
+    run, monkeypatch, capsys, tmp_path
+) -> None:
+    """The float export of the fixture checkpoint, checked against a checkpoint with other
+    target statistics: the folded statistics no longer match, exit code 1, no file."""
+    other = tmp_path / "run" / "checkpoint.pt"
+    _checkpoint(other, np.random.default_rng(5))  # other random target statistics
+
+    def stale_export(graph, path, opset):
+        model = onnx.load(str(run.float))
+        del model.metadata_props[:]
+        onnx.save(model, str(path))
+        return model
+
+    monkeypatch.setattr(cli, "export_graph", stale_export)
+    out = tmp_path / "model.onnx"
+    assert cli.main([str(other), "-o", str(out), "--verify-frames", str(run.frames)]) == 1
+    err = capsys.readouterr().err
+    assert "verification failed" in err and "nothing written" in err and not out.exists()
