@@ -99,8 +99,10 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.int8 != (args.calib is not None):
         parser.error("--int8 and --calib FOLDER go together")
-    if args.calib_frames < 1:
-        parser.error(f"--calib-frames must be positive, got {args.calib_frames}")
+    if args.calib_frames < 1 or args.threads < 1:
+        parser.error("--calib-frames and --threads must be positive")
+    if args.score_threshold is not None and not 0.0 <= args.score_threshold <= 1.0:
+        parser.error(f"--score-threshold must be in [0, 1], got {args.score_threshold}")
     try:
         path = export(args)
     except VerificationError as e:

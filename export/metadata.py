@@ -52,7 +52,7 @@ def build_metadata(
         schema_version=SCHEMA_VERSION,
         classes=CLASSES,
         mean_sizes=sizes,
-        color_mean_bgr=tuple(float(v) for v in COLOR_MEAN_BGR),
+        color_mean_bgr=tuple(float(str(v)) for v in COLOR_MEAN_BGR),  # shortest decimals of the float32s
         depth_mean=float(DEPTH_MEAN),
         depth_truncation_m=float(pipeline.depth_truncation_m),
         input_scale=float(pipeline.input_scale),

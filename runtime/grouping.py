@@ -71,17 +71,22 @@ class RegionGraph:
 
 
 @dataclass
-class Hierarchy:
-    """The regions one strategy formed by merging, in order of creation.
+class Hierarchies:
+    """The regions formed by merging, all strategies together, in order of creation.
 
-    Region k of the hierarchy has superpixels `indices[indptr[k]:indptr[k+1]]`; `similarity`
-    is the similarity of the pair whose merge made it, `level` the merge round.
+    Region k has superpixels `indices[indptr[k]:indptr[k+1]]` (sorted); `strategy` (M,) is the
+    index of the strategy that formed it, `order` (M,) its rank from the top of that strategy's
+    hierarchy (the last merge is 1), `level` (M,) the merge round; `outer` (M, 3) is the mean
+    boundary similarity (colour, depth, normal; 1 = no edge) along its outer boundary when it
+    was formed (0 for a region with no neighbour left).
     """
 
     indptr: np.ndarray
     indices: np.ndarray
-    similarity: np.ndarray
+    strategy: np.ndarray
+    order: np.ndarray
     level: np.ndarray
+    outer: np.ndarray
 
 
 def build_graph(
@@ -155,32 +160,58 @@ def _boundary_similarity(length: np.ndarray, strength: np.ndarray, scales: Bound
     return np.exp(-strength / (length[:, None] * scale))
 
 
-def group(graph: RegionGraph, strategy: Strategy, scales: BoundaryScales, image_area: float) -> Hierarchy:
-    """Merge the superpixels of `graph` bottom-up under `strategy` (see module docstring).
+def outer_similarity(graph: RegionGraph, scales: BoundaryScales) -> np.ndarray:
+    """(N, 3) mean boundary similarity of each superpixel to all its neighbours (0 if none)."""
+    return _outer(graph.pairs, graph.length, graph.strength, scales, np.arange(graph.n), graph.n)
 
-    `image_area` is the working image's pixel count (size and fill normalisation).
+
+def _outer(
+    pairs: np.ndarray, length: np.ndarray, strength: np.ndarray, scales: BoundaryScales, nodes: np.ndarray, n: int
+) -> np.ndarray:
+    """(len(nodes), 3) length-weighted mean boundary similarity of `nodes` over the edges given."""
+    weighted = _boundary_similarity(length, strength, scales) * length[:, None]
+    ends = pairs.ravel()
+    total_len = np.bincount(ends, weights=np.repeat(length, 2), minlength=n)[nodes]
+    total = np.stack([np.bincount(ends, weights=np.repeat(weighted[:, k], 2), minlength=n) for k in range(3)], 1)
+    return total[nodes] / np.maximum(total_len, 1e-12)[:, None]
+
+
+def group(
+    graph: RegionGraph, strategies: tuple[Strategy, ...], scales: BoundaryScales, image_area: float
+) -> Hierarchies:
+    """Merge the superpixels of `graph` bottom-up under each strategy (see module docstring).
+
+    All strategies run at once, as copies of the graph in one disjoint union, so that every
+    vectorised round serves all of them. `image_area` is the working image's pixel count (size
+    and fill normalisation).
     """
-    n0 = graph.n
-    cap = 2 * n0
+    n0, k = graph.n, len(strategies)
+    cap = 2 * n0 * k
     size = np.zeros(cap)
-    size[:n0] = graph.size
+    size[: n0 * k] = np.tile(graph.size, k)
     bbox = np.zeros((cap, 4), np.int64)
-    bbox[:n0] = graph.bbox
+    bbox[: n0 * k] = np.tile(graph.bbox, (k, 1))
     hist = np.zeros((cap, graph.color_hist.shape[1]), np.float32)
-    hist[:n0] = graph.color_hist / graph.color_hist.sum(axis=1, keepdims=True).clip(1e-12)
+    hist[: n0 * k] = np.tile(graph.color_hist / graph.color_hist.sum(axis=1, keepdims=True).clip(1e-12), (k, 1))
     normal_sum = np.zeros((cap, 3))
-    normal_sum[:n0] = graph.normal_sum
+    normal_sum[: n0 * k] = np.tile(graph.normal_sum, (k, 1))
+    node_strategy = np.zeros(cap, np.int64)
+    node_strategy[: n0 * k] = np.repeat(np.arange(k), n0)
     regions = _Regions(size, bbox, hist, normal_sum, image_area)
-    weights = np.array([getattr(strategy, f.name) for f in fields(Strategy)])
+    weights = np.array([[getattr(st, f.name) for f in fields(Strategy)] for st in strategies], float)
+    weights = weights.reshape(k, len(fields(Strategy)))
 
-    pairs, length, strength = graph.pairs, graph.length, graph.strength
-    sim = _similarity(pairs, length, strength, regions, weights, scales)
-    owner = np.arange(n0)  # superpixel -> current region
-    n_total = n0
-    out_ids, out_sp, sims, levels = [], [], [], []
+    e0 = graph.pairs.shape[0]
+    pairs = (graph.pairs[None] + (np.arange(k) * n0)[:, None, None]).reshape(-1, 2)
+    length = np.tile(graph.length, k)
+    strength = np.tile(graph.strength, (k, 1))
+    sim = _similarity(pairs, length, strength, regions, weights[np.repeat(np.arange(k), e0)], scales)
+    owner = np.arange(n0 * k)  # (strategy, superpixel) -> current region
+    n_total = n0 * k
+    out_ids, out_sp, outers, levels = [], [], [], []
     level = 0
     while pairs.shape[0] > 0:
-        ca, cb, chosen_sim = _mutual_best(pairs, sim, n_total)
+        ca, cb = _mutual_best(pairs, sim, n_total)
         m = ca.size
         new = np.arange(n_total, n_total + m)
         wa, wb = size[ca], size[cb]
@@ -189,6 +220,7 @@ def group(graph: RegionGraph, strategy: Strategy, scales: BoundaryScales, image_
         bbox[new, 2:] = np.maximum(bbox[ca, 2:], bbox[cb, 2:])
         hist[new] = (hist[ca] * wa[:, None] + hist[cb] * wb[:, None]) / (wa + wb)[:, None]
         normal_sum[new] = normal_sum[ca] + normal_sum[cb]
+        node_strategy[new] = node_strategy[ca]
 
         remap = np.arange(n_total + m)
         remap[ca] = new
@@ -202,42 +234,73 @@ def group(graph: RegionGraph, strategy: Strategy, scales: BoundaryScales, image_
         new_pairs, new_length, new_strength = _aggregate_edges(
             np.minimum(ra, rb)[moved], np.maximum(ra, rb)[moved], length[moved], strength[moved], n_total + m
         )
-        new_sim = _similarity(new_pairs, new_length, new_strength, regions, weights, scales)
+        edge_weights = weights[node_strategy[new_pairs[:, 0]]]
+        new_sim = _similarity(new_pairs, new_length, new_strength, regions, edge_weights, scales)
+        outers.append(_outer(new_pairs, new_length, new_strength, scales, new, n_total + m))
         pairs = np.concatenate([pairs[~touched], new_pairs])
         length = np.concatenate([length[~touched], new_length])
         strength = np.concatenate([strength[~touched], new_strength])
         sim = np.concatenate([sim[~touched], new_sim])
 
-        sp = np.nonzero(owner >= n_total)[0]
-        out_ids.append(owner[sp])
-        out_sp.append(sp)
-        sims.append(chosen_sim)
+        made = np.nonzero(owner >= n_total)[0]
+        out_ids.append(owner[made])
+        out_sp.append(made % n0)
         levels.append(np.full(m, level))
         n_total += m
         level += 1
 
-    n_new = n_total - n0
-    if n_new == 0:
-        return Hierarchy(np.zeros(1, np.int64), np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.int64))
-    ids = np.concatenate(out_ids) - n0
-    sps = np.concatenate(out_sp)
-    order = np.lexsort((sps, ids))
+    n_new = n_total - n0 * k
+    ids = np.concatenate(out_ids, dtype=np.int64) - n0 * k if out_ids else np.zeros(0, np.int64)
+    sps = np.concatenate(out_sp, dtype=np.int64) if out_sp else np.zeros(0, np.int64)
+    by_region = np.lexsort((sps, ids))
     indptr = np.zeros(n_new + 1, np.int64)
     indptr[1:] = np.cumsum(np.bincount(ids, minlength=n_new))
-    return Hierarchy(indptr, sps[order], np.concatenate(sims), np.concatenate(levels))
+    strategy = node_strategy[n0 * k : n_total]
+    # Rank from the top within each strategy: the strategy's last region is 1.
+    per_strategy = np.bincount(strategy, minlength=k)
+    created = np.empty(n_new, np.int64)  # creation index within its strategy
+    created[np.argsort(strategy, kind="stable")] = np.arange(n_new) - np.repeat(
+        np.cumsum(per_strategy) - per_strategy, per_strategy
+    )
+    return Hierarchies(
+        indptr=indptr,
+        indices=sps[by_region],
+        strategy=strategy,
+        order=per_strategy[strategy] - created,
+        level=np.concatenate(levels) if levels else np.zeros(0, np.int64),
+        outer=np.concatenate(outers) if outers else np.zeros((0, 3)),
+    )
 
 
-def _mutual_best(pairs: np.ndarray, sim: np.ndarray, n_nodes: int) -> tuple[np.ndarray, ...]:
-    """The edges that are the most similar edge of both their ends (ties go to the earlier edge):
-    a matching that always holds the globally best edge. Returns its ends and similarities."""
+def _mutual_best(
+    pairs: np.ndarray, sim: np.ndarray, n_nodes: int, passes: int = 3
+) -> tuple[np.ndarray, np.ndarray]:
+    """A matching of mutually most similar edges: the edges that are the most similar edge of
+    both their ends (ties go to the lowest index), which always includes the globally best edge;
+    then, `passes - 1` times, the same among the edges whose ends are both still unmatched
+    (their similarities are unaffected by this round's merges)."""
     a, b = pairs[:, 0], pairs[:, 1]
-    position = np.empty(sim.size, np.int64)
-    position[np.argsort(-sim, kind="stable")] = np.arange(sim.size)
-    best = np.full(n_nodes, sim.size)
-    np.minimum.at(best, a, position)
-    np.minimum.at(best, b, position)
-    chosen = np.nonzero((best[a] == position) & (best[b] == position))[0]
-    return a[chosen], b[chosen], sim[chosen]
+    edges = np.arange(sim.size)
+    taken = np.zeros(n_nodes, bool)
+    chosen = []
+    for _ in range(passes):
+        ea, eb, es = a[edges], b[edges], sim[edges]
+        best = np.full(n_nodes, -np.inf)
+        np.maximum.at(best, ea, es)
+        np.maximum.at(best, eb, es)
+        candidate = np.nonzero((es == best[ea]) & (es == best[eb]))[0]
+        first = np.full(n_nodes, sim.size)
+        np.minimum.at(first, ea[candidate], candidate)
+        np.minimum.at(first, eb[candidate], candidate)
+        pick = candidate[(first[ea[candidate]] == candidate) & (first[eb[candidate]] == candidate)]
+        chosen.append(edges[pick])
+        taken[ea[pick]] = True
+        taken[eb[pick]] = True
+        edges = edges[~(taken[ea] | taken[eb])]
+        if edges.size == 0:
+            break
+    picked = np.concatenate(chosen)
+    return a[picked], b[picked]
 
 
 @dataclass
@@ -260,25 +323,30 @@ def _similarity(
     weights: np.ndarray,
     scales: BoundaryScales,
 ) -> np.ndarray:
-    """Weighted sum of the similarity terms (Strategy field order) for the edges `pairs`."""
+    """Weighted sum of the similarity terms for the edges `pairs`; `weights` (E, 7) per edge in
+    Strategy field order. Terms no edge uses are not computed."""
     a, b = pairs[:, 0], pairs[:, 1]
     sim = np.zeros(a.size)
-    w_color, w_bc, w_bd, w_bn, w_normal, w_size, w_fill = weights
-    if w_color:
-        sim += w_color * np.minimum(r.hist[a], r.hist[b]).sum(axis=1)
-    if w_bc or w_bd or w_bn:
+    w_color, w_bc, w_bd, w_bn, w_normal, w_size, w_fill = weights.T
+    if w_bc.any() or w_bd.any() or w_bn.any():
         bs = _boundary_similarity(length, strength, scales)
         sim += w_bc * bs[:, 0] + w_bd * bs[:, 1] + w_bn * bs[:, 2]
-    if w_normal:
-        na = r.normal_sum[a] / np.linalg.norm(r.normal_sum[a], axis=1, keepdims=True).clip(1e-12)
-        nb = r.normal_sum[b] / np.linalg.norm(r.normal_sum[b], axis=1, keepdims=True).clip(1e-12)
-        sim += w_normal * np.clip((na * nb).sum(axis=1), 0.0, 1.0)
     joint = r.size[a] + r.size[b]
-    if w_size:
-        sim += w_size * (1.0 - joint / r.image_area)
-    if w_fill:
-        lo = np.minimum(r.bbox[a, :2], r.bbox[b, :2])
-        hi = np.maximum(r.bbox[a, 2:], r.bbox[b, 2:])
+    sim += w_size * (1.0 - joint / r.image_area)
+    # The costlier terms only for the edges whose strategy uses them.
+    e = np.nonzero(w_color)[0]
+    if e.size:
+        sim[e] += w_color[e] * np.minimum(r.hist[a[e]], r.hist[b[e]]).sum(axis=1)
+    e = np.nonzero(w_normal)[0]
+    if e.size:
+        na, nb = r.normal_sum[a[e]], r.normal_sum[b[e]]
+        cos = (na * nb).sum(axis=1) / np.sqrt((na * na).sum(axis=1) * (nb * nb).sum(axis=1)).clip(1e-12)
+        sim[e] += w_normal[e] * np.clip(cos, 0.0, 1.0)
+    e = np.nonzero(w_fill)[0]
+    if e.size:
+        ae, be = a[e], b[e]
+        lo = np.minimum(r.bbox[ae, :2], r.bbox[be, :2])
+        hi = np.maximum(r.bbox[ae, 2:], r.bbox[be, 2:])
         box_area = np.prod(hi - lo + 1, axis=1)
-        sim += w_fill * (1.0 - (box_area - joint) / r.image_area)
+        sim[e] += w_fill[e] * (1.0 - (box_area - joint[e]) / r.image_area)
     return sim

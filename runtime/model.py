@@ -195,14 +195,14 @@ class DetectorModel:
         color, depth: (3, h, w) or (1, 3, h, w) network inputs of one size; rois, context_rois:
         (R, 4) boxes in that image's pixel coordinates. R = 0 gives empty outputs.
         """
-        color = np.asarray(color, np.float32).reshape(1, *np.shape(color)[-3:])
-        depth = np.asarray(depth, np.float32).reshape(1, *np.shape(depth)[-3:])
-        rois = np.asarray(rois, np.float32)
-        context_rois = np.asarray(context_rois, np.float32)
-        if color.shape != depth.shape or color.shape[1] != 3:
+        color, depth = (np.asarray(a, np.float32) for a in (color, depth))
+        color, depth = (a[None] if a.ndim == 3 else a for a in (color, depth))
+        if color.shape != depth.shape or color.ndim != 4 or color.shape[:2] != (1, 3):
             raise ValueError(
                 f"{self.path}: colour {color.shape} and depth {depth.shape} must be (3, h, w), one size"
             )
+        rois = np.asarray(rois, np.float32)
+        context_rois = np.asarray(context_rois, np.float32)
         if rois.ndim != 2 or rois.shape[1] != 4 or context_rois.shape != rois.shape:
             raise ValueError(
                 f"{self.path}: rois {rois.shape}, context_rois {context_rois.shape} must be (R, 4)"

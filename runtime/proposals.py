@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 
 from a3d.runtime.geometry import Intrinsics
-from a3d.runtime.grouping import BoundaryScales, Strategy, build_graph, group
+from a3d.runtime.grouping import BoundaryScales, Strategy, build_graph, group, outer_similarity
 from a3d.runtime.normals import NormalConfig, surface_normals
 from a3d.runtime.superpixels import SuperpixelConfig, geometric_edges, oversegment
 
@@ -132,15 +132,15 @@ def propose(
     sp_box[:, 2] = np.minimum(graph.bbox[:, 2] * f + f - 1, W - 1)
     sp_box[:, 3] = np.minimum(graph.bbox[:, 3] * f + f - 1, H - 1)
 
-    indptr, indices, rank = _candidates(graph, config, float(labels.size))
+    indptr, indices, cand = _candidates(graph, config, float(labels.size))
     area = _sum_segments(sp_area[indices], indptr)
-    rng = np.random.default_rng(config.seed)
-    priority = rank * rng.random(rank.size)
+    score = _score(cand, area, H * W)
+    priority = -score
     keep = np.nonzero(area >= config.min_area)[0]
     keep = _unique_members(indptr, indices, keep, priority, n_sp)
     boxes = _member_boxes(sp_box, indptr, indices)
     keep = keep[np.lexsort((keep, priority[keep]))]
-    keep = _drop_near_duplicates(boxes[keep], config.duplicate_iou, keep)[: config.max_proposals]
+    keep = _best_distinct(boxes, keep, config.duplicate_iou, config.max_proposals)
 
     out_indptr, out_indices = _select(indptr, indices, keep)
     return Proposals(
@@ -148,7 +148,7 @@ def propose(
         indptr=out_indptr,
         indices=out_indices.astype(np.int32),
         boxes=boxes[keep],
-        scores=-priority[keep],
+        scores=score[keep],
     )
 
 
@@ -190,25 +190,25 @@ def _gradients(
     return np.stack([color, depth, normal], axis=2).astype(np.float32)
 
 
-def _candidates(graph, config: ProposalConfig, image_area: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """All candidate regions (superpixels, then each strategy's merges) as CSR over superpixels,
-    with each one's selective-search hierarchy rank (1 = top of its hierarchy)."""
+def _candidates(graph, config: ProposalConfig, image_area: float) -> tuple[np.ndarray, np.ndarray, dict]:
+    """All candidate regions (superpixels, then every strategy's merges) as CSR over superpixels,
+    with per-candidate attributes for ranking."""
     n = graph.n
-    ptrs = [np.arange(n + 1, dtype=np.int64)]
-    idx = [np.arange(n, dtype=np.int64)]
-    ranks = []
-    offset = n
-    for strategy in config.strategies:
-        hier = group(graph, strategy, config.boundary_scales, image_area)
-        m = hier.indptr.size - 1
-        ptrs.append(hier.indptr[1:] + offset)
-        idx.append(hier.indices)
-        offset += hier.indices.size
-        ranks.append(np.arange(m, 0, -1, dtype=np.float64))
-    # Superpixels sit below every hierarchy: rank them after the largest hierarchy.
-    depth = max([r.size for r in ranks], default=0)
-    ranks.insert(0, depth + 1.0 + np.arange(n, dtype=np.float64))
-    return np.concatenate(ptrs), np.concatenate(idx), np.concatenate(ranks)
+    hier = group(graph, config.strategies, config.boundary_scales, image_area)
+    indptr = np.concatenate([np.arange(n + 1, dtype=np.int64), hier.indptr[1:] + n])
+    indices = np.concatenate([np.arange(n, dtype=np.int64), hier.indices])
+    attributes = {
+        "outer": np.concatenate([outer_similarity(graph, config.boundary_scales), hier.outer]),
+        "strategy": np.concatenate([np.full(n, -1), hier.strategy]),
+        "order": np.concatenate([np.full(n, hier.order.max(initial=0) + 1), hier.order]),
+    }
+    return indptr, indices, attributes
+
+
+def _score(cand: dict, area: np.ndarray, image_area: float) -> np.ndarray:
+    """Objectness: how strong the colour and depth edges along the region's outline are."""
+    outer = cand["outer"]
+    return (1.0 - outer[:, 0]) + (1.0 - outer[:, 1])
 
 
 def _sum_segments(values: np.ndarray, indptr: np.ndarray) -> np.ndarray:
@@ -245,10 +245,25 @@ def _unique_members(
     return np.sort(rows[order[first]])
 
 
+def _best_distinct(boxes: np.ndarray, ranked: np.ndarray, iou: float, limit: int) -> np.ndarray:
+    """The first `limit` rows of `ranked` (best first) that survive near-duplicate suppression.
+    Greedy suppression of a prefix only depends on that prefix, so it runs on growing prefixes
+    until enough survive (the pair search is superlinear in the count)."""
+    length = min(ranked.size, 2 * limit)
+    while True:
+        kept = _drop_near_duplicates(boxes[ranked[:length]], iou, ranked[:length])
+        if kept.size >= limit or length == ranked.size:
+            return kept[:limit]
+        length = min(ranked.size, 2 * length)
+
+
 def _drop_near_duplicates(boxes: np.ndarray, iou: float, rows: np.ndarray) -> np.ndarray:
     """Greedy suppression, in the given (best-first) order, of boxes whose IoU with a kept
-    better box exceeds `iou`. Only pairs with area ratio above `iou` can qualify, so candidate
-    pairs are found in a band of the area-sorted list."""
+    better box exceeds `iou`; returns the surviving `rows`.
+
+    Only pairs with area ratio above `iou` can qualify, so candidate pairs come from a band of
+    the area-sorted list. The greedy pass is resolved in vectorised sweeps: a box with no close
+    better box undecided or kept is decided, kept if no kept better box is close."""
     n = boxes.shape[0]
     if n < 2 or iou >= 1.0:
         return rows
@@ -263,14 +278,24 @@ def _drop_near_duplicates(boxes: np.ndarray, iou: float, rows: np.ndarray) -> np
     lo = np.maximum(boxes[i, :2], boxes[j, :2])
     hi = np.minimum(boxes[i, 2:], boxes[j, 2:])
     inter = np.prod(np.clip(hi - lo, 0.0, None), axis=1)
-    overlap = inter / (area[i] + area[j] - inter)
-    close = overlap > iou
+    close = inter > iou * (area[i] + area[j] - inter)
     better, worse = np.minimum(i[close], j[close]), np.maximum(i[close], j[close])
-    keep = np.ones(n, bool)
-    for k in np.argsort(worse, kind="stable"):
-        if keep[better[k]]:
-            keep[worse[k]] = False
-    return rows[keep]
+    state = np.zeros(n, np.int8)  # 0 undecided, 1 kept, -1 dropped
+    state[np.setdiff1d(np.arange(n), worse)] = 1
+    while better.size:
+        # A worse box is dropped once one close better box is kept ...
+        hit = state[better] == 1
+        state[worse[hit]] = -1
+        # ... and kept once all its close better boxes are dropped.
+        open_pair = state[worse] == 0
+        better, worse = better[open_pair], worse[open_pair]
+        pending = np.zeros(n, bool)
+        pending[worse[state[better] != -1]] = True
+        free = np.setdiff1d(worse, np.nonzero(pending)[0])
+        state[free] = 1
+        keep_pair = state[worse] == 0
+        better, worse = better[keep_pair], worse[keep_pair]
+    return rows[state >= 0]
 
 
 def _select(indptr: np.ndarray, indices: np.ndarray, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -9,7 +9,7 @@ import pytest
 
 from a3d.runtime.geometry import Intrinsics, iou_2d
 from a3d.runtime.grouping import BoundaryScales, Strategy, build_graph, group
-from a3d.runtime.proposals import ProposalConfig, Proposals, propose
+from a3d.runtime.proposals import ProposalConfig, Proposals, _drop_near_duplicates, propose
 from a3d.runtime.superpixels import SuperpixelConfig, geometric_edges, oversegment
 
 H, W = 120, 160
@@ -201,25 +201,55 @@ def two_tone_graph() -> tuple[np.ndarray, object]:
     return labels, graph
 
 
-@pytest.mark.parametrize(
-    "strategy", [Strategy(color=1.0, size=1.0, fill=1.0), Strategy(boundary_color=1.0, size=1.0)]
-)
-def test_hierarchy_is_a_binary_tree_that_finds_the_two_halves(strategy) -> None:
+def test_hierarchies_are_binary_trees_that_find_the_two_halves() -> None:
     labels, graph = two_tone_graph()
-    hier = group(graph, strategy, BoundaryScales(), float(labels.size))
+    strategies = (Strategy(color=1.0, size=1.0, fill=1.0), Strategy(boundary_color=1.0, size=1.0))
+    hier = group(graph, strategies, BoundaryScales(), float(labels.size))
     n = graph.n
-    regions = [frozenset([k]) for k in range(n)]
-    regions += [frozenset(hier.indices[hier.indptr[i] : hier.indptr[i + 1]]) for i in range(hier.indptr.size - 1)]
-    assert len(regions) == 2 * n - 1  # a connected graph merges down to one region
-    assert regions[-1] == frozenset(range(n))
-    # Every merge joins two earlier, disjoint regions.
-    for k in range(n, len(regions)):
-        parts = [r for r in regions[:k] if r < regions[k]]
-        maximal = [r for r in parts if not any(r < q for q in parts)]
-        assert len(maximal) == 2 and maximal[0].isdisjoint(maximal[1])
-        assert maximal[0] | maximal[1] == regions[k]
-    # The dark and the light half each appear as a region before they are joined.
     left = frozenset(np.unique(labels[:, :32]).tolist())
     right = frozenset(np.unique(labels[:, 32:]).tolist())
-    assert left in regions and right in regions
-    assert regions.index(frozenset(range(n))) > max(regions.index(left), regions.index(right))
+    for s in range(len(strategies)):
+        rows = np.nonzero(hier.strategy == s)[0]
+        regions = [frozenset([k]) for k in range(n)]
+        regions += [frozenset(hier.indices[hier.indptr[i] : hier.indptr[i + 1]].tolist()) for i in rows]
+        assert len(regions) == 2 * n - 1  # a connected graph merges down to one region
+        assert regions[-1] == frozenset(range(n))
+        np.testing.assert_array_equal(hier.order[rows], np.arange(n - 1, 0, -1))
+        # Every merge joins two earlier, disjoint regions.
+        for k in range(n, len(regions)):
+            parts = [r for r in regions[:k] if r < regions[k]]
+            maximal = [r for r in parts if not any(r < q for q in parts)]
+            assert len(maximal) == 2 and maximal[0].isdisjoint(maximal[1])
+            assert maximal[0] | maximal[1] == regions[k]
+        # The dark and the light half each appear as a region before they are joined.
+        assert left in regions and right in regions
+    # Run alone, a strategy forms exactly the regions it forms in company.
+    alone = group(graph, strategies[1:], BoundaryScales(), float(labels.size))
+    rows = np.nonzero(hier.strategy == 1)[0]
+    np.testing.assert_array_equal(np.diff(alone.indptr), np.diff(hier.indptr)[rows])
+    np.testing.assert_array_equal(alone.indices, np.concatenate([hier.indices[hier.indptr[i] : hier.indptr[i + 1]] for i in rows]))
+
+
+def greedy_reference(boxes: np.ndarray, threshold: float) -> list[int]:
+    """Plain sequential greedy suppression, best first."""
+    kept: list[int] = []
+    for i in range(len(boxes)):
+        if not kept or iou_2d(boxes[i : i + 1], boxes[kept]).max() <= threshold:
+            kept.append(i)
+    return kept
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_near_duplicate_removal_matches_sequential_greedy(seed) -> None:
+    rng = np.random.default_rng(seed)
+    base = rng.uniform(0, 100, (40, 2))
+    size = rng.uniform(5, 60, (40, 2))
+    boxes = np.concatenate([base, base + size], axis=1)
+    # Chains of near-copies: each jitters the previous one a little.
+    copies = [boxes]
+    for _ in range(4):
+        copies.append(copies[-1] + rng.normal(0, 0.4, boxes.shape))
+    boxes = np.concatenate(copies)[rng.permutation(200)]
+    rows = np.arange(200) + 1000
+    kept = _drop_near_duplicates(boxes, 0.9, rows)
+    np.testing.assert_array_equal(kept, np.array(greedy_reference(boxes, 0.9)) + 1000)
