@@ -12,7 +12,9 @@ of the class colours of the boxes. Opt-in, slow (~1 min), not part of the test s
 ``--native`` is the faster second route: the native viewer headless on Mesa's lavapipe Vulkan
 (``apt-get install -y mesa-vulkan-drivers``), ``rerun FILE --headless --screenshot-to``.
 Nothing here talks to anything but 127.0.0.1: Chromium's host resolver maps every other name to
-NOT FOUND (the viewer page asks for web fonts), and the rerun child is killed by process group.
+NOT FOUND and a dead proxy catches the rest (the viewer page asks for web fonts, GitHub's latest
+release, rerun's examples manifest and tel.rerun.io; they are listed as blocked). The rerun server
+and Chromium run in their own process groups, killed whole at the end.
 
 Exit status: 0 the screenshot shows the recording, 1 it looks blank or loader-only, 2 a setup error.
 """

@@ -39,6 +39,7 @@ from typing import Any, BinaryIO
 
 import cv2
 import numpy as np
+
 from a3d.runtime.classes import CLASSES
 from a3d.runtime.detections_io import atomic_write_bytes
 from a3d.runtime.errors import InputError

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+
 from a3d.runtime.errors import InputError
 
 MAX_IMAGE_SIDE = 8192

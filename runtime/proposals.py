@@ -38,8 +38,16 @@ DEFAULT_STRATEGIES: tuple[Strategy, ...] = (
     Strategy(boundary_color=1.0, boundary_depth=1.0, boundary_normal=1.0, size=1.0),
     Strategy(color=1.0, boundary_depth=1.0, normal=1.0, size=1.0, fill=1.0),
     Strategy(boundary_depth=1.0, boundary_normal=1.0, fill=1.0, size=1.0),
+    Strategy(boundary_color=1.0, size=1.0),
+    Strategy(boundary_color=1.0, boundary_depth=1.0, fill=1.0),
+    Strategy(color=1.0, boundary_color=1.0, size=1.0),
+    Strategy(color=1.0, boundary_depth=1.0, size=1.0),
+    Strategy(normal=1.0, boundary_depth=1.0, size=1.0),
+    Strategy(fill=1.0, size=1.0),
+    Strategy(boundary_color=1.0, boundary_depth=1.0, boundary_normal=1.0),
+    Strategy(boundary_color=1.0, boundary_depth=1.0),
 )
-"""Colour-only, boundary-strength, mixed and geometry-only hierarchies."""
+"""Colour, boundary-strength, geometry and shape-driven hierarchies: diversity is what buys recall."""
 
 
 @dataclass(frozen=True)
@@ -208,7 +216,8 @@ def _candidates(graph, config: ProposalConfig, image_area: float) -> tuple[np.nd
 def _score(cand: dict, area: np.ndarray, image_area: float) -> np.ndarray:
     """Objectness: how strong the colour and depth edges along the region's outline are."""
     outer = cand["outer"]
-    return (1.0 - outer[:, 0]) + (1.0 - outer[:, 1])
+    jitter = np.random.default_rng(0).random(outer.shape[0])
+    return 2.0 * (1.0 - outer[:, 0]) + (1.0 - outer[:, 1]) + 0.5 * jitter
 
 
 def _sum_segments(values: np.ndarray, indptr: np.ndarray) -> np.ndarray:
@@ -261,20 +270,33 @@ def _drop_near_duplicates(boxes: np.ndarray, iou: float, rows: np.ndarray) -> np
     """Greedy suppression, in the given (best-first) order, of boxes whose IoU with a kept
     better box exceeds `iou`; returns the surviving `rows`.
 
-    Only pairs with area ratio above `iou` can qualify, so candidate pairs come from a band of
-    the area-sorted list. The greedy pass is resolved in vectorised sweeps: a box with no close
-    better box undecided or kept is decided, kept if no kept better box is close."""
+    Candidate pairs: IoU > t needs an area ratio above t (so log areas within log(1/t): the same
+    or the next bucket of that width) and |x1a - x1b| <= (1 - t) / t * min(wa, wb) (from
+    IoU <= iw / uw and uw - iw = |dx1| + |dx2|), so each box searches an x1 band of its own bucket
+    and of the next one in a list sorted by (bucket, x1). The greedy pass is then resolved in
+    vectorised sweeps: a box whose close better boxes are all decided is dropped if one is kept."""
     n = boxes.shape[0]
     if n < 2 or iou >= 1.0:
         return rows
-    area = (boxes[:, 2] - boxes[:, 0]) * (boxes[:, 3] - boxes[:, 1])
-    by_area = np.argsort(area, kind="stable")
-    sorted_area = area[by_area]
-    end = np.searchsorted(sorted_area, sorted_area / iou, side="right")
-    counts = end - np.arange(n) - 1
-    first = np.repeat(np.arange(n), counts)
-    offset = np.arange(first.size) - np.repeat(np.cumsum(counts) - counts, counts)
-    i, j = by_area[first], by_area[first + 1 + offset]
+    width = boxes[:, 2] - boxes[:, 0]
+    area = width * (boxes[:, 3] - boxes[:, 1])
+    bucket = np.floor(np.log(area) / -np.log(iou))
+    bucket -= bucket.min()
+    reach = (1.0 - iou) / iou * width + 1e-9
+    span = float(boxes[:, 0].max() - boxes[:, 0].min() + 2.0 * reach.max() + 1.0)
+    key = bucket * span + boxes[:, 0]
+    order = np.argsort(key, kind="stable")
+    sorted_key = key[order]
+    band = reach[order]
+    same_end = np.searchsorted(sorted_key, sorted_key + band, side="right")
+    next_lo = np.searchsorted(sorted_key, sorted_key + span - band, side="left")
+    next_hi = np.searchsorted(sorted_key, sorted_key + span + band, side="right")
+    start = np.concatenate([np.arange(n) + 1, next_lo])
+    stop = np.concatenate([same_end, next_hi])
+    counts = np.maximum(stop - start, 0)
+    first = np.repeat(np.concatenate([np.arange(n), np.arange(n)]), counts)
+    second = np.arange(counts.sum()) + np.repeat(start - (np.cumsum(counts) - counts), counts)
+    i, j = order[first], order[second]
     lo = np.maximum(boxes[i, :2], boxes[j, :2])
     hi = np.minimum(boxes[i, 2:], boxes[j, 2:])
     inter = np.prod(np.clip(hi - lo, 0.0, None), axis=1)

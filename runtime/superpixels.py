@@ -38,13 +38,13 @@ class SuperpixelConfig:
     barriers (8: a 4 % step is a 40-level step, a 2x step about 250 levels).
     """
 
-    n_segments: int = 500
+    n_segments: int = 1000
     depth_jump: float = 0.04
-    crease: float = 0.35
+    crease: float = 100.0
     barrier_width: int = 2
     depth_weight: float = 1000.0
     depth_phase: float = 8.0
-    smooth: float = 0.0
+    smooth: float = 1.0
 
 
 def geometric_edges(

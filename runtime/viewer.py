@@ -24,14 +24,10 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from a3d.runtime.classes import CLASS_COLORS_RGB, CLASSES
-from a3d.runtime.geometry import Intrinsics, backproject_depth, box_corners_camera
+from a3d.runtime.geometry import BOX_EDGES, Intrinsics, backproject_depth, box_edges_clipped, project_points
 
 APPLICATION_ID = "a3d"
-# The 12 edges of a box from geometry's corner order (0-3 one horizontal face, 4-7 the other).
-BOX_EDGES = np.array(
-    [(0, 1), (1, 2), (2, 3), (3, 0), (4, 5), (5, 6), (6, 7), (7, 4), (0, 4), (1, 5), (2, 6), (3, 7)]
-)
-NEAR_PLANE_M = 0.05
+GROUND_TRUTH_RGB = (255, 255, 255)  # ground truth in one neutral colour, apart from the class colours
 
 
 @dataclass(frozen=True)
@@ -41,6 +37,7 @@ class ViewOptions:
     cloud_stride: int = 2
     show_ground_truth: bool = True
     max_proposals: int = 0
+    min_score: float = 0.0  # detections below this score are written to the JSON but not drawn
 
 
 def add_viewer_args(parser: argparse.ArgumentParser) -> None:
@@ -54,21 +51,36 @@ def viewer_requested(args: argparse.Namespace) -> bool:
 
 
 def default_blueprint() -> rrb.Blueprint:
-    """3D view of the world beside the camera's 2D view with the boxes drawn on the image."""
+    """3D view of the world beside the camera's view (colour + boxes) and its depth view.
+
+    The depth image is kept out of the 3D view (rerun would lift it into a second, rainbow point
+    cloud over ``world/points``) and out of the colour view (it would cover the photo).
+    """
+    no_depth = "- world/camera/image/depth"
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Spatial3DView(name="3D", origin="world"),
+            rrb.Spatial3DView(
+                name="3D",
+                origin="world",
+                contents=["+ world/**", no_depth],
+                eye_controls=rrb.EyeControls3D(
+                    position=(0.0, -1.0, -1.5), look_target=(0.0, 0.5, 3.0), eye_up=(0.0, -1.0, 0.0)
+                ),
+            ),
             rrb.Vertical(
                 rrb.Spatial2DView(
-                    name="camera",
-                    origin="world/camera/image",
-                    contents=["world/camera/image/**"],
+                    name="camera", origin="world/camera/image", contents=["+ world/camera/image/**", no_depth]
                 ),
-                rrb.TextLogView(name="log", origin="log"),
-                row_shares=[4, 1],
+                rrb.Spatial2DView(
+                    name="depth",
+                    origin="world/camera/image",
+                    contents=["world/camera/image/depth", "world/camera/image/detections"],
+                ),
             ),
             column_shares=[3, 2],
         ),
+        rrb.BlueprintPanel(state="collapsed"),
+        rrb.SelectionPanel(state="collapsed"),
         rrb.TimePanel(state="collapsed"),
     )
 
@@ -84,7 +96,10 @@ def log_static(rec: rr.RecordingStream) -> None:
     rec.log(
         "world",
         rr.AnnotationContext(
-            [rr.AnnotationInfo(id=i + 1, label=name, color=CLASS_COLORS_RGB[i]) for i, name in enumerate(CLASSES)]
+            [
+                rr.AnnotationInfo(id=i + 1, label=name, color=CLASS_COLORS_RGB[i])
+                for i, name in enumerate(CLASSES)
+            ]
         ),
         static=True,
     )
@@ -110,30 +125,42 @@ def boxes3d_archetype(
     )
 
 
-def projected_box_edges(boxes: np.ndarray, R_tilt: np.ndarray, K: Intrinsics) -> np.ndarray:
-    """Image-space segments (N*12, 2, 2) of the boxes' edges, clipped at the near plane.
+def projected_box_edges(
+    boxes: np.ndarray, R_tilt: np.ndarray, K: Intrinsics, image_size: tuple[int, int] | None = None
+) -> np.ndarray:
+    """Image-space segments (N*12, 2, 2) of the boxes' edges, clipped at the near plane and, when
+    ``image_size`` (H, W) is given, to the image (so the 2D view's auto-fit frames the image).
 
-    Edges wholly behind the near plane come back as NaN segments and are dropped by the caller.
+    Edges wholly behind the near plane or outside the image come back as NaN segments.
     """
-    corners = box_corners_camera(np.asarray(boxes, dtype=np.float64).reshape(-1, 7), R_tilt)
-    a = corners[:, BOX_EDGES[:, 0]].reshape(-1, 3)
-    b = corners[:, BOX_EDGES[:, 1]].reshape(-1, 3)
-    za, zb = a[:, 2:3], b[:, 2:3]
-    # An edge with one end behind the near plane is cut where it crosses the plane.
+    seg, valid = box_edges_clipped(np.asarray(boxes, dtype=np.float64).reshape(-1, 7), R_tilt)
+    uv = project_points(seg, K).reshape(-1, 2, 2)
+    uv[~valid.reshape(-1)] = np.nan
+    return uv if image_size is None else clip_segments(uv, image_size)
+
+
+def clip_segments(segments: np.ndarray, image_size: tuple[int, int]) -> np.ndarray:
+    """Liang-Barsky clipping of 2D segments (S, 2, 2) to the image [-0.5, W-0.5] x [-0.5, H-0.5];
+    segments wholly outside become NaN."""
+    height, width = image_size
+    p0, d = segments[:, 0], segments[:, 1] - segments[:, 0]
+    lo, hi = np.zeros(len(segments)), np.ones(len(segments))
+    bounds = ((-0.5, width - 0.5), (-0.5, height - 0.5))
     with np.errstate(divide="ignore", invalid="ignore"):
-        crossing = a + (NEAR_PLANE_M - za) / (zb - za) * (b - a)
-    a = np.where(za < NEAR_PLANE_M, crossing, a)
-    b = np.where(zb < NEAR_PLANE_M, crossing, b)
-    both_behind = (za < NEAR_PLANE_M) & (zb < NEAR_PLANE_M)
-    seg = np.stack([a, b], axis=1)
-    uv = np.stack([K.fx * seg[..., 0] / seg[..., 2] + K.cx, K.fy * seg[..., 1] / seg[..., 2] + K.cy], axis=-1)
-    uv[both_behind[:, 0]] = np.nan
-    return uv
+        for axis, (low, high) in enumerate(bounds):
+            for edge, sign in ((low, -1.0), (high, 1.0)):
+                p, q = sign * d[:, axis], sign * (edge - p0[:, axis])
+                t = q / p
+                outside = (p == 0) & (q < 0)
+                lo = np.where(p < 0, np.maximum(lo, t), lo)
+                hi = np.where(p > 0, np.minimum(hi, t), hi)
+                lo = np.where(outside, np.inf, lo)
+    out = np.stack([p0 + lo[:, None] * d, p0 + hi[:, None] * d], axis=1)
+    out[~(lo <= hi)] = np.nan
+    return out
 
 
-def _box_labels(class_ids: np.ndarray, scores: np.ndarray | None) -> list[str]:
-    if scores is None:
-        return [CLASSES[c] for c in class_ids]
+def _box_labels(class_ids: np.ndarray, scores: np.ndarray) -> list[str]:
     return [f"{CLASSES[c]} {s:.2f}" for c, s in zip(class_ids, scores, strict=True)]
 
 
@@ -168,7 +195,9 @@ def log_frame(
     rec.log("world/camera", rr.Transform3D(mat3x3=R_tilt))
     rec.log(
         "world/camera/image",
-        rr.Pinhole(image_from_camera=K.matrix(), resolution=[width, height], camera_xyz=rr.ViewCoordinates.RDF),
+        rr.Pinhole(
+            image_from_camera=K.matrix(), resolution=[width, height], camera_xyz=rr.ViewCoordinates.RDF
+        ),
     )
     rec.log("world/camera/image/color", rr.Image(color, color_model="BGR"))
     rec.log("world/camera/image/depth", rr.DepthImage(depth_m.astype(np.float32), meter=1.0))
@@ -179,18 +208,22 @@ def log_frame(
     rgb = color[::s, ::s, ::-1][valid]
     rec.log("world/points", rr.Points3D(points[valid] @ R_tilt.T, colors=rgb, radii=0.008))
 
+    shown = np.asarray(scores).reshape(-1) >= options.min_score
+    class_ids, scores = class_ids[shown], np.asarray(scores).reshape(-1)[shown]
+    boxes2d = np.asarray(boxes2d, dtype=np.float64).reshape(-1, 4)[shown]
+    boxes3d = np.asarray(boxes3d, dtype=np.float64).reshape(-1, 7)[shown]
     labels = _box_labels(class_ids, scores)
     rec.log("world/detections", boxes3d_archetype(boxes3d, R_tilt, class_ids, labels))
     rec.log(
         "world/camera/image/detections",
         rr.Boxes2D(
-            array=np.asarray(boxes2d, dtype=np.float64).reshape(-1, 4),
+            array=boxes2d,
             array_format=rr.Box2DFormat.XYXY,
             class_ids=class_ids + 1,
             labels=labels,
         ),
     )
-    segments = projected_box_edges(boxes3d, R_tilt, K)
+    segments = projected_box_edges(boxes3d, R_tilt, K, (height, width))
     keep = np.isfinite(segments).all(axis=(1, 2))
     rec.log(
         "world/camera/image/boxes3d",
@@ -198,11 +231,14 @@ def log_frame(
     )
     if options.show_ground_truth and gt_boxes3d is not None and gt_class_ids is not None:
         gt_ids = np.asarray(gt_class_ids, dtype=np.int64).reshape(-1)
-        rec.log("world/ground_truth", boxes3d_archetype(gt_boxes3d, R_tilt, gt_ids, _box_labels(gt_ids, None)))
+        gt = boxes3d_archetype(gt_boxes3d, R_tilt, gt_ids, [f"GT {CLASSES[c]}" for c in gt_ids])
+        rec.log("world/ground_truth", gt, rr.Boxes3D.from_fields(colors=GROUND_TRUTH_RGB))
     if options.max_proposals and proposals is not None:
         rec.log(
             "world/camera/image/proposals",
-            rr.Boxes2D(array=np.asarray(proposals)[: options.max_proposals], array_format=rr.Box2DFormat.XYXY),
+            rr.Boxes2D(
+                array=np.asarray(proposals)[: options.max_proposals], array_format=rr.Box2DFormat.XYXY
+            ),
         )
 
 

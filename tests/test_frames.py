@@ -11,6 +11,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+
 from a3d.runtime import frames, image_io
 from a3d.runtime.errors import InputError
 from a3d.runtime.frames import GroundTruth, PrecomputedProposals

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import scipy.io
+
 from a3d.runtime import frames
 from a3d.runtime.errors import InputError
 from a3d.train.data import mcg

@@ -9,6 +9,7 @@ import h5py
 import numpy as np
 import pytest
 import scipy.io
+
 from a3d.runtime import frames
 from a3d.runtime.errors import InputError
 from a3d.runtime.geometry import (

@@ -186,7 +186,13 @@ def test_saved_recording_holds_the_written_boxes(tmp_path: Path, fake_model: Fak
     write_frame(folder, "a", color, depth, R_tilt=R, gt=gt)
     out, rrd = tmp_path / "det.jsonl", tmp_path / "run.rrd"
     assert (
-        run([str(folder), "--model", "m.onnx", "--output", str(out), "--headless", "--save", str(rrd)]) == 0
+        run(
+            [
+                *(str(folder), "--model", "m.onnx", "--output", str(out), "--headless", "--save", str(rrd)),
+                *("--view-min-score", "0"),  # draw every detection, so the view holds all written boxes
+            ]
+        )
+        == 0
     )
 
     logged = read_columns(rrd, "/world/detections")

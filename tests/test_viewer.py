@@ -9,7 +9,12 @@ import numpy as np
 import rerun as rr
 
 from a3d.runtime import viewer
-from a3d.runtime.geometry import NYU_CROP_INTRINSICS, box_corners_camera, project_points, rtilt_from_pitch_roll
+from a3d.runtime.geometry import (
+    NYU_CROP_INTRINSICS,
+    box_corners_camera,
+    project_points,
+    rtilt_from_pitch_roll,
+)
 from tests.rrd_reader import as_array, read_columns
 
 K = NYU_CROP_INTRINSICS
@@ -31,7 +36,9 @@ def _frame(rng: np.random.Generator) -> dict:
 
 
 def _record(path: Path, frames: list[dict]) -> None:
-    args = argparse.Namespace(headless=True, connect=False, serve=False, url=None, save=str(path), stdout=False)
+    args = argparse.Namespace(
+        headless=True, connect=False, serve=False, url=None, save=str(path), stdout=False
+    )
     rec = viewer.open_recording(args)
     rr.set_strict_mode(True)
     viewer.log_static(rec)
@@ -62,7 +69,9 @@ def test_logged_boxes_read_back_equal(tmp_path: Path) -> None:
         assert logged["Boxes3D:class_ids"] == [5, 17]
         assert logged["Boxes3D:labels"] == ["chair 0.90", "table 0.55"]
         centres = as_array(boxes2d[i]["Boxes2D:centers"])
-        np.testing.assert_allclose(centres, (frame["boxes2d"][:, :2] + frame["boxes2d"][:, 2:]) / 2, atol=1e-5)
+        np.testing.assert_allclose(
+            centres, (frame["boxes2d"][:, :2] + frame["boxes2d"][:, 2:]) / 2, atol=1e-5
+        )
 
 
 def test_logged_box_pose_reproduces_the_corners() -> None:
@@ -108,3 +117,54 @@ def test_headless_without_sink_logs_nothing() -> None:
     none = argparse.Namespace(headless=True, connect=False, serve=False, url=None, save=None, stdout=False)
     assert not viewer.viewer_requested(none)
     assert viewer.viewer_requested(argparse.Namespace(**{**vars(none), "save": "x.rrd"}))
+
+
+def test_clip_segments_known_answers() -> None:
+    size = (101, 201)  # image spans x in [-0.5, 200.5], y in [-0.5, 100.5]
+    seg = np.array(
+        [
+            [[10.0, 10.0], [20.0, 30.0]],  # inside: unchanged
+            [[-100.5, 50.0], [99.5, 50.0]],  # enters at the left border, halfway along
+            [[100.0, 50.0], [100.0, 400.5]],  # leaves at the bottom
+            [[-50.0, -50.0], [-10.0, 300.0]],  # wholly left of the image
+        ]
+    )
+    out = viewer.clip_segments(seg, size)
+    np.testing.assert_allclose(out[0], seg[0])
+    np.testing.assert_allclose(out[1], [[-0.5, 50.0], [99.5, 50.0]])
+    np.testing.assert_allclose(out[2], [[100.0, 50.0], [100.0, 100.5]])
+    assert np.isnan(out[3]).all()
+
+
+def test_edges_clipped_to_the_image_stay_inside_it() -> None:
+    frame = _frame(np.random.default_rng(3))
+    big = np.array([[0.0, 0.0, 1.5, 6.0, 4.0, 3.0, 0.3]])  # much larger than the field of view
+    seg = viewer.projected_box_edges(big, frame["R_tilt"], K, (H, W))
+    finite = seg[np.isfinite(seg).all(axis=(1, 2))]
+    assert len(finite) > 0
+    assert finite[..., 0].min() >= -0.5 - 1e-9 and finite[..., 0].max() <= W - 0.5 + 1e-9
+    assert finite[..., 1].min() >= -0.5 - 1e-9 and finite[..., 1].max() <= H - 0.5 + 1e-9
+
+
+def test_low_scores_are_not_drawn_and_ground_truth_is_labelled(tmp_path: Path) -> None:
+    frame = _frame(np.random.default_rng(4))
+    path = tmp_path / "cut.rrd"
+    args = argparse.Namespace(
+        headless=True, connect=False, serve=False, url=None, save=str(path), stdout=False
+    )
+    rec = viewer.open_recording(args)
+    viewer.log_static(rec)
+    viewer.log_frame(
+        rec,
+        0,
+        **frame,
+        gt_class_ids=np.array([4]),
+        gt_boxes3d=frame["boxes3d"][:1],
+        options=viewer.ViewOptions(min_score=0.6),
+    )
+    rec.flush()
+    rr.disconnect(rec)
+    logged = read_columns(path, "/world/detections")[0]
+    assert logged["Boxes3D:labels"] == ["chair 0.90"]  # the 0.55 table is below the display cut
+    gt = read_columns(path, "/world/ground_truth")[0]
+    assert gt["Boxes3D:labels"] == ["GT chair"]

@@ -211,8 +211,10 @@ class BatchDataset(torch.utils.data.Dataset):
 def batch_loader(dataset: BatchDataset, start: int, workers: int, pin_memory: bool = False):
     """Batches of iterations start .. len(dataset) - 1, in order, from ``workers`` processes.
 
-    The loader gets its own torch.Generator so creating it never draws from the global RNG
-    (which the training loop reseeds per iteration for dropout).
+    Workers are spawned, not forked: a fork of the training process, whose OpenCV and OpenMP
+    thread pools have run (proposals, the network), can deadlock on a lock held by a thread that
+    does not exist in the child. The loader gets its own torch.Generator so creating it never
+    draws from the global RNG (which the training loop reseeds per iteration for dropout).
     """
     return torch.utils.data.DataLoader(
         dataset,
@@ -223,6 +225,7 @@ def batch_loader(dataset: BatchDataset, start: int, workers: int, pin_memory: bo
         prefetch_factor=2 if workers > 0 else None,
         generator=torch.Generator().manual_seed(0),
         worker_init_fn=_single_threaded,
+        multiprocessing_context="spawn" if workers > 0 else None,
     )
 
 

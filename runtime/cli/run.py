@@ -70,6 +70,13 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--score-threshold", type=float, metavar="S", help="drop scores below S (default: model)")
     p.add_argument("--resume", action="store_true", help="skip the frames the output already has")
     p.add_argument(
+        "--view-min-score",
+        type=float,
+        default=0.3,
+        metavar="S",
+        help="rerun view: draw detections scoring >= S (all are written to the output; default: %(default)s)",
+    )
+    p.add_argument(
         "--overlap",
         action="store_true",
         help="prepare the next frame on a background thread during the network call "
@@ -135,6 +142,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         job = _job(args)
         recording = _open_recording(args)
+        view = viewer.ViewOptions(min_score=args.view_min_score)
         output = _open_output(args.output, append=args.resume)
     except (InputError, ModelError) as e:
         print(f"{PROG}: error: {e}", file=sys.stderr)
@@ -154,7 +162,7 @@ def main(argv: list[str] | None = None) -> int:
                 if outcome.detections is not None:
                     output.write(format_line(outcome.detections))
                     written += 1
-                    problem = _log(recording, index[outcome.ref.name], outcome)
+                    problem = _log(recording, index[outcome.ref.name], outcome, view)
                 if problem:
                     failures.append(problem)
                     tqdm.write(f"{PROG}: {problem}", file=sys.stderr)
@@ -260,7 +268,9 @@ def _open_recording(args: argparse.Namespace) -> rr.RecordingStream | None:
     return recording
 
 
-def _log(recording: rr.RecordingStream | None, index: int, outcome: FrameOutcome) -> str:
+def _log(
+    recording: rr.RecordingStream | None, index: int, outcome: FrameOutcome, options: viewer.ViewOptions
+) -> str:
     """Log one processed frame (with its ground truth when it has readable ground truth); the
     problem, if logging failed, else ""."""
     if recording is None:
@@ -283,6 +293,7 @@ def _log(recording: rr.RecordingStream | None, index: int, outcome: FrameOutcome
             gt_class_ids=None if gt is None else gt.class_ids,
             gt_boxes3d=None if gt is None else gt.boxes3d,
             proposals=outcome.prepared.boxes,
+            options=options,
         )
     except Exception as e:  # the line is written; a viewer problem must not stop the run
         return f"{frame.ref.color_path}: rerun: cannot log the frame ({type(e).__name__}: {e})"
