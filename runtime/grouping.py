@@ -1,19 +1,25 @@
-"""Hierarchical grouping of superpixels into segment proposals (selective-search style, RGB-D).
+"""Hierarchical and combinatorial grouping of superpixels into segment proposals (RGB-D).
 
 Why this design: selective search (Uijlings et al. 2013) merges the most similar pair of adjacent
 regions until one is left and takes every region it ever formed as a proposal; several
 similarity mixes ("strategies") diversify the set. A sequential merge loop in Python is too slow
-for an edge runtime, so each strategy merges in *rounds*: every region whose most similar
-neighbour also has it as its most similar neighbour merges with it (a matching of mutual best
-pairs, which always contains the globally best pair), all pairs of a round at once, vectorised
-over the region adjacency graph. Region statistics are additive (sizes, histogram counts,
-sums, boundary sums), so a merge is a sum and the adjacency update is a re-keying plus
-`np.bincount`.
+for an edge runtime, so the merging goes in *rounds*, vectorised over the region adjacency
+graph: every region whose most similar neighbour also has it as its most similar neighbour
+merges with it (a matching of mutual best pairs, which always contains the globally best pair);
+two more passes of the same run among the regions still unmatched whose favourite is unmatched
+too (their similarities cannot have changed this round), which cuts the number of rounds about
+threefold. All strategies run together, as copies of the graph in one disjoint union, so each
+round's numpy calls serve all of them. Region statistics are additive (sizes, histograms, sums,
+boundary sums), so a merge is a sum and the adjacency update is a re-keying plus `np.bincount`.
 
 Similarity terms, each in [0, 1] (1 = merge first):
 colour (histogram intersection of Lab histograms), colour/depth/normal boundary (exp of minus
 the mean gradient strength along the shared boundary over a scale), normal (cosine of the mean
 normals), size (1 - joint size / image size) and fill (1 - bounding-box slack / image size).
+
+MCG (Arbelaez et al. 2014) adds combinations of regions to its hierarchy's; `combine_pairs` adds
+disjoint pairs of well-ranked regions, which need not touch: the two halves of an object cut by
+an occluder, or the shade and the base of a lamp whose pole is too thin to segment.
 """
 
 from __future__ import annotations
@@ -52,7 +58,8 @@ class RegionGraph:
     """Additive per-region statistics and the region adjacency graph (working resolution).
 
     Regions 0..N-1 are the superpixels. `bbox` is [umin, vmin, umax, vmax] (inclusive pixels);
-    `color_hist` holds counts; `normal_sum` sums unit normals over valid-depth pixels.
+    `color_hist` holds counts; `normal_sum` sums unit normals where they are defined;
+    `depth_sum` sums log depth over the `depth_count` pixels with known depth.
     Edges `pairs` (E, 2) with a < b; `length` counts the 4-neighbour pixel pairs across the shared
     boundary, `strength` (E, 3) sums their colour, depth and normal gradient strengths.
     """
@@ -61,6 +68,8 @@ class RegionGraph:
     bbox: np.ndarray
     color_hist: np.ndarray
     normal_sum: np.ndarray
+    depth_sum: np.ndarray
+    depth_count: np.ndarray
     pairs: np.ndarray
     length: np.ndarray
     strength: np.ndarray
@@ -75,18 +84,22 @@ class Hierarchies:
     """The regions formed by merging, all strategies together, in order of creation.
 
     Region k has superpixels `indices[indptr[k]:indptr[k+1]]` (sorted); `strategy` (M,) is the
-    index of the strategy that formed it, `order` (M,) its rank from the top of that strategy's
-    hierarchy (the last merge is 1), `level` (M,) the merge round; `outer` (M, 3) is the mean
-    boundary similarity (colour, depth, normal; 1 = no edge) along its outer boundary when it
-    was formed (0 for a region with no neighbour left).
+    index of the strategy that formed it; `outer` (M, 3) is the mean boundary similarity
+    (colour, depth, normal; 1 = no edge) along its outline when it was formed (0 for a region
+    with no neighbour left).
     """
 
     indptr: np.ndarray
     indices: np.ndarray
     strategy: np.ndarray
-    order: np.ndarray
-    level: np.ndarray
     outer: np.ndarray
+
+
+def concat_ranges(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """The concatenation of arange(s, s + c) for each (s, c): CSR row gathering, vectorised."""
+    counts = np.asarray(counts, np.int64)
+    offsets = np.cumsum(counts) - counts
+    return np.arange(counts.sum()) + np.repeat(np.asarray(starts, np.int64) - offsets, counts)
 
 
 def build_graph(
@@ -94,14 +107,17 @@ def build_graph(
     color_bins: np.ndarray,
     n_bins: int,
     gradients: np.ndarray,
+    log_depth: np.ndarray,
+    depth_valid: np.ndarray,
     normals: np.ndarray,
-    valid: np.ndarray,
+    normal_valid: np.ndarray,
 ) -> RegionGraph:
     """Statistics of the superpixels `labels` (h, w) int32 0..N-1.
 
     `color_bins` (h, w) int: per-pixel histogram bin (0..n_bins-1, the caller may code several
     channels as disjoint bin ranges by passing (h, w, C)); `gradients` (h, w, 3) float32 colour,
-    depth and normal gradient strengths; `normals` (h, w, 3); `valid` (h, w) depth validity.
+    depth and normal gradient strengths; `log_depth` (h, w) with `depth_valid`; `normals`
+    (h, w, 3) with `normal_valid`.
     """
     w = labels.shape[1]
     flat = labels.ravel()
@@ -120,8 +136,10 @@ def build_graph(
     keys = (flat[:, None] * n_bins + bins).ravel()
     color_hist = np.bincount(keys, minlength=n * n_bins).reshape(n, n_bins).astype(np.float32)
 
-    nrm = np.where(valid[..., None], normals, 0.0).reshape(-1, 3)
+    nrm = np.where(normal_valid[..., None], normals, 0.0).reshape(-1, 3)
     normal_sum = np.stack([np.bincount(flat, weights=nrm[:, k], minlength=n) for k in range(3)], axis=1)
+    depth_sum = np.bincount(flat, weights=np.where(depth_valid, log_depth, 0.0).ravel(), minlength=n)
+    depth_count = np.bincount(flat, weights=depth_valid.ravel(), minlength=n)
 
     pair_a, pair_b, pair_s = [], [], []
     g = gradients
@@ -137,7 +155,7 @@ def build_graph(
     b = np.concatenate(pair_b).astype(np.int64)
     s = np.concatenate(pair_s).astype(np.float64)
     pairs, length, strength = _aggregate_edges(np.minimum(a, b), np.maximum(a, b), np.ones(a.size), s, n)
-    return RegionGraph(size, bbox, color_hist, normal_sum, pairs, length, strength)
+    return RegionGraph(size, bbox, color_hist, normal_sum, depth_sum, depth_count, pairs, length, strength)
 
 
 def _aggregate_edges(
@@ -166,24 +184,29 @@ def outer_similarity(graph: RegionGraph, scales: BoundaryScales) -> np.ndarray:
 
 
 def _outer(
-    pairs: np.ndarray, length: np.ndarray, strength: np.ndarray, scales: BoundaryScales, nodes: np.ndarray, n: int
+    pairs: np.ndarray,
+    length: np.ndarray,
+    strength: np.ndarray,
+    scales: BoundaryScales,
+    nodes: np.ndarray,
+    n: int,
 ) -> np.ndarray:
     """(len(nodes), 3) length-weighted mean boundary similarity of `nodes` over the edges given."""
     weighted = _boundary_similarity(length, strength, scales) * length[:, None]
     ends = pairs.ravel()
     total_len = np.bincount(ends, weights=np.repeat(length, 2), minlength=n)[nodes]
-    total = np.stack([np.bincount(ends, weights=np.repeat(weighted[:, k], 2), minlength=n) for k in range(3)], 1)
+    total = np.stack(
+        [np.bincount(ends, weights=np.repeat(weighted[:, k], 2), minlength=n) for k in range(3)], 1
+    )
     return total[nodes] / np.maximum(total_len, 1e-12)[:, None]
 
 
 def group(
     graph: RegionGraph, strategies: tuple[Strategy, ...], scales: BoundaryScales, image_area: float
 ) -> Hierarchies:
-    """Merge the superpixels of `graph` bottom-up under each strategy (see module docstring).
-
-    All strategies run at once, as copies of the graph in one disjoint union, so that every
-    vectorised round serves all of them. `image_area` is the working image's pixel count (size
-    and fill normalisation).
+    """Merge the superpixels of `graph` bottom-up under each strategy (see module docstring):
+    every strategy forms N - 1 regions per connected component of N superpixels. `image_area` is
+    the working image's pixel count (size and fill normalisation).
     """
     n0, k = graph.n, len(strategies)
     cap = 2 * n0 * k
@@ -192,7 +215,9 @@ def group(
     bbox = np.zeros((cap, 4), np.int64)
     bbox[: n0 * k] = np.tile(graph.bbox, (k, 1))
     hist = np.zeros((cap, graph.color_hist.shape[1]), np.float32)
-    hist[: n0 * k] = np.tile(graph.color_hist / graph.color_hist.sum(axis=1, keepdims=True).clip(1e-12), (k, 1))
+    hist[: n0 * k] = np.tile(
+        graph.color_hist / graph.color_hist.sum(axis=1, keepdims=True).clip(1e-12), (k, 1)
+    )
     normal_sum = np.zeros((cap, 3))
     normal_sum[: n0 * k] = np.tile(graph.normal_sum, (k, 1))
     node_strategy = np.zeros(cap, np.int64)
@@ -208,8 +233,7 @@ def group(
     sim = _similarity(pairs, length, strength, regions, weights[np.repeat(np.arange(k), e0)], scales)
     owner = np.arange(n0 * k)  # (strategy, superpixel) -> current region
     n_total = n0 * k
-    out_ids, out_sp, outers, levels = [], [], [], []
-    level = 0
+    out_ids, out_sp, outers = [], [], []
     while pairs.shape[0] > 0:
         ca, cb = _mutual_best(pairs, sim, n_total)
         m = ca.size
@@ -245,9 +269,7 @@ def group(
         made = np.nonzero(owner >= n_total)[0]
         out_ids.append(owner[made])
         out_sp.append(made % n0)
-        levels.append(np.full(m, level))
         n_total += m
-        level += 1
 
     n_new = n_total - n0 * k
     ids = np.concatenate(out_ids, dtype=np.int64) - n0 * k if out_ids else np.zeros(0, np.int64)
@@ -255,19 +277,10 @@ def group(
     by_region = np.lexsort((sps, ids))
     indptr = np.zeros(n_new + 1, np.int64)
     indptr[1:] = np.cumsum(np.bincount(ids, minlength=n_new))
-    strategy = node_strategy[n0 * k : n_total]
-    # Rank from the top within each strategy: the strategy's last region is 1.
-    per_strategy = np.bincount(strategy, minlength=k)
-    created = np.empty(n_new, np.int64)  # creation index within its strategy
-    created[np.argsort(strategy, kind="stable")] = np.arange(n_new) - np.repeat(
-        np.cumsum(per_strategy) - per_strategy, per_strategy
-    )
     return Hierarchies(
         indptr=indptr,
         indices=sps[by_region],
-        strategy=strategy,
-        order=per_strategy[strategy] - created,
-        level=np.concatenate(levels) if levels else np.zeros(0, np.int64),
+        strategy=node_strategy[n0 * k : n_total],
         outer=np.concatenate(outers) if outers else np.zeros((0, 3)),
     )
 
@@ -276,13 +289,16 @@ def _mutual_best(
     pairs: np.ndarray, sim: np.ndarray, n_nodes: int, passes: int = 3
 ) -> tuple[np.ndarray, np.ndarray]:
     """A matching of mutually most similar edges: the edges that are the most similar edge of
-    both their ends (ties go to the lowest index), which always includes the globally best edge;
-    then, `passes - 1` times, the same among the edges whose ends are both still unmatched
-    (their similarities are unaffected by this round's merges)."""
+    both their ends (ties go to the lowest index), which always includes the globally best edge.
+    Then, `passes - 1` times, the same among the edges between still unmatched regions whose
+    own most similar neighbour is still unmatched too: their similarities are unaffected by
+    this round's merges, and a region whose favourite was just merged waits for the next round
+    (it may like the merged region even better)."""
     a, b = pairs[:, 0], pairs[:, 1]
     edges = np.arange(sim.size)
     taken = np.zeros(n_nodes, bool)
     chosen = []
+    favourite = None
     for _ in range(passes):
         ea, eb, es = a[edges], b[edges], sim[edges]
         best = np.full(n_nodes, -np.inf)
@@ -294,9 +310,16 @@ def _mutual_best(
         np.minimum.at(first, eb[candidate], candidate)
         pick = candidate[(first[ea[candidate]] == candidate) & (first[eb[candidate]] == candidate)]
         chosen.append(edges[pick])
+        if favourite is None:
+            # Each region's most similar neighbour over all its edges (lowest edge index on ties).
+            top = np.nonzero(es == best[ea])[0], np.nonzero(es == best[eb])[0]
+            favourite = np.full(n_nodes, -1)
+            favourite[ea[top[0][::-1]]] = eb[top[0][::-1]]
+            favourite[eb[top[1][::-1]]] = ea[top[1][::-1]]
         taken[ea[pick]] = True
         taken[eb[pick]] = True
-        edges = edges[~(taken[ea] | taken[eb])]
+        waiting = taken | taken[favourite]
+        edges = edges[~(waiting[ea] | waiting[eb])]
         if edges.size == 0:
             break
     picked = np.concatenate(chosen)
@@ -350,3 +373,91 @@ def _similarity(
         box_area = np.prod(hi - lo + 1, axis=1)
         sim[e] += w_fill[e] * (1.0 - (box_area - joint[e]) / r.image_area)
     return sim
+
+
+@dataclass(frozen=True)
+class PairConfig:
+    """Combinations of two regions (MCG-style combinatorial grouping): an object cut in pieces by
+    an occluder (a chair behind a table) or joined by a part too thin to segment (a lamp's pole)
+    is the union of two regions that need not touch.
+
+    `parts`: how many of the best-ranked regions may pair; `max_pairs`: how many pairs are kept;
+    `depth`: largest difference of the parts' mean log depth; `color`: largest distance of their
+    mean Lab colours (OpenCV 8-bit Lab units); `spread`: largest ratio of the union's box area to
+    the sum of the parts'; `penalty`: subtracted from a pair's score (the lower of its parts').
+    """
+
+    parts: int = 300
+    max_pairs: int = 400
+    depth: float = 0.1
+    color: float = 25.0
+    spread: float = 3.0
+    penalty: float = 0.5
+
+
+def combine_pairs(
+    graph: RegionGraph,
+    indptr: np.ndarray,
+    indices: np.ndarray,
+    rows: np.ndarray,
+    boxes: np.ndarray,
+    score: np.ndarray,
+    bin_centres: np.ndarray,
+    config: PairConfig,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pairs of the candidate regions `rows` (best first; CSR `indptr`/`indices` over the
+    superpixels of `graph`) that are disjoint, close in depth and colour and compact together.
+
+    `boxes` (C, 4) and `score` (C,) are per candidate; `bin_centres` (B,) the Lab value of each
+    colour-histogram bin. Returns the pairs' CSR (sorted members) and their scores (the lower of
+    the two parts' minus `penalty`), at most `max_pairs` of them, best first.
+    """
+    parts = rows[: config.parts]
+    t = parts.size
+    empty = np.zeros(1, np.int64), np.zeros(0, np.int64), np.zeros(0)
+    if t < 2 or config.max_pairs <= 0:
+        return empty
+    counts = np.diff(indptr)[parts]
+    members = indices[concat_ranges(indptr[parts], counts)]
+    owner = np.repeat(np.arange(t), counts)
+    n_channels = 3
+    per_bin = graph.color_hist.shape[1] // n_channels
+    lab_sum = (graph.color_hist * bin_centres).reshape(graph.n, n_channels, per_bin).sum(axis=2)
+    size = np.bincount(owner, weights=graph.size[members], minlength=t)
+    lab = np.stack([np.bincount(owner, weights=lab_sum[members, c], minlength=t) for c in range(3)], 1)
+    lab /= size[:, None]
+    depth_n = np.bincount(owner, weights=graph.depth_count[members], minlength=t)
+    log_z = np.bincount(owner, weights=graph.depth_sum[members], minlength=t) / np.maximum(depth_n, 1.0)
+
+    b = boxes[parts]
+    box_area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    lo = np.minimum(b[:, None, :2], b[None, :, :2])
+    hi = np.maximum(b[:, None, 2:], b[None, :, 2:])
+    union_area = (hi[..., 0] - lo[..., 0]) * (hi[..., 1] - lo[..., 1])
+    color_gap = ((lab[:, None] - lab[None, :]) ** 2).sum(axis=2)
+    ok = (
+        (np.abs(log_z[:, None] - log_z[None, :]) <= config.depth)
+        & ((depth_n[:, None] > 0) == (depth_n[None, :] > 0))
+        & (color_gap <= config.color**2)
+        & (union_area <= config.spread * (box_area[:, None] + box_area[None, :]))
+    )
+    i, j = np.nonzero(np.triu(ok, 1))
+    # Only disjoint parts pair up (a union with an overlap is not a new combination).
+    member_matrix = np.zeros((t, graph.n), bool)
+    member_matrix[owner, members] = True
+    bits = np.packbits(member_matrix, axis=1)
+    disjoint = ~(bits[i] & bits[j]).any(axis=1)
+    i, j = i[disjoint], j[disjoint]
+    pair_score = np.minimum(score[parts[i]], score[parts[j]]) - config.penalty
+    best = np.argsort(-pair_score, kind="stable")[: config.max_pairs]
+    i, j, pair_score = i[best], j[best], pair_score[best]
+    # Members of each pair: both parts' lists, sorted within the pair.
+    n_i, n_j = counts[i], counts[j]
+    part_start = np.cumsum(counts) - counts
+    take = np.concatenate([concat_ranges(part_start[i], n_i), concat_ranges(part_start[j], n_j)])
+    pair_rows = np.concatenate([np.repeat(np.arange(i.size), n_i), np.repeat(np.arange(i.size), n_j)])
+    values = members[take]
+    order = np.lexsort((values, pair_rows))
+    pair_indptr = np.zeros(i.size + 1, np.int64)
+    pair_indptr[1:] = np.cumsum(n_i + n_j)
+    return pair_indptr, values[order], pair_score

@@ -2,16 +2,19 @@
 
 Why this design: the runtime has no ximgproc (no SLIC, no graph segmentation), but OpenCV's
 marker watershed is fast C++. `cv2.watershed` grows seeded regions in order of the colour
-difference (max over the 3 channels) between neighbouring pixels, i.e. a minimum spanning forest
-of the 4-connected pixel graph, so its boundaries snap to colour edges. Depth discontinuities
-and surface creases are not colours; they enter as *barriers*: the pixels on a geometric edge
-are painted in a black/white checkerboard, so that crossing a barrier (2 px or wider) costs the
-maximum step of 255 and no region leaks through it before everything else is flooded.
+difference (max over the 3 channels) between neighbouring pixels, a minimum spanning forest of
+the 4-connected pixel graph, so its boundaries snap to colour edges. Depth discontinuities are
+not colours; they enter as *barriers*: their pixels are painted in a black/white checkerboard,
+so that crossing a barrier (2 px or wider) costs the maximum step of 255 and no region leaks
+through it before everything else is flooded.
 
-Seeds sit on a regular grid (about `n_segments` of them), each moved to the pixel with the
-weakest colour gradient of its cell off the barriers, so that superpixels start inside surfaces.
-After flooding, the barrier pixels are cleared and re-assigned, from their borders inward, to the
-neighbouring superpixel most similar in colour and depth.
+Seeds sit on a regular grid (about `n_segments` of them), each moved to the pixel of its cell
+with the weakest colour gradient off the barriers, so that superpixels start inside surfaces.
+After this first flood the barrier pixels are cleared and flooded again from the superpixels
+around them by lightness and depth: a thin part in front of a wall (a chair leg, a lamp's pole)
+then joins the part it is attached to at the same depth, not the wall. The last pixels left
+(watershed lines) join their most similar neighbouring superpixel.
+
 Everything here works at the caller's (reduced) working resolution.
 """
 
@@ -27,65 +30,51 @@ import numpy as np
 class SuperpixelConfig:
     """Over-segmentation parameters (working-resolution pixels).
 
-    `n_segments`: number of grid seeds (about the number of superpixels).
+    `n_segments`: number of grid seeds (about the number of superpixels; 1000 at half
+    resolution are ~240 full-resolution pixels each, fine enough for objects of a few hundred).
     `depth_jump`: relative depth step |dz| / z between 4-neighbours that marks a depth edge.
-    `crease`: change of the unit surface normal |dn| between pixels two apart that marks a crease
-    (0.35 is about 20 degrees).
-    `barrier_width`: width in pixels of the painted geometric barriers (>= 2 to be leak-proof).
-    `depth_weight`: Lab units per unit of log depth when barrier pixels pick their superpixel
-    (1000: a 4 % depth step weighs like 40 Lab units) when watershed-line pixels pick theirs.
+    `barrier_width`: the depth edges are dilated to this width (>= 2 to be leak-proof).
     `depth_phase`: radians per unit log depth of the (cos, sin) depth code that re-floods the
-    barriers (8: a 4 % step is a 40-level step, a 2x step about 250 levels).
+    barriers (8: a 4 % step is a 40-level step, a 2x step about 250 levels of 255).
+    `depth_weight`: Lab units per unit of log depth when the last (watershed-line) pixels pick
+    their superpixel (1000: a 4 % depth step weighs like 40 Lab units).
+    `smooth`: sigma (pixels) of the Gaussian that calms sensor noise before flooding.
     """
 
     n_segments: int = 1000
     depth_jump: float = 0.04
-    crease: float = 100.0
     barrier_width: int = 2
-    depth_weight: float = 1000.0
     depth_phase: float = 8.0
+    depth_weight: float = 1000.0
     smooth: float = 1.0
 
 
-def geometric_edges(
-    log_depth: np.ndarray,
-    valid: np.ndarray,
-    normals: np.ndarray,
-    normal_ok: np.ndarray,
-    config: SuperpixelConfig,
-) -> np.ndarray:
-    """(h, w) bool: pixels on a depth discontinuity or a surface crease.
+def depth_edges(log_depth: np.ndarray, valid: np.ndarray, config: SuperpixelConfig) -> np.ndarray:
+    """(h, w) bool: the pixels on either side of a depth discontinuity, a relative step
+    |dz| / z > `config.depth_jump` between 4-neighbours with known depth. `log_depth` (h, w)
+    float32 is log(z) (so steps are relative), `valid` (h, w) bool where the depth is known.
 
-    `log_depth` (h, w) float32 is log(z) (so steps are relative), `valid` (h, w) bool where the
-    depth is known; `normals` (h, w, 3) unit vectors, `normal_ok` where they are defined.
-    Unknown depth or normals never make edges.
-    """
-    jump = np.zeros(log_depth.shape, dtype=bool)
-    dzx = np.abs(np.diff(log_depth, axis=1)) > np.log1p(config.depth_jump)
-    dzx &= valid[:, 1:] & valid[:, :-1]
-    dzy = np.abs(np.diff(log_depth, axis=0)) > np.log1p(config.depth_jump)
-    dzy &= valid[1:, :] & valid[:-1, :]
-    jump[:, 1:] |= dzx
-    jump[:, :-1] |= dzx
-    jump[1:, :] |= dzy
-    jump[:-1, :] |= dzy
-    # Normal change over a 2-pixel baseline (central differences), as a chord length.
-    n = normals.astype(np.float32)
-    gx = n[:, 2:] - n[:, :-2]
-    gy = n[2:, :] - n[:-2, :]
-    crease = np.zeros(log_depth.shape, dtype=bool)
-    crease[:, 1:-1] |= (np.einsum("ijk,ijk->ij", gx, gx) > config.crease**2) & normal_ok[:, 2:] & normal_ok[:, :-2]
-    crease[1:-1, :] |= (np.einsum("ijk,ijk->ij", gy, gy) > config.crease**2) & normal_ok[2:, :] & normal_ok[:-2, :]
-    return jump | crease
+    Surface creases are not barriers: normals from sensor depth are too noisy at a few pixels'
+    scale (far surfaces fill with false creases); they act in the grouping instead."""
+    step = np.log1p(config.depth_jump)
+    edges = np.zeros(log_depth.shape, dtype=bool)
+    dzx = (np.abs(np.diff(log_depth, axis=1)) > step) & valid[:, 1:] & valid[:, :-1]
+    dzy = (np.abs(np.diff(log_depth, axis=0)) > step) & valid[1:, :] & valid[:-1, :]
+    edges[:, 1:] |= dzx
+    edges[:, :-1] |= dzx
+    edges[1:, :] |= dzy
+    edges[:-1, :] |= dzy
+    return edges
 
 
 def oversegment(
     lab: np.ndarray, log_depth: np.ndarray, barrier: np.ndarray, config: SuperpixelConfig
 ) -> np.ndarray:
-    """Grid-seeded watershed of a Lab image with geometric barriers.
+    """Grid-seeded watershed of a Lab image with depth barriers (see the module docstring).
 
     `lab` (h, w, 3) uint8 (OpenCV Lab), `log_depth` (h, w) float32 (0 where unknown), `barrier`
-    (h, w) bool. Returns (h, w) int32 labels 0..N-1, every label present, every pixel labelled.
+    (h, w) bool (depth_edges). Returns (h, w) int32 labels 0..N-1, every label present, every
+    pixel labelled; images thinner than 3 pixels are one superpixel.
     """
     h, w = barrier.shape
     if h < 3 or w < 3:
@@ -103,10 +92,9 @@ def oversegment(
     seeds = _grid_seeds(lab, barrier, config.n_segments)
     markers = seeds.copy()
     cv2.watershed(image, markers)
-    # Barrier pixels were flooded by colour-blind rules: clear them and flood them again, now by
-    # lightness and depth, so that thin parts (legs, poles) join the surface they are attached
-    # to rather than the one behind them.
-    markers[barrier] = 0
+    # Barrier pixels were flooded by colour-blind rules: clear them (and the -1 watershed
+    # lines) and flood them again by lightness and depth.
+    markers[barrier | (markers < 0)] = 0
     phase = config.depth_phase * log_depth
     depth_image = np.stack([lab[..., 0], 128 + 127 * np.cos(phase), 128 + 127 * np.sin(phase)], axis=2)
     cv2.watershed(depth_image.astype(np.uint8), markers)
@@ -151,21 +139,28 @@ def _fill_unlabelled(markers: np.ndarray, features: np.ndarray) -> None:
         markers[:] = 1
         return
     h, w = markers.shape
-    ys, xs = np.nonzero(markers <= 0)
-    # Neighbour d of pixel (y, x) is padded[y + dy + 1, x + dx + 1]; the padding is unlabelled.
-    shifts = ((1, 0), (1, 2), (0, 1), (2, 1))
-    fpad = np.pad(features, ((1, 1), (1, 1), (0, 0)), mode="edge")
-    own = features[ys, xs]
-    cost = np.stack([np.abs(fpad[ys + y, xs + x] - own).sum(axis=1) for y, x in shifts])
-    lpad = np.pad(markers, 1)
-    while ys.size:
-        neighbours = np.stack([lpad[ys + y, xs + x] for y, x in shifts])
-        choice = np.where(neighbours > 0, cost, np.inf).argmin(axis=0)
-        label = np.take_along_axis(neighbours, choice[None], axis=0)[0]
+    labels = markers.ravel()  # a view: writes go to markers
+    flat = features.reshape(h * w, -1)
+    todo = np.flatnonzero(labels <= 0)
+    ys, xs = np.divmod(todo, w)
+    # Flat index of each 4-neighbour, the pixel itself where the neighbour is off the image.
+    neighbours = np.stack(
+        [
+            np.where(xs > 0, todo - 1, todo),
+            np.where(xs < w - 1, todo + 1, todo),
+            np.where(ys > 0, todo - w, todo),
+            np.where(ys < h - 1, todo + w, todo),
+        ]
+    )
+    own = flat[todo]
+    cost = np.stack([np.abs(flat[nb] - own).sum(axis=1) for nb in neighbours])
+    while todo.size:
+        candidate = labels[neighbours]
+        choice = np.where(candidate > 0, cost, np.inf).argmin(axis=0)
+        label = np.take_along_axis(candidate, choice[None], axis=0)[0]
         done = label > 0
-        lpad[ys[done] + 1, xs[done] + 1] = label[done]
-        ys, xs, cost = ys[~done], xs[~done], cost[:, ~done]
-    markers[:] = lpad[1:-1, 1:-1]
+        labels[todo[done]] = label[done]
+        todo, neighbours, cost = todo[~done], neighbours[:, ~done], cost[:, ~done]
 
 
 def _compact_labels(markers: np.ndarray) -> np.ndarray:

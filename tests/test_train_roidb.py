@@ -72,12 +72,13 @@ def test_roidb_records(scenes, tmp_path):
         assert record.labels[:n].tolist() == (gt.class_ids + 1).tolist()
         np.testing.assert_allclose(record.overlaps[:n], 1.0)
         fg, bg = record.labels > 0, record.labels == 0
+        assert fg[: record.num_fg].all() and bg[record.num_fg :].all()  # foreground rows first
         assert (record.overlaps[fg] >= 0.5).all()
         assert ((record.overlaps[bg] >= 0.1) & (record.overlaps[bg] < 0.5)).all()
         assert fg.sum() > n and bg.sum() > 0  # proposals found both
         # Initial boxes: the class mean size, theta 0, centre lifted from the visible segment.
-        np.testing.assert_allclose(record.init_boxes[fg, 3:6], db.mean_sizes[record.labels[fg] - 1])
-        assert (record.init_boxes[fg, 6] == 0).all()
+        np.testing.assert_allclose(record.init_boxes[:, 3:6], db.mean_sizes[record.labels[fg] - 1])
+        assert (record.init_boxes[:, 6] == 0).all()
         assert record.has_3d[:n].all()
         z, depth_extent = gt.boxes3d[:, 2], gt.boxes3d[:, 4]  # w runs along z (theta 0)
         front, back = z - depth_extent / 2, z + depth_extent / 2

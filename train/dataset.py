@@ -75,25 +75,29 @@ class TargetStats:
 
 
 def raw_targets(record: FrameRois, rows: np.ndarray, flip: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Unnormalised 3D (n, 7) and 2D (n, 4) targets of ``rows`` and the 3D mask (n,).
+    """Unnormalised 3D (n, 7) and 2D (n, 4) targets of RoIs ``rows`` and the 3D mask (n,).
 
-    Rows that are background (or have no initial 3D box) get zeros and mask False.
+    Background rows (and foreground rows without an initial 3D box, for 3D) get zeros and mask
+    False. With ``flip`` the boxes are mirrored first (README flip convention).
     """
-    width = record.image_size[1]
-    labels = record.labels[rows]
-    fg = labels > 0
-    has_3d = record.has_3d[rows]
-    boxes, gt2d = record.boxes[rows].astype(np.float64), record.gt_boxes2d[rows]
-    init, gt3d = record.init_boxes[rows], record.gt_boxes3d[rows]
+    rows = np.asarray(rows, np.int64)
+    fg = np.flatnonzero(rows < record.num_fg)  # foreground RoIs are the record's first rows
+    t3d, t2d = np.zeros((len(rows), 7)), np.zeros((len(rows), 4))
+    has_3d = np.zeros(len(rows), bool)
+    if len(fg) == 0:
+        return t3d, t2d, has_3d
+    idx = rows[fg]
+    boxes, gt2d = record.boxes[idx].astype(np.float64), record.gt_boxes2d[idx]
+    init, gt3d = record.init_boxes[idx], record.gt_boxes3d[idx]
     if flip:
+        width = record.image_size[1]
         boxes, gt2d = flip_boxes_2d(boxes, width), flip_boxes_2d(gt2d, width)
         init, gt3d = flip_boxes_3d(init), flip_boxes_3d(gt3d)
-    t3d = np.zeros((len(rows), 7))
-    t2d = np.zeros((len(rows), 4))
-    if has_3d.any():
-        t3d[has_3d] = encode_3d(init[has_3d], gt3d[has_3d])
-    if fg.any():
-        t2d[fg] = encode_2d(boxes[fg], gt2d[fg])
+    t2d[fg] = encode_2d(boxes, gt2d)
+    lifted = record.has_3d[idx]
+    has_3d[fg[lifted]] = True
+    if lifted.any():
+        t3d[fg[lifted]] = encode_3d(init[lifted], gt3d[lifted])
     return t3d, t2d, has_3d
 
 
@@ -101,7 +105,7 @@ def compute_target_stats(records: list[FrameRois], flip: bool) -> TargetStats:
     """Per-class mean and std of the raw targets over every foreground RoI (and its mirror image)."""
     labels3d, labels2d, all3d, all2d = [], [], [], []
     for record in records:
-        rows = np.flatnonzero(record.labels > 0)
+        rows = np.arange(record.num_fg)
         for flipped in (False, True) if flip else (False,):
             t3d, t2d, has_3d = raw_targets(record, rows, flipped)
             labels3d.append(record.labels[rows][has_3d])

@@ -99,7 +99,10 @@ def compute_front_end(
 
 @dataclass
 class FrameRois:
-    """The RoIs of one training frame (ground-truth RoIs first), all at native resolution."""
+    """The RoIs of one training frame, all at native resolution: the F foreground RoIs first
+    (ground-truth RoIs first among them), then the background ones. Only the foreground rows
+    have 3D boxes and targets, so those arrays hold F rows (this keeps the database small enough
+    to hand to DataLoader worker processes)."""
 
     name: str
     ref: FrameRef
@@ -107,14 +110,14 @@ class FrameRois:
     boxes: np.ndarray  # (R, 4) float32 RoI boxes [x1, y1, x2, y2]
     labels: np.ndarray  # (R,) int64 softmax index: 0 background, 1 + class index foreground
     overlaps: np.ndarray  # (R,) float32 max IoU with a visible ground-truth box
-    init_boxes: np.ndarray  # (R, 7) initial 3D box of the RoI's class (foreground rows only)
-    gt_boxes3d: np.ndarray  # (R, 7) matched ground-truth 3D box (foreground rows only)
-    gt_boxes2d: np.ndarray  # (R, 4) matched ground-truth amodal 2D box (foreground rows only)
-    has_3d: np.ndarray  # (R,) bool: foreground with a liftable segment (a 3D target exists)
+    init_boxes: np.ndarray  # (F, 7) initial 3D box of the RoI's class
+    gt_boxes3d: np.ndarray  # (F, 7) matched ground-truth 3D box
+    gt_boxes2d: np.ndarray  # (F, 4) matched ground-truth amodal 2D box
+    has_3d: np.ndarray  # (F,) bool: the segment could be lifted, so a 3D target exists
 
     @property
     def num_fg(self) -> int:
-        return int((self.labels > 0).sum())
+        return len(self.has_3d)
 
 
 @dataclass
@@ -173,17 +176,12 @@ def frame_rois(
     centers = np.concatenate([front.gt_centers[gt_rows], front.proposal_centers])
     valid = np.concatenate([front.gt_valid[gt_rows], np.ones(len(front.proposal_boxes), bool)])
     keep, labels, overlaps, gt_index = label_rois(boxes, gt, fg_iou, bg_iou_low)
-    boxes, centers, valid = boxes[keep], centers[keep], valid[keep]
-    labels, overlaps, gt_index = labels[keep], overlaps[keep], gt_index[keep]
-
-    fg = np.flatnonzero(labels > 0)
-    init = np.zeros((len(boxes), 7))
-    gt3d = np.zeros((len(boxes), 7))
-    gt2d = np.zeros((len(boxes), 4))
-    if len(fg):
-        init[fg] = initial_boxes(centers[fg], mean_sizes)[np.arange(len(fg)), labels[fg] - 1]
-        gt3d[fg] = np.asarray(gt.boxes3d, np.float64)[gt_index[fg]]
-        gt2d[fg] = np.asarray(gt.boxes2d_amodal, np.float64)[gt_index[fg]]
+    kept = np.flatnonzero(keep)
+    order = kept[np.argsort(labels[kept] == 0, kind="stable")]  # foreground first, in RoI order
+    boxes, centers, valid = boxes[order], centers[order], valid[order]
+    labels, overlaps, gt_index = labels[order], overlaps[order], gt_index[order]
+    fg = int((labels > 0).sum())
+    init = initial_boxes(centers[:fg], mean_sizes)[np.arange(fg), labels[:fg] - 1] if fg else np.zeros((0, 7))
     return FrameRois(
         name=ref.name,
         ref=ref,
@@ -192,9 +190,9 @@ def frame_rois(
         labels=labels,
         overlaps=overlaps,
         init_boxes=init,
-        gt_boxes3d=gt3d,
-        gt_boxes2d=gt2d,
-        has_3d=(labels > 0) & valid.astype(bool),
+        gt_boxes3d=np.asarray(gt.boxes3d, np.float64).reshape(-1, 7)[gt_index[:fg]],
+        gt_boxes2d=np.asarray(gt.boxes2d_amodal, np.float64).reshape(-1, 4)[gt_index[:fg]],
+        has_3d=valid[:fg].astype(bool),
     )
 
 
