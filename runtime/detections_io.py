@@ -36,6 +36,7 @@ from a3d.runtime.geometry import box_corners_camera, check_rotation
 _CLASS_INDEX = {name: i for i, name in enumerate(CLASSES)}
 METRE_DECIMALS = 6  # box3d and corners are written to 1 micrometre
 PIXEL_DECIMALS = 4  # box2d and box2d_amodal to 1e-4 pixel
+_FLOAT_MAX = float(np.finfo(np.float64).max)
 
 
 @dataclass(frozen=True)
@@ -163,6 +164,8 @@ def parse_line(text: str, where: str) -> FrameDetections:
         obj = json.loads(text)
     except json.JSONDecodeError as e:
         raise InputError(f"{where}: not valid JSON ({e.msg} at column {e.colno})") from None
+    except (ValueError, RecursionError) as e:  # an integer of > 4300 digits; nesting too deep
+        raise InputError(f"{where}: unreadable JSON ({e})") from None
     if not isinstance(obj, dict):
         raise InputError(f"{where}: expected a JSON object, got {type(obj).__name__}")
     frame = obj.get("frame")
@@ -217,7 +220,7 @@ def _array(value, shape: tuple[int, ...], where: str, what: str) -> np.ndarray:
     """A float64 array of exactly ``shape``; for per-detection fields ``shape[0]`` is N, rows finite."""
     try:
         arr = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):  # OverflowError: an integer beyond float64
         arr = None
     if arr is not None and arr.size == 0 and shape[0] == 0:
         arr = arr.reshape(shape)
@@ -258,9 +261,11 @@ def _optional_str(obj: dict, key: str, where: str) -> str | None:
 
 
 def _timing(value, where: str) -> dict[str, float]:
+    # abs(v) <= max float: finite, also for a JSON integer beyond float64 (float(v) would raise)
     ok = isinstance(value, dict) and all(
-        isinstance(v, int | float) and not isinstance(v, bool) for v in value.values()
+        isinstance(v, int | float) and not isinstance(v, bool) and abs(v) <= _FLOAT_MAX
+        for v in value.values()
     )
     if not ok:
-        raise InputError(f"{where}: 'timing' must map stage names to seconds")
+        raise InputError(f"{where}: 'timing' must map stage names to seconds (finite numbers)")
     return {str(k): float(v) for k, v in value.items()}

@@ -31,7 +31,9 @@ import io
 import json
 import logging
 import os
+import tokenize
 import zipfile
+import zlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -98,10 +100,12 @@ class FrameRef:
 
 @dataclass(frozen=True)
 class SkippedFile:
-    """A file of the folder that is not part of any complete frame, and why."""
+    """A file of the folder that is not part of any complete frame, and why; ``frame`` is the
+    NAME of the frame it was meant for ("" for a file of no frame: notes, the model, a folder)."""
 
     path: Path
     reason: str
+    frame: str = ""
 
 
 @dataclass(frozen=True)
@@ -202,7 +206,7 @@ def scan_folder(folder: str | os.PathLike) -> FolderListing:
             continue
         role, name = _role_of(entry.name)
         if role is None or not name:
-            skipped.append(SkippedFile(path, "unknown file type"))
+            skipped.append(_unknown_file(path))
             continue
         parts.setdefault(name, {}).setdefault(role, []).append(path)
     frames: list[FrameRef] = []
@@ -210,7 +214,7 @@ def scan_folder(folder: str | os.PathLike) -> FolderListing:
         roles = parts[name]
         problem = _incomplete(roles)
         if problem:
-            skipped.extend(SkippedFile(p, problem) for paths in roles.values() for p in paths)
+            skipped.extend(SkippedFile(p, problem, name) for paths in roles.values() for p in paths)
             continue
         optional = {
             field_: roles[suffix][0] for suffix, field_ in _OPTIONAL_SUFFIXES.items() if suffix in roles
@@ -237,6 +241,18 @@ def _role_of(filename: str) -> tuple[str | None, str]:
         if lower.endswith(suffix):
             return suffix, filename[: -len(suffix)]
     return None, ""
+
+
+def _unknown_file(path: Path) -> SkippedFile:
+    """A file of no known type; named like a frame's colour or depth file (``NAME.color.bmp``),
+    it is that frame's, in a format a3d does not read."""
+    stem, _, extension = path.name.rpartition(".")
+    for role, suffixes in (("color", COLOR_SUFFIXES), ("depth", DEPTH_SUFFIXES)):
+        name = stem[: -len(role) - 1]
+        if name and stem.lower().endswith(f".{role}"):
+            reason = f"unsupported {role} file type .{extension} (expected {', '.join(suffixes)})"
+            return SkippedFile(path, reason, name)
+    return SkippedFile(path, "unknown file type")
 
 
 def _incomplete(roles: dict[str, list[Path]]) -> str:
@@ -414,7 +430,8 @@ def _npy_header(f: BinaryIO, path: Path) -> tuple[tuple[int, ...], np.dtype, int
             shape, _, dtype = np.lib.format.read_array_header_1_0(f)
         else:
             shape, _, dtype = np.lib.format.read_array_header_2_0(f)
-    except (ValueError, EOFError, SyntaxError) as error:
+    except (ValueError, EOFError, SyntaxError, TypeError, RecursionError, tokenize.TokenError) as error:
+        # numpy parses the header with ast / tokenize: a malformed one raises any of these
         raise InputError(f"{path}: not a valid .npy array ({error})") from None
     if dtype.hasobject:
         raise InputError(f"{path}: .npy holds Python objects; expected a numeric array")
@@ -460,7 +477,7 @@ def _parse_object(obj: Any, path: Path, what: str) -> tuple[str, np.ndarray, np.
     if missing:
         raise InputError(f"{path}: {what} lacks {', '.join(missing)}")
     name = obj["class"]
-    if name not in _CLASS_INDEX:
+    if not isinstance(name, str) or name not in _CLASS_INDEX:
         raise InputError(f"{path}: {what}.class {name!r} is not one of the 19 classes ({', '.join(CLASSES)})")
     box3d = _numbers(obj["box3d"], (7,), path, f"{what}.box3d")
     if not (box3d[3:6] > 0).all():
@@ -495,7 +512,10 @@ def _numbers(value: Any, shape: tuple[int, ...], path: Path, what: str) -> np.nd
     items = flat(value, 0)
     if any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in items):
         raise InputError(f"{path}: {what} must be {expected}, got {_preview(value)}")
-    array = np.array(items, dtype=np.float64).reshape(shape)
+    try:
+        array = np.array(items, dtype=np.float64).reshape(shape)
+    except OverflowError:  # a JSON integer beyond float64
+        array = np.full(shape, np.inf)
     if not np.isfinite(array).all():
         raise InputError(f"{path}: {what} has a non-finite value ({_preview(value)})")
     return array
@@ -522,6 +542,8 @@ def _load_json(path: Path) -> Any:
         raise InputError(
             f"{path}: malformed JSON at line {error.lineno} column {error.colno}: {error.msg}"
         ) from None
+    except (ValueError, RecursionError) as error:  # an integer of > 4300 digits; nesting too deep
+        raise InputError(f"{path}: unreadable JSON ({error})") from None
 
 
 def _describe(header: ImageHeader) -> str:
@@ -700,6 +722,18 @@ def _existing(path: Path) -> Path | None:
 # ----------------------------------------------------------------------------- precomputed proposals
 
 _PROPOSAL_MEMBERS = ("boxes", "scores", "masks", "superpixels", "indptr", "indices")
+# What zipfile raises for a damaged archive: bad structure or CRC, a cut file, corrupt deflate
+# data, an unknown compression method (NotImplementedError), an encrypted member (RuntimeError),
+# a member name that is not UTF-8 (ValueError).
+_ZIP_ERRORS = (
+    zipfile.BadZipFile,
+    OSError,
+    EOFError,
+    zlib.error,
+    NotImplementedError,
+    RuntimeError,
+    ValueError,
+)
 
 
 @dataclass(frozen=True)
@@ -774,7 +808,9 @@ def read_precomputed_proposals(path: str | os.PathLike, image_size: tuple[int, i
                     headers[key] = _npy_header(f, path)[:2]
     except FileNotFoundError:
         raise InputError(f"{path}: no such file") from None
-    except (zipfile.BadZipFile, OSError, EOFError) as error:
+    except InputError:
+        raise
+    except _ZIP_ERRORS as error:
         raise InputError(f"{path}: not a readable .npz archive ({error})") from None
     if "boxes" not in headers:
         raise InputError(f"{path}: has no 'boxes' array")
@@ -806,13 +842,16 @@ def _expected_text(key: str, shape: tuple[int, ...] | None) -> str:
 def _load_proposals(path: Path, image_size: tuple[int, int], headers: dict) -> PrecomputedProposals:
     height, width = image_size
 
-    def load(npz: Any, key: str) -> np.ndarray:
+    def load(archive: zipfile.ZipFile, key: str) -> np.ndarray:
         try:
-            return npz[key]
-        except (ValueError, OSError, EOFError, zipfile.BadZipFile) as error:
+            with archive.open(f"{key}.npy") as f:
+                return np.lib.format.read_array(f, allow_pickle=False)
+        except _ZIP_ERRORS as error:
             raise InputError(f"{path}: cannot load {key} ({error})") from None
 
-    with np.load(path, allow_pickle=False) as npz:
+    # The members are read as the header pass read them (np.load would look at the file's first
+    # bytes instead, and take a zip with data in front of it for a pickle).
+    with zipfile.ZipFile(path) as npz:
         arrays: dict[str, np.ndarray] = {}
         if "superpixels" in headers:  # bounds the size of indices before it is loaded
             superpixels = arrays["superpixels"] = load(npz, "superpixels")

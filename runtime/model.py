@@ -49,6 +49,7 @@ OUTPUT_NAMES = ("class_probs", "deltas3d", "deltas2d")
 # Contract shapes: an int is a fixed size, None a free (symbolic or fixed) one.
 _INPUT_SHAPES = ((1, 3, None, None), (1, 3, None, None), (None, 4), (None, 4))
 _OUTPUT_SHAPES = ((None, NUM_OUTPUTS), (None, NUM_OUTPUTS, 7), (None, NUM_OUTPUTS, 4))
+_FLOAT_MAX = float(np.finfo(np.float64).max)
 _METADATA_PROPS_FIELD = 14  # ModelProto.metadata_props (repeated StringStringEntryProto {key=1, value=2})
 
 
@@ -97,6 +98,8 @@ class ModelMetadata:
             data = json.loads(text)
         except json.JSONDecodeError as e:
             raise ModelError(f"{where}: a3d metadata is not JSON ({e.msg} at character {e.pos})") from None
+        except (ValueError, RecursionError) as e:  # an integer of > 4300 digits; nesting too deep
+            raise ModelError(f"{where}: a3d metadata is unreadable JSON ({e})") from None
         if not isinstance(data, dict):
             raise ModelError(f"{where}: a3d metadata must be a JSON object")
         version = data.get("schema_version")
@@ -321,7 +324,8 @@ class _Checker:
 
     def number(self, value: Any, key: str, low: float | None = None, high: float | None = None,
                closed: bool = False) -> float:  # fmt: skip
-        ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+        # abs(v) <= max float: finite, also for a JSON integer beyond float64 (math.isfinite raises)
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool) and abs(value) <= _FLOAT_MAX
         if ok and low is not None:
             ok = value >= low if closed else value > low
         if ok and high is not None:
@@ -346,7 +350,7 @@ class _Checker:
     def array(self, value: Any, key: str, shape: tuple[int, ...]) -> np.ndarray:
         try:
             out = np.array(value, dtype=np.float64)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):  # OverflowError: an integer beyond float64
             raise self.fail(key, f"a {shape} array of numbers", value) from None
         if out.shape != shape or not np.all(np.isfinite(out)):
             raise self.fail(key, f"a {shape} array of finite numbers", value)

@@ -11,6 +11,7 @@ import time
 import torch
 
 from a3d.train.checkpoint import load_checkpoint
+from a3d.train.cli import main
 from a3d.train.loop import read_metrics
 from tests.test_train_scenes import TINY, write_scenes
 
@@ -21,9 +22,9 @@ def _cli(*args: str) -> list[str]:
     return [sys.executable, "-m", "a3d.train.cli", *args]
 
 
-def _args(frames, run, cache) -> list[str]:
+def _args(frames, run, cache, workers: int = 1) -> list[str]:
     sets = [*TINY, f"solver.iterations={ITERATIONS}", "solver.lr_steps=[7]", "log.checkpoint_every=3",
-            "data.workers=1", f"data.cache_dir={cache}"]  # fmt: skip
+            f"data.workers={workers}", f"data.cache_dir={cache}"]  # fmt: skip
     return [str(frames), "--out", str(run), "--config", "vgg16", "--device", "cpu",
             *[a for s in sets for a in ("--set", s)]]  # fmt: skip
 
@@ -36,7 +37,9 @@ def test_kill_and_resume_is_bit_identical(tmp_path):
     frames = write_scenes(tmp_path / "frames", 3, seed=6)
     cache = tmp_path / "cache"
     straight, killed = tmp_path / "straight", tmp_path / "killed"
-    done = subprocess.run(_cli(*_args(frames, straight, cache)), capture_output=True, text=True, timeout=300)
+    # The uninterrupted run loads its data in-process: worker processes must not change a bit either.
+    done = subprocess.run(_cli(*_args(frames, straight, cache, workers=0)), capture_output=True, text=True,
+                          timeout=300)  # fmt: skip
     assert done.returncode == 0, done.stderr
 
     # Same run, SIGKILLed (with its DataLoader worker) once it is past the checkpoint at iteration 3.
@@ -68,18 +71,17 @@ def test_kill_and_resume_is_bit_identical(tmp_path):
     assert all(lines[i] == loss for i, loss in again)
 
 
-def test_resume_and_overwrite_errors_are_one_line(tmp_path):
+def test_resume_and_overwrite_errors_are_one_line(tmp_path, capsys):
     frames = write_scenes(tmp_path / "frames", 1)
-    missing = subprocess.run(_cli(str(frames), "--out", str(tmp_path / "nothing"), "--resume"),
-                             capture_output=True, text=True, timeout=120)  # fmt: skip
-    assert missing.returncode == 2
-    assert missing.stderr.strip().splitlines()[-1].endswith("checkpoint.pt: no such checkpoint file")
+    assert main([str(frames), "--out", str(tmp_path / "nothing"), "--resume"]) == 2
+    assert capsys.readouterr().err.strip().endswith("checkpoint.pt: no such checkpoint file")
     run = tmp_path / "run"
     run.mkdir()
     (run / "checkpoint.pt").write_bytes(b"not a checkpoint")
-    cli = _cli(*_args(frames, run, tmp_path / "cache"))
-    exists = subprocess.run(cli, capture_output=True, text=True, timeout=120)
-    assert exists.returncode == 2 and "a run exists here" in exists.stderr
-    broken = subprocess.run(_cli(str(frames), "--out", str(run), "--resume"), capture_output=True, text=True,
-                            timeout=120)  # fmt: skip
-    assert broken.returncode == 2 and "corrupted, truncated or not a checkpoint" in broken.stderr
+    assert main(_args(frames, run, tmp_path / "cache")) == 2
+    assert "a run exists here" in capsys.readouterr().err
+    assert main([str(frames), "--out", str(run), "--resume"]) == 2
+    error = capsys.readouterr().err.strip()
+    assert "corrupted, truncated or not a checkpoint" in error and len(error.splitlines()) == 1
+    assert main([str(frames), "--out", str(tmp_path / "x"), "--set", "solver.lr=fast"]) == 2
+    assert "solver.lr: expected a number" in capsys.readouterr().err

@@ -13,7 +13,9 @@ and a run resumed from any checkpoint ends with weights bit-identical to an unin
 
 Outputs in the run folder: ``config.json`` (the resolved TrainConfig), ``checkpoint.pt``
 (a3d.train.checkpoint, every ``log.checkpoint_every`` iterations and at the end),
-``metrics.jsonl`` (one JSON object per line: ``kind`` "data", "train" or "val", with ``iter``),
+``metrics.jsonl`` (one JSON object per line with ``kind`` and ``iter``: "data" the RoI database,
+"train" the mean loss terms, lr and speed over the last ``log.log_every`` iterations, "val" the
+validation mAP, "sync" the ranks' parameter digests under DDP),
 ``loss.png`` (loss curves and validation mAP), and ``cache/`` (per-frame proposals) unless
 ``data.cache_dir`` points elsewhere.
 """
@@ -151,6 +153,7 @@ def plot_losses(metrics_path: Path, png_path: Path) -> None:
         ax2 = ax.twinx()
         ax2.plot([r["iter"] for r in val], [100 * r["map25"] for r in val], "k.--", label="val mAP@0.25")
         ax2.set_ylabel("mAP@0.25 (%)")
+        ax2.set_ylim(bottom=0)
         h2, l2 = ax2.get_legend_handles_labels()
         handles, labels = handles + h2, labels + l2
     if handles:

@@ -39,7 +39,14 @@ from tqdm import tqdm
 from a3d.runtime import viewer
 from a3d.runtime.detections_io import format_line, parse_line
 from a3d.runtime.errors import InputError, ModelError
-from a3d.runtime.frames import FrameRef, GroundTruth, read_folder_intrinsics, read_ground_truth, scan_folder
+from a3d.runtime.frames import (
+    FrameRef,
+    GroundTruth,
+    SkippedFile,
+    read_folder_intrinsics,
+    read_ground_truth,
+    scan_folder,
+)
 from a3d.runtime.geometry import Intrinsics
 from a3d.runtime.model import DetectorModel
 from a3d.runtime.pipeline import PROPOSAL_SOURCES, FrameOutcome, PipelineConfig, detect_frames
@@ -47,8 +54,6 @@ from a3d.runtime.pipeline import PROPOSAL_SOURCES, FrameOutcome, PipelineConfig,
 PROG = "a3d-run"
 DEFAULT_MODEL = "model.onnx"
 DEFAULT_OUTPUT = "detections.jsonl"
-# Files of a folder that are not frames and are no problem (the model, notes, the output itself).
-_NOT_FRAME_REASONS = ("unknown file type", "a folder (frames are not searched for in sub-folders)")
 
 load_model = DetectorModel.load  # the model loader (tests substitute a fake model here)
 
@@ -120,7 +125,7 @@ class _Job:
 def _job(args: argparse.Namespace) -> _Job:
     """Scan the folder, load the model and read the output to resume (InputError / ModelError)."""
     listing = scan_folder(args.folder)
-    incomplete = [f"{s.path}: {s.reason}" for s in listing.skipped if s.reason not in _NOT_FRAME_REASONS]
+    incomplete = _incomplete_frames(listing.skipped)
     if not listing.frames and not incomplete:
         raise InputError(f"{args.folder}: no frames (NAME.color.png + NAME.depth.png)")
     intrinsics = read_folder_intrinsics(args.folder)
@@ -135,6 +140,17 @@ def _job(args: argparse.Namespace) -> _Job:
     done = completed_frames(Path(args.output)) if args.resume else set()
     todo = [ref for ref in listing.frames if ref.name not in done]
     return _Job(listing.frames, todo, incomplete, intrinsics, model, config)
+
+
+def _incomplete_frames(skipped: list[SkippedFile]) -> list[str]:
+    """One "PATH: reason" per frame that cannot be read, naming its first skipped file (a colour or
+    depth file of an unsupported type comes first); files of no frame (the model, notes, folders,
+    the output itself) are no problem."""
+    first: dict[str, SkippedFile] = {}
+    for item in skipped:
+        if item.frame:
+            first.setdefault(item.frame, item)
+    return [f"{item.path}: {item.reason}" for item in first.values()]
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -1,0 +1,484 @@
+"""Edge speed: the paper's full network, end to end through a3d-run, on 2 CPU cores.
+
+The paper reports 0.739 s per frame on a Titan X for the network alone. This benchmark times
+a3d-run's own code (a3d.runtime.cli.run.main, i.e. a3d.runtime.pipeline) over a folder of
+frames, with
+
+(a) the paper's network at full size: both VGG16 trunks at the native 427 x 561 input, context
+    and RoI pooling, fc6/fc7 of 4096, random weights. The layout is the ``vgg16-fused``
+    preset (a3d.train.model.config): the trunk maps are fused by a 1x1 conv to 512 channels
+    before pooling, so fc6 sees 2 x 512 x 7 x 7 inputs instead of the plain layout's
+    4 x 512 x 7 x 7 (whose fc6 alone is 25088 x 2 x 4096 weights, 1.6 GB in fp32); it is the
+    layout PLATFORM.md measured. The checkpoint is written with a3d.train.checkpoint and
+    exported with a3d-export twice: fp32 (no SVD), and ``--svd RANK --int8`` calibrated on the
+    first ``--calib-frames`` frames;
+(b) the bundled small model (``--small-model``, default samples/model.onnx when it exists).
+
+Every a3d-run measurement runs in its own process (so that its peak resident memory is a3d-run's)
+with ``--max-proposals N --save RUN.rrd`` on the first ``--frames`` frames, sequential and with
+``--overlap``. The first frame is a warm-up and is left out. Printed per run: the per-stage
+mean seconds (read, hole fill, gravity, proposals, lifting, network input, the ONNX Runtime call,
+NMS + decoding, output writing = JSON formatting + the flushed and fsynced line, rerun logging
+= the synchronous part of logging the frame; rerun encodes and writes the .rrd on its own
+threads, which the frame time includes), the frame time (steady-state period between frames),
+frames/s and the peak resident memory.
+
+Network alone, on the same inputs (the runtime's front end on the same frames), each in its own
+process: ONNX Runtime (a3d.runtime.model.DetectorModel, the runtime's own session) for the fp32
+and int8 + SVD files, with all RoIs and with one RoI (about the trunks' share; the head is the
+difference), and torch eager fp32 (a3d.train.inference.TorchNetwork, the same checkpoint, same
+thread count). Times move between machines and with the load, so the targets are also ratios:
+
+- int8 + SVD end to end <= 1.3 x its ONNX Runtime network call alone, and <= 0.739 s per frame;
+- ONNX Runtime fp32 >= 1.3 x faster than torch eager fp32 (same model, same inputs);
+- peak resident memory of a3d-run with the int8 model <= 2 GiB.
+
+    .venv/bin/a3d-synth /tmp/a3d_edge/synth --frames 24 --seed 11 --split test=0.5
+    .venv/bin/python bench/edge_speed.py /tmp/a3d_edge/synth/test --work /tmp/a3d_edge/work \\
+        [--small-model samples/model.onnx] [--frames 8] [--max-proposals 500] [--svd 1024]
+
+The checkpoint and the exports are kept in ``--work`` and reused by later runs (``--rebuild``
+makes them again); building them takes a few minutes and 3-5 GB of memory.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from unittest import mock
+
+import numpy as np
+
+BIN = Path(sys.executable).parent
+PAPER_SECONDS = 0.739  # Deng & Latecki 2017, Titan X, network only
+TARGET_E2E_OVER_NETWORK = 1.3
+TARGET_ORT_OVER_TORCH = 1.3
+TARGET_PEAK_BYTES = 2 * 1024**3
+PIPELINE_STAGES = ("read", "depth_fill", "gravity", "proposals", "lifting", "network_input", "network",
+                   "postprocess")  # fmt: skip
+RUN_STAGES = (*PIPELINE_STAGES, "output", "rerun")
+STAGE_LABELS = {
+    "read": "read",
+    "depth_fill": "hole fill",
+    "gravity": "gravity",
+    "proposals": "proposals",
+    "lifting": "lifting",
+    "network_input": "network input",
+    "network": "ORT network",
+    "postprocess": "NMS + decoding",
+    "output": "output writing",
+    "rerun": "rerun logging",
+}
+
+
+# ----------------------------------------------------------------------------- the models
+
+
+def random_checkpoint(path: Path, net_preset: str, overrides: dict | None = None, seed: int = 0) -> Path:
+    """An a3d-train checkpoint of a randomly initialised A3DNet of ``net_preset``, the training
+    config's ``overrides`` (nested dicts) applied; for speed only: identity target statistics,
+    seeded random class mean sizes."""
+    import torch
+
+    from a3d.runtime.classes import CLASSES
+    from a3d.train.checkpoint import save_checkpoint
+    from a3d.train.config import TrainConfig, apply_values
+    from a3d.train.dataset import TargetStats
+    from a3d.train.model import A3DNet, preset
+
+    config = apply_values(TrainConfig(net=preset(net_preset)), overrides or {}, "edge_speed")
+    torch.manual_seed(seed)
+    net = A3DNet(config.net).eval()
+    sizes = np.random.default_rng(seed).uniform(0.3, 2.0, (19, 3))
+    save_checkpoint(path, {
+        "iteration": 0, "config": config.to_json(), "model": net.state_dict(), "optimizer": {},
+        "target_stats": TargetStats.identity().to_tensors(), "mean_sizes": torch.from_numpy(sizes),
+        "classes": list(CLASSES),
+    })  # fmt: skip
+    return path
+
+
+def export_model(checkpoint: Path, out: Path, frames: Path, *, svd: int | None = None, int8: bool = False,
+                 calib: Path | None = None, calib_frames: int = 4, threads: int = 2) -> float:  # fmt: skip
+    """``a3d-export`` (its CLI, in a child process) verified on ``frames``; int8 calibrated on the
+    first ``calib_frames`` of ``calib`` (default: ``frames``). Returns its wall seconds."""
+    command = [str(BIN / "a3d-export"), str(checkpoint), "-o", str(out), "--verify-frames", str(frames),
+               "--threads", str(threads)]  # fmt: skip
+    if svd is not None:
+        command += ["--svd", str(svd)]
+    if int8:
+        command += ["--int8", "--calib", str(calib or frames), "--calib-frames", str(calib_frames)]
+    print("$ " + " ".join(command), file=sys.stderr, flush=True)
+    start = time.perf_counter()
+    subprocess.run(command, check=True, stdout=subprocess.DEVNULL)
+    return time.perf_counter() - start
+
+
+def frame_subset(folder: Path, out: Path, count: int) -> Path:
+    """A folder of symbolic links to the first ``count`` frames of ``folder`` (and its intrinsics)."""
+    from a3d.runtime.frames import INTRINSICS_FILE, list_frames
+
+    out.mkdir(parents=True, exist_ok=True)
+    keep = {ref.name for ref in list_frames(folder)[:count]}
+    for path in folder.iterdir():
+        if path.name == INTRINSICS_FILE or path.name.split(".")[0] in keep:
+            link = out / path.name
+            if not link.exists():
+                link.symlink_to(path.resolve())
+    return out
+
+
+# ----------------------------------------------------------------------------- a3d-run, instrumented
+
+
+@dataclass
+class RunResult:
+    """One a3d-run over a folder: mean seconds per stage (warm-up frame left out), the
+    steady-state frame period, the mean RoIs per frame and the process's peak resident memory."""
+
+    model: str
+    overlap: bool
+    frames: int
+    rois: float
+    stages: dict[str, float]
+    frame_seconds: float
+    peak_bytes: int = 0
+
+    @property
+    def stage_sum(self) -> float:
+        return sum(self.stages.values())
+
+
+def measure_run(model: Path, frames: Path, *, max_proposals: int, threads: int = 2, overlap: bool = False,
+                rrd: Path | None = None, output: Path | None = None) -> RunResult:  # fmt: skip
+    """Run a3d-run's main on ``frames`` with ``model`` and time every stage of every frame.
+
+    The pipeline's own per-frame ``timing`` gives the stages up to NMS + decoding; a3d-run's
+    line formatting and writing and its rerun logging are timed by wrapping those functions, and
+    the frame period by the moments a3d-run's loop receives each frame's result.
+    """
+    from a3d.runtime.cli import run as run_cli
+    from a3d.runtime.detections_io import read_detections
+
+    with tempfile.TemporaryDirectory(prefix="a3d-edge-") as tmp:
+        output = output or Path(tmp) / "detections.jsonl"
+        rrd = rrd or Path(tmp) / "run.rrd"
+        argv = [str(frames), "--model", str(model), "--output", str(output), "--threads", str(threads),
+                "--max-proposals", str(max_proposals), "--save", str(rrd)]  # fmt: skip
+        if overlap:
+            argv.append("--overlap")
+        ready: list[float] = []
+        rois: list[int] = []
+        spent: dict[str, list[float]] = {"output": [], "rerun": []}
+        original_frames = run_cli.detect_frames
+
+        def timed_frames(*args, **kwargs):
+            for outcome in original_frames(*args, **kwargs):
+                ready.append(time.perf_counter())
+                rois.append(len(outcome.prepared.rois) if outcome.prepared is not None else 0)
+                yield outcome
+
+        with contextlib.ExitStack() as patches:
+            patches.enter_context(mock.patch.object(run_cli, "detect_frames", timed_frames))
+            for owner, name, stage, new in (
+                (run_cli, "format_line", "output", True),
+                (run_cli._LineSink, "write", "output", False),
+                (run_cli, "_log", "rerun", True),
+            ):
+                wrapped = _timed(getattr(owner, name), spent, stage, new)
+                patches.enter_context(mock.patch.object(owner, name, wrapped))
+            code = run_cli.main(argv)
+        if code != 0:
+            raise RuntimeError(f"a3d-run {' '.join(argv)} exited with {code}")
+        lines = read_detections(output)
+    if len(lines) != len(ready):
+        raise RuntimeError(f"a3d-run wrote {len(lines)} lines for {len(ready)} frames")
+    skip = 1 if len(lines) > 1 else 0  # the first frame warms up ONNX Runtime's memory arena
+    stages = {s: float(np.mean([line.timing.get(s, 0.0) for line in lines[skip:]])) for s in PIPELINE_STAGES}
+    for name, values in spent.items():
+        stages[name] = float(np.mean(values[skip:]))
+    period = (ready[-1] - ready[0]) / (len(ready) - 1) if len(ready) > 1 else lines[0].timing["total"]
+    return RunResult(model.name, overlap, len(lines), float(np.mean(rois)), stages, period)
+
+
+def _timed(function: Callable, spent: dict[str, list[float]], stage: str, new: bool = False) -> Callable:
+    """``function`` adding its seconds to the current frame's entry of ``spent[stage]``
+    (``new``: this call opens the frame's entry)."""
+
+    def wrapper(*args, **kwargs):
+        start = time.perf_counter()
+        try:
+            return function(*args, **kwargs)
+        finally:
+            seconds = time.perf_counter() - start
+            if new or not spent[stage]:
+                spent[stage].append(seconds)
+            else:
+                spent[stage][-1] += seconds
+
+    return wrapper
+
+
+# ----------------------------------------------------------------------------- the network alone
+
+
+@dataclass
+class NetworkInputs:
+    """One frame's network inputs from the runtime's front end."""
+
+    name: str
+    color: np.ndarray
+    depth: np.ndarray
+    rois: np.ndarray
+    context_rois: np.ndarray
+
+
+def network_inputs(model: Path, frames: Path, max_proposals: int) -> list[NetworkInputs]:
+    """The inputs a3d-run feeds ``model`` for each frame of ``frames`` (a3d.runtime.pipeline.prepare)."""
+    from a3d.runtime.frames import list_frames, read_folder_intrinsics
+    from a3d.runtime.model import DetectorModel
+    from a3d.runtime.pipeline import PipelineConfig, prepare
+
+    metadata = DetectorModel.load(model, threads=1).metadata
+    config = PipelineConfig.from_metadata(metadata, max_proposals=max_proposals)
+    intrinsics = read_folder_intrinsics(frames)
+    out = []
+    for ref in list_frames(frames):
+        p = prepare(ref, intrinsics, config)
+        out.append(NetworkInputs(ref.name, p.color_input, p.depth_input, p.rois, p.context_rois))
+    return out
+
+
+@dataclass
+class NetworkResult:
+    """Mean seconds per frame (warm-up call left out) of the network with all RoIs and with one
+    RoI (the trunks plus a one-RoI head), the mean RoIs, and the process's peak resident memory."""
+
+    engine: str
+    model: str
+    seconds: float
+    one_roi_seconds: float
+    rois: float
+    peak_bytes: int = 0
+
+    @property
+    def head_seconds(self) -> float:
+        return self.seconds - self.one_roi_seconds
+
+
+def measure_ort(model: Path, frames: Path, *, max_proposals: int, threads: int = 2) -> NetworkResult:
+    """ONNX Runtime through the runtime's DetectorModel (its session options and threads)."""
+    from a3d.runtime.model import DetectorModel
+
+    inputs = network_inputs(model, frames, max_proposals)
+    detector = DetectorModel.load(model, threads=threads)
+    return _network_result("onnxruntime", model.name, detector.run, inputs)
+
+
+def measure_torch(checkpoint: Path, frames: Path, model: Path, *, max_proposals: int, threads: int = 2,
+                  svd: int | None = None) -> NetworkResult:  # fmt: skip
+    """Torch eager fp32 (a3d.train.inference.TorchNetwork) of ``checkpoint`` (its SVD copy at
+    rank ``svd``) on the inputs a3d-run feeds ``model``."""
+    import torch
+
+    from a3d.export.onnx_export import load_trained
+    from a3d.export.svd import svd_compress
+    from a3d.train.inference import TorchNetwork
+
+    torch.set_num_threads(threads)
+    inputs = network_inputs(model, frames, max_proposals)
+    trained = load_trained(checkpoint)
+    net = trained.net if svd is None else svd_compress(trained.net, svd)[0]
+    network = TorchNetwork(net, trained.stats, trained.config.inference.regress_3d)
+    return _network_result("torch eager", checkpoint.name, network.run, inputs)
+
+
+def _network_result(engine: str, model: str, run: Callable, inputs: list[NetworkInputs]) -> NetworkResult:
+    used = [i for i in inputs if len(i.rois)]
+    if not used:
+        raise RuntimeError("no frame with a usable proposal")
+    run(used[0].color, used[0].depth, used[0].rois, used[0].context_rois)  # warm-up
+    full, one = [], []
+    for item in used:
+        for seconds, count in ((full, len(item.rois)), (one, 1)):
+            start = time.perf_counter()
+            run(item.color, item.depth, item.rois[:count], item.context_rois[:count])
+            seconds.append(time.perf_counter() - start)
+    return NetworkResult(engine, model, float(np.mean(full)), float(np.mean(one)),
+                         float(np.mean([len(i.rois) for i in used])))  # fmt: skip
+
+
+# ----------------------------------------------------------------------------- child processes
+
+
+WORKERS: dict[str, Callable] = {"run": measure_run, "ort": measure_ort, "torch": measure_torch}
+
+
+def in_child(kind: str, **kwargs) -> dict:
+    """``WORKERS[kind](**kwargs)`` in a fresh Python process; its result as a dict, with the
+    child's peak resident memory (``peak_bytes``)."""
+    with tempfile.TemporaryDirectory(prefix="a3d-edge-") as tmp:
+        spec, result = Path(tmp) / "spec.json", Path(tmp) / "result.json"
+        spec.write_text(json.dumps({k: str(v) if isinstance(v, Path) else v for k, v in kwargs.items()}))
+        subprocess.run([sys.executable, __file__, "--worker", kind, str(spec), str(result)], check=True)
+        return json.loads(result.read_text())
+
+
+def _worker(kind: str, spec: Path, result: Path) -> None:
+    kwargs = json.loads(spec.read_text())
+    paths = {"model", "frames", "checkpoint", "rrd", "output"}
+    kwargs = {k: Path(v) if k in paths and v is not None else v for k, v in kwargs.items()}
+    value = asdict(WORKERS[kind](**kwargs))
+    value["peak_bytes"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # KiB on Linux
+    result.write_text(json.dumps(value))
+
+
+# ----------------------------------------------------------------------------- report
+
+
+@dataclass
+class Report:
+    """Everything one benchmark run measured, and the lines it prints."""
+
+    runs: list[RunResult] = field(default_factory=list)
+    networks: dict[str, NetworkResult] = field(default_factory=dict)
+    lines: list[str] = field(default_factory=list)
+
+    def say(self, text: str = "") -> None:
+        self.lines.append(text)
+        print(text, flush=True)
+
+    def breakdown(self, title: str, runs: list[RunResult]) -> None:
+        """One column per run: stage means, their sum, the frame period, frames/s, peak memory."""
+        self.say(f"\n{title}")
+        heads = [f"{r.model}{' overlap' if r.overlap else ''}" for r in runs]
+        self.say(f"  {'stage (ms per frame)':24s}" + "".join(f"{h:>26s}" for h in heads))
+        for stage in RUN_STAGES:
+            self.say(f"  {STAGE_LABELS[stage]:24s}" + "".join(f"{1e3 * r.stages[stage]:26.1f}" for r in runs))
+        rows = (
+            ("sum of stages", [f"{1e3 * r.stage_sum:.1f}" for r in runs]),
+            ("frame time", [f"{1e3 * r.frame_seconds:.1f}" for r in runs]),
+            ("other (loop; < 0: overlap)", [f"{1e3 * (r.frame_seconds - r.stage_sum):.1f}" for r in runs]),
+            ("frames/s", [f"{1 / r.frame_seconds:.2f}" for r in runs]),
+            ("RoIs per frame", [f"{r.rois:.0f}" for r in runs]),
+            ("peak resident memory MiB", [f"{r.peak_bytes / 2**20:.0f}" for r in runs]),
+        )
+        for label, values in rows:
+            self.say(f"  {label:24s}" + "".join(f"{v:>26s}" for v in values))
+
+    def network_table(self) -> None:
+        self.say("\nnetwork alone, same inputs (ms per frame; trunks ~ one-RoI call, head = the rest)")
+        self.say(f"  {'':34s}{'all RoIs':>10s}{'trunks':>10s}{'head':>10s}{'RoIs':>8s}{'peak MiB':>10s}")
+        for key, n in self.networks.items():
+            self.say(f"  {key:34s}{1e3 * n.seconds:10.1f}{1e3 * n.one_roi_seconds:10.1f}"
+                     f"{1e3 * n.head_seconds:10.1f}{n.rois:8.0f}{n.peak_bytes / 2**20:10.0f}")  # fmt: skip
+
+    def target(self, what: str, ok: bool, detail: str) -> None:
+        self.say(f"  [{'PASS' if ok else 'FAIL'}] {what}: {detail}")
+
+
+def load_average() -> str:
+    one, five, fifteen = os.getloadavg()
+    return f"load average {one:.2f} {five:.2f} {fifteen:.2f} on {os.cpu_count()} CPUs"
+
+
+# ----------------------------------------------------------------------------- main
+
+
+def build_full_model(work: Path, frames: Path, args: argparse.Namespace) -> tuple[Path, Path, Path]:
+    """The vgg16-fused checkpoint and its fp32 and int8 + SVD exports in ``work`` (kept between runs)."""
+    checkpoint = work / "vgg16-fused" / "checkpoint.pt"
+    fp32, int8 = work / "vgg16-fused.fp32.onnx", work / f"vgg16-fused.svd{args.svd}.int8.onnx"
+    if args.rebuild or not checkpoint.is_file():
+        start = time.perf_counter()
+        random_checkpoint(checkpoint, "vgg16-fused", {"proposals": {"max_proposals": args.max_proposals}})
+        print(f"checkpoint {checkpoint}: {time.perf_counter() - start:.0f} s", file=sys.stderr)
+    for out, options in ((fp32, {}), (int8, {"svd": args.svd, "int8": True})):
+        if args.rebuild or not out.is_file():
+            seconds = export_model(checkpoint, out, frames, calib_frames=args.calib_frames,
+                                   threads=args.threads, **options)  # fmt: skip
+            print(f"export {out.name}: {seconds:.0f} s", file=sys.stderr)
+    return checkpoint, fp32, int8
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("frames", type=Path, help="frames (427 x 561: a3d-synth's test split)")
+    parser.add_argument("--work", type=Path, default=Path("/tmp/a3d_edge_speed"), help="checkpoint, models")
+    parser.add_argument("--small-model", type=Path, default=Path("samples/model.onnx"))
+    parser.add_argument("--frames", dest="count", type=int, default=8, help="frames per run (1 warm-up)")
+    parser.add_argument("--max-proposals", type=int, default=500)
+    parser.add_argument("--svd", type=int, default=1024, help="fc6/fc7 SVD rank of the int8 model")
+    parser.add_argument("--calib-frames", type=int, default=4)
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--rebuild", action="store_true", help="make the checkpoint and exports again")
+    parser.add_argument("--no-torch", action="store_true", help="skip the torch eager comparison")
+    args = parser.parse_args(argv)
+    args.work.mkdir(parents=True, exist_ok=True)
+    frames = frame_subset(args.frames, args.work / "frames", args.count)
+    checkpoint, fp32, int8 = build_full_model(args.work, frames, args)
+    report = Report()
+    report.say(f"edge speed: {args.count} frames of {args.frames}, --max-proposals {args.max_proposals}, "
+               f"--threads {args.threads}; {load_average()} at the start")  # fmt: skip
+    common = {"frames": frames, "max_proposals": args.max_proposals, "threads": args.threads}
+    for overlap in (False, True):
+        report.runs.append(RunResult(**in_child("run", model=int8, overlap=overlap,
+                                                rrd=args.work / f"int8{'-overlap' * overlap}.rrd", **common)))
+    small = []
+    if args.small_model.is_file():
+        for overlap in (False, True):
+            small.append(RunResult(**in_child("run", model=args.small_model, overlap=overlap, **common)))
+    report.networks["onnxruntime int8 + SVD"] = NetworkResult(**in_child("ort", model=int8, **common))
+    report.networks["onnxruntime fp32"] = NetworkResult(**in_child("ort", model=fp32, **common))
+    if not args.no_torch:
+        report.networks["torch eager fp32"] = NetworkResult(
+            **in_child("torch", checkpoint=checkpoint, model=fp32, **common))
+    if small:
+        report.networks["onnxruntime small model"] = NetworkResult(
+            **in_child("ort", model=args.small_model, **common))
+
+    report.breakdown(f"(a) vgg16-fused int8 + SVD {args.svd} through a3d-run", report.runs)
+    if small:
+        report.breakdown(f"(b) {args.small_model} through a3d-run", small)
+    report.network_table()
+    net = report.networks
+    best = min(report.runs, key=lambda r: r.frame_seconds)
+    alone = net["onnxruntime int8 + SVD"].seconds
+    report.say("\nratios (machine independent)")
+    report.say(f"  end to end / network alone (int8 + SVD, {'overlap' if best.overlap else 'sequential'}): "
+               f"{best.frame_seconds / alone:.2f}")  # fmt: skip
+    report.say(f"  int8 + SVD / fp32 network (ONNX Runtime): {alone / net['onnxruntime fp32'].seconds:.2f}")
+    if "torch eager fp32" in net:
+        report.say(f"  ONNX Runtime fp32 / torch eager fp32: "
+                   f"{net['onnxruntime fp32'].seconds / net['torch eager fp32'].seconds:.2f}")  # fmt: skip
+    report.say(f"\ntargets ({load_average()} at the end)")
+    mode = "with --overlap" if best.overlap else "sequential"
+    report.target("end to end <= 1.3 x network alone", best.frame_seconds <= TARGET_E2E_OVER_NETWORK * alone,
+                  f"{best.frame_seconds:.3f} s vs 1.3 x {alone:.3f} s ({mode})")
+    report.target(f"end to end <= {PAPER_SECONDS} s (paper, Titan X, network only)",
+                  best.frame_seconds <= PAPER_SECONDS, f"{best.frame_seconds:.3f} s per frame ({mode})")
+    if "torch eager fp32" in net:
+        speedup = net["torch eager fp32"].seconds / net["onnxruntime fp32"].seconds
+        ok = speedup >= TARGET_ORT_OVER_TORCH
+        report.target("ONNX Runtime fp32 >= 1.3 x faster than torch eager fp32", ok, f"{speedup:.2f} x")
+    peak = max(r.peak_bytes for r in report.runs)
+    report.target("peak resident memory of a3d-run with the int8 model <= 2 GiB", peak <= TARGET_PEAK_BYTES,
+                  f"{peak / 2**30:.2f} GiB")
+    return 0
+
+
+if __name__ == "__main__":
+    if len(sys.argv) == 5 and sys.argv[1] == "--worker":
+        _worker(sys.argv[2], Path(sys.argv[3]), Path(sys.argv[4]))
+    else:
+        sys.exit(main())

@@ -1,0 +1,28 @@
+"""Shared fixtures: one tiny exported model for the tests that run a3d-run as a user would."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+
+@pytest.fixture(scope="session")
+def tiny_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A real a3d-export graph (A3DNet at width 0.125, random weights) with tests/test_run.py's
+    model metadata (half-scale input, 60 proposals): ~10 s to export, once per session."""
+    pytest.importorskip("torch")
+    import torch
+
+    from a3d.export.onnx_export import RuntimeGraph, export_graph, save_model
+    from a3d.train.dataset import TargetStats
+    from a3d.train.model import A3DNet, NetConfig
+    from tests.test_run import fake_metadata
+
+    torch.manual_seed(0)
+    net = A3DNet(NetConfig(width=0.125, fc6=32, fc7=32, dropout=0.0)).eval()
+    root = tmp_path_factory.mktemp("tiny_model")
+    raw = export_graph(RuntimeGraph(net, TargetStats.identity()), root / "raw.onnx")
+    path = root / "model.onnx"
+    save_model(raw, fake_metadata(), path)
+    return path

@@ -1,0 +1,79 @@
+"""Smoke test of bench/edge_speed.py on a tiny model: its functions build, export and time a run.
+
+No timing is asserted (the machine is shared); what is checked is the bookkeeping: every stage
+of a3d-run is accounted for, the stages of a sequential run add up to its frame time, and the
+network-alone measurement sees the very inputs a3d-run fed the model.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from a3d.runtime.frames import write_frame, write_intrinsics
+from a3d.runtime.geometry import Intrinsics
+
+pytestmark = pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")
+BENCH = Path(__file__).resolve().parents[1] / "bench" / "edge_speed.py"
+TINY = {
+    "net": {"width": 0.125, "fuse_channels": 16, "fc6": 32, "fc7": 32},
+    "data": {"input_scale": 0.5},
+    "proposals": {"min_area": 20, "max_proposals": 60},
+}
+
+
+@pytest.fixture(scope="module")
+def edge_speed():
+    spec = importlib.util.spec_from_file_location("edge_speed", BENCH)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules["edge_speed"] = module  # dataclasses resolve their module by name
+    spec.loader.exec_module(module)
+    yield module
+    sys.modules.pop("edge_speed", None)
+
+
+def _frames(folder: Path, count: int) -> Path:
+    """Small RGB-D frames: coloured rectangles at their own depths, a few depth holes."""
+    rng = np.random.default_rng(0)
+    height, width = 96, 128
+    write_intrinsics(folder, Intrinsics(110.0, 110.0, (width - 1) / 2, (height - 1) / 2))
+    for k in range(count):
+        color = np.empty((height, width, 3), np.uint8)
+        color[:] = rng.integers(60, 200, 3)
+        depth = np.full((height, width), 3.0, np.float32)
+        for _ in range(5):
+            y, x = rng.integers(0, height - 20), rng.integers(0, width - 20)
+            h, w = rng.integers(10, height // 2), rng.integers(10, width // 2)
+            color[y : y + h, x : x + w] = rng.integers(0, 255, 3)
+            depth[y : y + h, x : x + w] = rng.uniform(1.0, 3.0)
+        depth[rng.random((height, width)) < 0.05] = 0.0
+        write_frame(folder, f"{k:04d}", color, depth)
+    return folder
+
+
+def test_breakdown_accounts_for_the_whole_frame(edge_speed, tmp_path: Path) -> None:
+    frames = _frames(tmp_path / "frames", 4)
+    checkpoint = edge_speed.random_checkpoint(tmp_path / "run" / "checkpoint.pt", "cpu-eighth", TINY)
+    model = tmp_path / "tiny.onnx"
+    edge_speed.export_model(checkpoint, model, frames, threads=1)
+    subset = edge_speed.frame_subset(frames, tmp_path / "subset", 3)
+    assert sorted(p.name for p in subset.glob("*.color.png")) == ["0000.color.png", "0001.color.png",
+                                                                  "0002.color.png"]  # fmt: skip
+
+    rrd = tmp_path / "run.rrd"
+    run = edge_speed.measure_run(model, subset, max_proposals=40, threads=1, rrd=rrd)
+    assert run.frames == 3 and 0 < run.rois <= 40 and rrd.stat().st_size > 0
+    assert set(run.stages) == set(edge_speed.RUN_STAGES)
+    assert all(seconds >= 0 for seconds in run.stages.values())
+    assert run.stages["network"] > 0 and run.stages["output"] > 0 and run.stages["rerun"] > 0
+    # Sequential: the frame period is the stages plus a little loop overhead (progress bar, generator).
+    assert run.stage_sum <= run.frame_seconds * 1.05 + 2e-3
+    assert run.frame_seconds <= run.stage_sum * 1.25 + 0.02
+
+    alone = edge_speed.measure_ort(model, subset, max_proposals=40, threads=1)
+    assert alone.rois == pytest.approx(run.rois)  # the network alone sees a3d-run's inputs
+    assert alone.seconds > 0 and alone.one_roi_seconds > 0
