@@ -280,7 +280,8 @@ def test_depth_files(tmp_path: Path, valid: dict[str, Any], data: st.DataObject)
 @example(data=None)
 def test_meta_files(tmp_path: Path, valid: dict[str, Any], data: st.DataObject | None) -> None:
     if data is None:  # the explicit examples
-        for content in (DEEP_JSON, HUGE_INTEGER, b'{"intrinsics": {"fx": 1' + b"0" * 400 + b"}}"):
+        beyond_float64 = b'{"intrinsics": {"fx": 1' + b"0" * 400 + b', "fy": 20, "cx": 7.5, "cy": 5.5}}'
+        for content in (DEEP_JSON, HUGE_INTEGER, beyond_float64):
             _check_frame(_frame_folder(tmp_path, valid, meta_json=content))
         return
     _check_frame(_frame_folder(tmp_path, valid, meta_json=data.draw(json_files(valid["meta.json"]))))
@@ -292,7 +293,9 @@ def test_meta_files(tmp_path: Path, valid: dict[str, Any], data: st.DataObject |
 def test_ground_truth_files(tmp_path: Path, valid: dict[str, Any], data: st.DataObject | None) -> None:
     ref = _frame_folder(tmp_path, valid)
     ref = FrameRef(ref.name, ref.color_path, ref.depth_path, ref.meta_path, gt_path=tmp_path / "f.gt.json")
-    contents = [DEEP_JSON, HUGE_INTEGER] if data is None else [data.draw(json_files(valid["gt.json"]))]
+    class_list = valid["gt.json"].replace(b'"class": "chair"', b'"class": ["chair"]')  # unhashable
+    explicit = [DEEP_JSON, HUGE_INTEGER, class_list]
+    contents = explicit if data is None else [data.draw(json_files(valid["gt.json"]))]
     for content in contents:
         ref.gt_path.write_bytes(content)
         gt = outcome(lambda: read_ground_truth(ref), ref.gt_path)

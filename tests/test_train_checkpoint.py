@@ -122,6 +122,9 @@ def test_kill_during_a_checkpoint_write_keeps_the_previous_one(tmp_path, mode):
     assert proc.returncode == -signal.SIGKILL
     loaded = load_checkpoint(path)
     assert loaded["iteration"] == 1 and torch.equal(loaded["model"]["w"], torch.full((3,), 1.0))
-    # The next save succeeds over the leftovers of the killed one.
+    # The next save succeeds and clears what the killed one left.
+    leftovers = [p.name for p in tmp_path.iterdir() if p.name != "checkpoint.pt"]
+    assert len(leftovers) == 1 and leftovers[0].startswith(".checkpoint.pt.tmp-")
     save_checkpoint(path, {"iteration": 3, "config": "{}", "model": {"w": torch.zeros(3)}})
     assert load_checkpoint(path)["iteration"] == 3
+    assert [p.name for p in tmp_path.iterdir()] == ["checkpoint.pt"]

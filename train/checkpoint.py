@@ -8,9 +8,10 @@ and None, so loading one can never run code. The training loop stores (see ``a3d
     model (state dict), optimizer (state dict), target_stats {mean3d, std3d, mean2d, std2d},
     mean_sizes (19, 3) [l, w, h], classes (list of names)
 
-Writes go to a temporary file in the same folder, are fsync'ed, then ``os.replace``'d over the
-old checkpoint (and the folder fsync'ed), so a crash or ``kill -9`` at any moment leaves either
-the previous checkpoint or the new one, never a torn file.
+Writes go to a temporary file in the same folder (``.NAME.tmp-PID``), are fsync'ed, then
+``os.replace``'d over the old checkpoint (and the folder fsync'ed), so a crash or ``kill -9`` at
+any moment leaves either the previous checkpoint or the new one, never a torn file. The next save
+removes temporary files that a killed writer left behind (one writer per run folder).
 """
 
 from __future__ import annotations
@@ -42,6 +43,8 @@ def save_checkpoint(path: str | os.PathLike, payload: dict) -> None:
     _check_plain(payload, "checkpoint")
     payload = {"format": FORMAT, "version": VERSION, **payload}
     path.parent.mkdir(parents=True, exist_ok=True)
+    for stale in path.parent.glob(f".{path.name}.tmp-*"):  # left by a writer that was killed
+        stale.unlink(missing_ok=True)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     try:
         with open(tmp, "wb") as f:
