@@ -358,23 +358,27 @@ class Report:
         self.lines.append(text)
         print(text, flush=True)
 
-    def breakdown(self, title: str, runs: list[RunResult]) -> None:
-        """One column per run: stage means, their sum, the frame period, frames/s, peak memory."""
+    def breakdown(self, title: str, runs: list[RunResult], network: NetworkResult | None = None) -> None:
+        """One column per run: stage means, their sum, the frame period, frames/s, peak memory; the
+        network stage split into trunks and head by ``network``'s one-RoI share."""
         self.say(f"\n{title}")
-        heads = [f"{r.model}{' overlap' if r.overlap else ''}" for r in runs]
-        self.say(f"  {'stage (ms per frame)':24s}" + "".join(f"{h:>26s}" for h in heads))
-        for stage in RUN_STAGES:
-            self.say(f"  {STAGE_LABELS[stage]:24s}" + "".join(f"{1e3 * r.stages[stage]:26.1f}" for r in runs))
-        rows = (
+        self.say(f"  {'ms per frame':28s}" + "".join(f"{'--overlap' if r.overlap else 'sequential':>14s}" for r in runs))
+        rows = [(STAGE_LABELS[s], [f"{1e3 * r.stages[s]:.1f}" for r in runs]) for s in RUN_STAGES]
+        if network is not None:
+            share = network.one_roi_seconds / network.seconds
+            at = RUN_STAGES.index("network") + 1
+            rows[at:at] = [("  trunks (est.)", [f"{1e3 * share * r.stages['network']:.1f}" for r in runs]),
+                           ("  head (est.)", [f"{1e3 * (1 - share) * r.stages['network']:.1f}" for r in runs])]
+        rows += [
             ("sum of stages", [f"{1e3 * r.stage_sum:.1f}" for r in runs]),
             ("frame time", [f"{1e3 * r.frame_seconds:.1f}" for r in runs]),
-            ("other (loop; < 0: overlap)", [f"{1e3 * (r.frame_seconds - r.stage_sum):.1f}" for r in runs]),
+            ("other (< 0: hidden by overlap)", [f"{1e3 * (r.frame_seconds - r.stage_sum):.1f}" for r in runs]),
             ("frames/s", [f"{1 / r.frame_seconds:.2f}" for r in runs]),
             ("RoIs per frame", [f"{r.rois:.0f}" for r in runs]),
-            ("peak resident memory MiB", [f"{r.peak_bytes / 2**20:.0f}" for r in runs]),
-        )
+            ("peak resident memory (MiB)", [f"{r.peak_bytes / 2**20:.0f}" for r in runs]),
+        ]
         for label, values in rows:
-            self.say(f"  {label:24s}" + "".join(f"{v:>26s}" for v in values))
+            self.say(f"  {label:28s}" + "".join(f"{v:>14s}" for v in values))
 
     def network_table(self) -> None:
         self.say("\nnetwork alone, same inputs (ms per frame; trunks ~ one-RoI call, head = the rest)")
@@ -396,12 +400,12 @@ def load_average() -> str:
 
 
 def build_full_model(work: Path, frames: Path, args: argparse.Namespace) -> tuple[Path, Path, Path]:
-    """The vgg16-fused checkpoint and its fp32 and int8 + SVD exports in ``work`` (kept between runs)."""
-    checkpoint = work / "vgg16-fused" / "checkpoint.pt"
-    fp32, int8 = work / "vgg16-fused.fp32.onnx", work / f"vgg16-fused.svd{args.svd}.int8.onnx"
+    """The checkpoint of ``args.net`` and its fp32 and int8 + SVD exports in ``work`` (kept between runs)."""
+    checkpoint = work / args.net / "checkpoint.pt"
+    fp32, int8 = work / f"{args.net}.fp32.onnx", work / f"{args.net}.svd{args.svd}.int8.onnx"
     if args.rebuild or not checkpoint.is_file():
         start = time.perf_counter()
-        random_checkpoint(checkpoint, "vgg16-fused", {"proposals": {"max_proposals": args.max_proposals}})
+        random_checkpoint(checkpoint, args.net, {"proposals": {"max_proposals": args.max_proposals}})
         print(f"checkpoint {checkpoint}: {time.perf_counter() - start:.0f} s", file=sys.stderr)
     for out, options in ((fp32, {}), (int8, {"svd": args.svd, "int8": True})):
         if args.rebuild or not out.is_file():
@@ -418,6 +422,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--small-model", type=Path, default=Path("samples/model.onnx"))
     parser.add_argument("--frames", dest="count", type=int, default=8, help="frames per run (1 warm-up)")
     parser.add_argument("--max-proposals", type=int, default=500)
+    parser.add_argument("--net", default="vgg16-fused", help="network preset of (a) (a3d.train.model.config)")
     parser.add_argument("--svd", type=int, default=1024, help="fc6/fc7 SVD rank of the int8 model")
     parser.add_argument("--calib-frames", type=int, default=4)
     parser.add_argument("--threads", type=int, default=2)
@@ -447,9 +452,9 @@ def main(argv: list[str] | None = None) -> int:
         report.networks["onnxruntime small model"] = NetworkResult(
             **in_child("ort", model=args.small_model, **common))
 
-    report.breakdown(f"(a) vgg16-fused int8 + SVD {args.svd} through a3d-run", report.runs)
+    report.breakdown(f"(a) {int8} through a3d-run", report.runs, report.networks["onnxruntime int8 + SVD"])
     if small:
-        report.breakdown(f"(b) {args.small_model} through a3d-run", small)
+        report.breakdown(f"(b) {args.small_model} through a3d-run", small, report.networks["onnxruntime small model"])
     report.network_table()
     net = report.networks
     best = min(report.runs, key=lambda r: r.frame_seconds)

@@ -130,7 +130,7 @@ def _valid() -> dict[str, Any]:
 
 @pytest.fixture
 def valid() -> dict[str, Any]:
-    """The valid files' bytes (a plain dict, so that hypothesis does not print it with a failing example)."""
+    """The valid files' bytes (with a short repr: hypothesis prints the arguments of a failing example)."""
     return _Valid(_valid())
 
 
@@ -213,15 +213,19 @@ HUGE_INTEGER = b"1" * 5000  # json.loads: ValueError above 4300 digits, without 
 # ----------------------------------------------------------------------------- checks
 
 
-def outcome(read: Callable[[], Any], path: Path | str) -> Any:
-    """``read()``'s result, or None if it raised a ValueError (InputError) that is one line naming
-    ``path``; any other exception propagates and fails the test."""
+def outcome(read: Callable[[], Any], *paths: Path | str) -> Any:
+    """``read()``'s result, or None if it raised a ValueError (InputError is one) whose message is
+    one line starting with one of ``paths`` ("PATH: problem"); any other exception propagates and
+    fails the test."""
     try:
         return read()
     except ValueError as error:
         message = str(error)
         assert "\n" not in message, message
-        assert str(path) in message, f"{type(error).__name__} does not name {path}: {message}"
+        named = any(message.startswith(f"{path}:") for path in paths)
+        assert named, (
+            f"{type(error).__name__} does not start with one of {[str(p) for p in paths]}: {message}"
+        )
         return None
 
 
@@ -245,7 +249,8 @@ def _frame_folder(folder: Path, valid: dict[str, Any], **replaced: bytes) -> Fra
 
 
 def _check_frame(ref: FrameRef) -> None:
-    frame = outcome(lambda: read_frame(ref, None), ref.color_path.parent)
+    files = (ref.color_path, ref.depth_path, ref.meta_path, ref.color_path.parent / "intrinsics.json")
+    frame = outcome(lambda: read_frame(ref, None), *files)
     if frame is None:
         return
     assert frame.color.dtype == np.uint8 and frame.color.ndim == 3 and frame.color.shape[2] == 3
@@ -301,14 +306,10 @@ def test_ground_truth_files(tmp_path: Path, valid: dict[str, Any], data: st.Data
         gt = outcome(lambda: read_ground_truth(ref), ref.gt_path)
         if gt is not None:
             n = len(gt)
-            assert gt.boxes3d.shape == (n, 7) and gt.boxes2d_visible.shape == gt.boxes2d_amodal.shape == (
-                n,
-                4,
-            )
-            assert all(np.isfinite(a).all() for a in (gt.boxes3d, gt.boxes2d_visible, gt.boxes2d_amodal))
-            assert (gt.boxes3d[:, 3:6] > 0).all() and (
-                (gt.class_ids >= 0) & (gt.class_ids < NUM_CLASSES)
-            ).all()
+            boxes = (gt.boxes3d, gt.boxes2d_visible, gt.boxes2d_amodal)
+            assert [b.shape for b in boxes] == [(n, 7), (n, 4), (n, 4)]
+            assert all(np.isfinite(b).all() for b in boxes) and (gt.boxes3d[:, 3:6] > 0).all()
+            assert ((gt.class_ids >= 0) & (gt.class_ids < NUM_CLASSES)).all()
 
 
 @SETTINGS
@@ -341,9 +342,8 @@ def test_proposal_files(tmp_path: Path, valid: dict[str, Any], data: st.DataObje
         return
     n = len(proposals)
     assert proposals.boxes.shape == (n, 4) and np.isfinite(proposals.boxes).all()
-    assert proposals.scores is None or (
-        proposals.scores.shape == (n,) and np.isfinite(proposals.scores).all()
-    )
+    scores = proposals.scores
+    assert scores is None or (scores.shape == (n,) and np.isfinite(scores).all())
     for i in range(n):
         assert proposals.mask(i).shape == (H, W)
 

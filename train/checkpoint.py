@@ -19,8 +19,10 @@ from __future__ import annotations
 import os
 import pickle
 import re
+import struct
 import warnings
 import zipfile
+import zlib
 from pathlib import Path
 
 import torch
@@ -63,6 +65,7 @@ def load_checkpoint(path: str | os.PathLike) -> dict:
     path = Path(path)
     if not path.is_file():
         raise CheckpointError(f"{path}: no such checkpoint file")
+    _check_archive(path)
     try:
         with warnings.catch_warnings():  # torch warns about foreign pickles before refusing them
             warnings.simplefilter("ignore", UserWarning)
@@ -77,7 +80,16 @@ def load_checkpoint(path: str | os.PathLike) -> dict:
         detail = re.search(r"WeightsUnpickler error:\s*(.+)", text)
         reason = detail.group(1) if detail else "unpickling failed"
         raise CheckpointError(f"{path}: corrupted, truncated or not a checkpoint ({reason})") from None
-    except (RuntimeError, EOFError, OSError, zipfile.BadZipFile, ValueError, KeyError) as e:
+    except (
+        RuntimeError,
+        EOFError,
+        OSError,
+        zipfile.BadZipFile,
+        ValueError,
+        KeyError,
+        IndexError,
+        struct.error,
+    ) as e:
         first = (str(e).strip().splitlines() or [type(e).__name__])[0]
         raise CheckpointError(f"{path}: corrupted, truncated or not a checkpoint ({first})") from None
     if not isinstance(data, dict) or data.get("format") != FORMAT:
@@ -88,6 +100,20 @@ def load_checkpoint(path: str | os.PathLike) -> dict:
     if missing:
         raise CheckpointError(f"{path}: a3d checkpoint without {', '.join(missing)}")
     return data
+
+
+def _check_archive(path: Path) -> None:
+    """Verify every member's CRC first: a flipped byte inside a tensor would otherwise load
+    silently as a wrong weight (the zip and the pickle both stay readable)."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            bad = archive.testzip()
+    except (zipfile.BadZipFile, OSError, EOFError, ValueError, NotImplementedError):
+        return  # not a readable zip: torch.load below names the problem
+    except zlib.error as e:
+        raise CheckpointError(f"{path}: corrupted checkpoint ({e})") from None
+    if bad is not None:
+        raise CheckpointError(f"{path}: corrupted checkpoint (member {bad} fails its CRC check)")
 
 
 def _check_plain(obj, where: str) -> None:
