@@ -347,53 +347,103 @@ def _worker(kind: str, spec: Path, result: Path) -> None:
 
 
 @dataclass
-class Report:
-    """Everything one benchmark run measured, and the lines it prints."""
+class Measurements:
+    """Everything one benchmark run measured: a3d-run with the full model's int8 + SVD file and
+    with the small model (sequential, then --overlap), and the networks alone."""
 
-    runs: list[RunResult] = field(default_factory=list)
+    full: list[RunResult] = field(default_factory=list)
+    small: list[RunResult] = field(default_factory=list)
     networks: dict[str, NetworkResult] = field(default_factory=dict)
-    lines: list[str] = field(default_factory=list)
 
-    def say(self, text: str = "") -> None:
-        self.lines.append(text)
-        print(text, flush=True)
 
-    def breakdown(self, title: str, runs: list[RunResult], network: NetworkResult | None = None) -> None:
-        """One column per run: stage means, their sum, the frame period, frames/s, peak memory; the
-        network stage split into trunks and head by ``network``'s one-RoI share."""
-        self.say(f"\n{title}")
-        self.say(f"  {'ms per frame':28s}" + "".join(f"{'--overlap' if r.overlap else 'sequential':>14s}" for r in runs))
-        rows = [(STAGE_LABELS[s], [f"{1e3 * r.stages[s]:.1f}" for r in runs]) for s in RUN_STAGES]
-        if network is not None:
-            share = network.one_roi_seconds / network.seconds
-            at = RUN_STAGES.index("network") + 1
-            rows[at:at] = [("  trunks (est.)", [f"{1e3 * share * r.stages['network']:.1f}" for r in runs]),
-                           ("  head (est.)", [f"{1e3 * (1 - share) * r.stages['network']:.1f}" for r in runs])]
-        rows += [
-            ("sum of stages", [f"{1e3 * r.stage_sum:.1f}" for r in runs]),
-            ("frame time", [f"{1e3 * r.frame_seconds:.1f}" for r in runs]),
-            ("other (< 0: hidden by overlap)", [f"{1e3 * (r.frame_seconds - r.stage_sum):.1f}" for r in runs]),
-            ("frames/s", [f"{1 / r.frame_seconds:.2f}" for r in runs]),
-            ("RoIs per frame", [f"{r.rois:.0f}" for r in runs]),
-            ("peak resident memory (MiB)", [f"{r.peak_bytes / 2**20:.0f}" for r in runs]),
+def print_breakdown(title: str, runs: list[RunResult], network: NetworkResult | None = None) -> None:
+    """One column per run: stage means, their sum, the frame period, frames/s, peak memory; the
+    network stage split into trunks and head by ``network``'s one-RoI share."""
+    print(f"\n{title}")
+    print(
+        f"  {'ms per frame':30s}"
+        + "".join(f"{'--overlap' if r.overlap else 'sequential':>12s}" for r in runs)
+    )
+    rows = [(STAGE_LABELS[s], [1e3 * r.stages[s] for r in runs]) for s in RUN_STAGES]
+    if network is not None:
+        share = network.one_roi_seconds / network.seconds
+        at = RUN_STAGES.index("network") + 1
+        network_ms = [1e3 * r.stages["network"] for r in runs]
+        rows[at:at] = [
+            ("  trunks (est.)", [share * ms for ms in network_ms]),
+            ("  head (est.)", [(1 - share) * ms for ms in network_ms]),
         ]
-        for label, values in rows:
-            self.say(f"  {label:28s}" + "".join(f"{v:>14s}" for v in values))
+    rows += [
+        ("sum of stages", [1e3 * r.stage_sum for r in runs]),
+        ("frame time", [1e3 * r.frame_seconds for r in runs]),
+        ("other (< 0: hidden by overlap)", [1e3 * (r.frame_seconds - r.stage_sum) for r in runs]),
+        ("frames/s", [1 / r.frame_seconds for r in runs]),
+        ("RoIs per frame", [r.rois for r in runs]),
+        ("peak resident memory (MiB)", [r.peak_bytes / 2**20 for r in runs]),
+    ]
+    for label, values in rows:
+        print(
+            f"  {label:30s}" + "".join(f"{v:12.2f}" if label == "frames/s" else f"{v:12.1f}" for v in values)
+        )
 
-    def network_table(self) -> None:
-        self.say("\nnetwork alone, same inputs (ms per frame; trunks ~ one-RoI call, head = the rest)")
-        self.say(f"  {'':34s}{'all RoIs':>10s}{'trunks':>10s}{'head':>10s}{'RoIs':>8s}{'peak MiB':>10s}")
-        for key, n in self.networks.items():
-            self.say(f"  {key:34s}{1e3 * n.seconds:10.1f}{1e3 * n.one_roi_seconds:10.1f}"
-                     f"{1e3 * n.head_seconds:10.1f}{n.rois:8.0f}{n.peak_bytes / 2**20:10.0f}")  # fmt: skip
 
-    def target(self, what: str, ok: bool, detail: str) -> None:
-        self.say(f"  [{'PASS' if ok else 'FAIL'}] {what}: {detail}")
+def print_networks(networks: dict[str, NetworkResult]) -> None:
+    print("\nnetwork alone, same inputs (ms per frame; trunks ~ the one-RoI call, head = the rest)")
+    print(f"  {'':28s}{'all RoIs':>10s}{'trunks':>10s}{'head':>10s}{'RoIs':>8s}{'peak MiB':>10s}")
+    for key, n in networks.items():
+        print(f"  {key:28s}{1e3 * n.seconds:10.1f}{1e3 * n.one_roi_seconds:10.1f}"
+              f"{1e3 * n.head_seconds:10.1f}{n.rois:8.0f}{n.peak_bytes / 2**20:10.0f}")  # fmt: skip
+
+
+def print_targets(m: Measurements) -> None:
+    """Ratios, then a PASS/FAIL line per target (the faster a3d-run mode of the full model)."""
+    best = min(m.full, key=lambda r: r.frame_seconds)
+    mode = "--overlap" if best.overlap else "sequential"
+    alone = m.networks["ort int8 + SVD"].seconds
+    fp32 = m.networks["ort fp32"].seconds
+    torch_fp32 = m.networks["torch eager fp32"].seconds if "torch eager fp32" in m.networks else None
+    print("\nratios (machine independent)")
+    print(f"  end to end ({mode}) / network alone, int8 + SVD: {best.frame_seconds / alone:.2f}")
+    print(f"  int8 + SVD / fp32, ONNX Runtime network: {alone / fp32:.2f}")
+    if torch_fp32 is not None:
+        print(f"  ONNX Runtime fp32 / torch eager fp32 network: {fp32 / torch_fp32:.2f}")
+    print(f"\ntargets ({load_average()} now)")
+    _target(f"int8 + SVD end to end <= {TARGET_E2E_OVER_NETWORK} x its network alone",
+            best.frame_seconds <= TARGET_E2E_OVER_NETWORK * alone,
+            f"{best.frame_seconds:.3f} s vs {TARGET_E2E_OVER_NETWORK} x {alone:.3f} s ({mode})")  # fmt: skip
+    _target(f"int8 + SVD end to end <= {PAPER_SECONDS} s (the paper: Titan X, network only)",
+            best.frame_seconds <= PAPER_SECONDS, f"{best.frame_seconds:.3f} s a frame ({mode})")  # fmt: skip
+    if torch_fp32 is not None:
+        speedup = torch_fp32 / fp32
+        _target(f"ONNX Runtime fp32 >= {TARGET_ORT_OVER_TORCH} x faster than torch eager fp32",
+                speedup >= TARGET_ORT_OVER_TORCH, f"{speedup:.2f} x")  # fmt: skip
+    peak = max(r.peak_bytes for r in m.full)
+    _target("peak resident memory of a3d-run with the int8 model <= 2 GiB", peak <= TARGET_PEAK_BYTES,
+            f"{peak / 2**30:.2f} GiB")  # fmt: skip
+
+
+def _target(what: str, ok: bool, detail: str) -> None:
+    print(f"  [{'PASS' if ok else 'FAIL'}] {what}: {detail}")
 
 
 def load_average() -> str:
     one, five, fifteen = os.getloadavg()
     return f"load average {one:.2f} {five:.2f} {fifteen:.2f} on {os.cpu_count()} CPUs"
+
+
+def cpu_description() -> str:
+    """The CPU model and whether it has the int8 dot-product instructions ONNX Runtime's int8 path
+    uses (VNNI); without them int8 gains far less over fp32 (PLATFORM.md measured with them)."""
+    try:
+        text = Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return "unknown CPU"
+    pairs = (line.split(":", 1) for line in reversed(text.splitlines()) if ":" in line)
+    fields = {key.strip(): value.strip() for key, value in pairs}  # the first CPU's values win
+    model = fields.get("model name", "unknown CPU")
+    flags = set(fields.get("flags", "").split())
+    isa = [name for name in ("avx2", "avx512f", "avx512_vnni", "avx_vnni", "amx_int8") if name in flags]
+    return f"{model} ({', '.join(isa) or 'no AVX2'})"
 
 
 # ----------------------------------------------------------------------------- main
@@ -415,6 +465,25 @@ def build_full_model(work: Path, frames: Path, args: argparse.Namespace) -> tupl
     return checkpoint, fp32, int8
 
 
+def measure(args: argparse.Namespace, frames: Path, checkpoint: Path, fp32: Path, int8: Path) -> Measurements:
+    """Every measurement, each in its own process (module docstring)."""
+    m = Measurements()
+    common = {"frames": frames, "max_proposals": args.max_proposals, "threads": args.threads}
+    for overlap in (False, True):
+        rrd = args.work / f"{int8.stem}{'.overlap' * overlap}.rrd"
+        m.full.append(RunResult(**in_child("run", model=int8, overlap=overlap, rrd=rrd, **common)))
+        if args.small_model.is_file():
+            m.small.append(RunResult(**in_child("run", model=args.small_model, overlap=overlap, **common)))
+    m.networks["ort int8 + SVD"] = NetworkResult(**in_child("ort", model=int8, **common))
+    m.networks["ort fp32"] = NetworkResult(**in_child("ort", model=fp32, **common))
+    if not args.no_torch:
+        m.networks["torch eager fp32"] = NetworkResult(**in_child("torch", checkpoint=checkpoint, model=fp32,
+                                                                  **common))  # fmt: skip
+    if m.small:
+        m.networks["ort small model"] = NetworkResult(**in_child("ort", model=args.small_model, **common))
+    return m
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("frames", type=Path, help="frames (427 x 561: a3d-synth's test split)")
@@ -432,53 +501,19 @@ def main(argv: list[str] | None = None) -> int:
     args.work.mkdir(parents=True, exist_ok=True)
     frames = frame_subset(args.frames, args.work / "frames", args.count)
     checkpoint, fp32, int8 = build_full_model(args.work, frames, args)
-    report = Report()
-    report.say(f"edge speed: {args.count} frames of {args.frames}, --max-proposals {args.max_proposals}, "
-               f"--threads {args.threads}; {load_average()} at the start")  # fmt: skip
-    common = {"frames": frames, "max_proposals": args.max_proposals, "threads": args.threads}
-    for overlap in (False, True):
-        report.runs.append(RunResult(**in_child("run", model=int8, overlap=overlap,
-                                                rrd=args.work / f"int8{'-overlap' * overlap}.rrd", **common)))
-    small = []
-    if args.small_model.is_file():
-        for overlap in (False, True):
-            small.append(RunResult(**in_child("run", model=args.small_model, overlap=overlap, **common)))
-    report.networks["onnxruntime int8 + SVD"] = NetworkResult(**in_child("ort", model=int8, **common))
-    report.networks["onnxruntime fp32"] = NetworkResult(**in_child("ort", model=fp32, **common))
-    if not args.no_torch:
-        report.networks["torch eager fp32"] = NetworkResult(
-            **in_child("torch", checkpoint=checkpoint, model=fp32, **common))
-    if small:
-        report.networks["onnxruntime small model"] = NetworkResult(
-            **in_child("ort", model=args.small_model, **common))
-
-    report.breakdown(f"(a) {int8} through a3d-run", report.runs, report.networks["onnxruntime int8 + SVD"])
-    if small:
-        report.breakdown(f"(b) {args.small_model} through a3d-run", small, report.networks["onnxruntime small model"])
-    report.network_table()
-    net = report.networks
-    best = min(report.runs, key=lambda r: r.frame_seconds)
-    alone = net["onnxruntime int8 + SVD"].seconds
-    report.say("\nratios (machine independent)")
-    report.say(f"  end to end / network alone (int8 + SVD, {'overlap' if best.overlap else 'sequential'}): "
-               f"{best.frame_seconds / alone:.2f}")  # fmt: skip
-    report.say(f"  int8 + SVD / fp32 network (ONNX Runtime): {alone / net['onnxruntime fp32'].seconds:.2f}")
-    if "torch eager fp32" in net:
-        report.say(f"  ONNX Runtime fp32 / torch eager fp32: "
-                   f"{net['onnxruntime fp32'].seconds / net['torch eager fp32'].seconds:.2f}")  # fmt: skip
-    report.say(f"\ntargets ({load_average()} at the end)")
-    mode = "with --overlap" if best.overlap else "sequential"
-    report.target("end to end <= 1.3 x network alone", best.frame_seconds <= TARGET_E2E_OVER_NETWORK * alone,
-                  f"{best.frame_seconds:.3f} s vs 1.3 x {alone:.3f} s ({mode})")
-    report.target(f"end to end <= {PAPER_SECONDS} s (paper, Titan X, network only)",
-                  best.frame_seconds <= PAPER_SECONDS, f"{best.frame_seconds:.3f} s per frame ({mode})")
-    if "torch eager fp32" in net:
-        speedup = net["torch eager fp32"].seconds / net["onnxruntime fp32"].seconds
-        ok = speedup >= TARGET_ORT_OVER_TORCH
-        report.target("ONNX Runtime fp32 >= 1.3 x faster than torch eager fp32", ok, f"{speedup:.2f} x")
-    peak = max(r.peak_bytes for r in report.runs)
-    report.target("peak resident memory of a3d-run with the int8 model <= 2 GiB", peak <= TARGET_PEAK_BYTES,
-                  f"{peak / 2**30:.2f} GiB")
+    print(
+        f"edge speed: {args.count} frames of {args.frames}, --max-proposals {args.max_proposals}, "
+        f"--threads {args.threads}; {cpu_description()}; {load_average()} at the start",
+        flush=True,
+    )
+    m = measure(args, frames, checkpoint, fp32, int8)
+    print_breakdown(f"(a) {int8} through a3d-run", m.full, m.networks["ort int8 + SVD"])
+    if m.small:
+        print_breakdown(f"(b) {args.small_model} through a3d-run", m.small, m.networks["ort small model"])
+    elif not args.small_model.is_file():
+        print(f"\n(b) skipped: no {args.small_model}")
+    print_networks(m.networks)
+    print_targets(m)
     return 0
 
 

@@ -72,8 +72,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("frames", type=Path, help="held-out frames with ground truth")
     parser.add_argument("--calib", type=Path, required=True, help="calibration frames (training split)")
     parser.add_argument("--calib-frames", type=int, default=16)
-    parser.add_argument("--svd", type=int, help="fc6/fc7 SVD rank (default: a quarter of fc6's width, "
-                        "as 1024 of 4096 for the paper's network in bench/edge_speed.py)")
+    parser.add_argument(
+        "--svd",
+        type=int,
+        help="fc6/fc7 SVD rank (default: a quarter of fc6's width, "
+        "as 1024 of 4096 for the paper's network in bench/edge_speed.py)",
+    )
     parser.add_argument("--work", type=Path, default=Path("/tmp/a3d_int8_accuracy"))
     parser.add_argument("--limit", type=int, default=0, help="first N held-out frames (0: all)")
     parser.add_argument("--threads", type=int, default=2)
