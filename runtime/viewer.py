@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import rerun as rr
@@ -87,6 +88,8 @@ def default_blueprint() -> rrb.Blueprint:
 
 def open_recording(args: argparse.Namespace) -> rr.RecordingStream:
     """Start the recording on the sink the flags name, with the default blueprint."""
+    if args.save:
+        Path(args.save).parent.mkdir(parents=True, exist_ok=True)
     return rr.script_setup(args, APPLICATION_ID, default_blueprint=default_blueprint())
 
 

@@ -168,3 +168,9 @@ def test_low_scores_are_not_drawn_and_ground_truth_is_labelled(tmp_path: Path) -
     assert logged["Boxes3D:labels"] == ["chair 0.90"]  # the 0.55 table is below the display cut
     gt = read_columns(path, "/world/ground_truth")[0]
     assert gt["Boxes3D:labels"] == ["GT chair"]
+
+
+def test_save_creates_the_recordings_folder(tmp_path: Path) -> None:
+    path = tmp_path / "new" / "folder" / "run.rrd"
+    _record(path, [_frame(np.random.default_rng(5))])
+    assert read_columns(path, "/world/detections")[0]["Boxes3D:class_ids"] == [5, 17]
