@@ -21,7 +21,9 @@ e.g.
     .venv/bin/python bench/int8_accuracy.py /tmp/a3d_dev/runs/A/checkpoint.pt \\
         /tmp/a3d_dev/synth/s300/test --calib /tmp/a3d_dev/synth/s300/train --work /tmp/a3d_int8
 
-Writes WORK/VARIANT.onnx, WORK/VARIANT.jsonl, WORK/eval_VARIANT/eval.json and WORK/summary.json.
+Writes WORK/VARIANT.onnx (the SVD ones named with their rank, e.g. svd128+int8.onnx),
+WORK/VARIANT.jsonl, WORK/eval_VARIANT/eval.json and WORK/summary.json; ``--reuse`` keeps the
+exports already in WORK (e.g. to try another rank; they must come from the same checkpoint).
 """
 
 from __future__ import annotations
@@ -81,16 +83,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--work", type=Path, default=Path("/tmp/a3d_int8_accuracy"))
     parser.add_argument("--limit", type=int, default=0, help="first N held-out frames (0: all)")
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument(
+        "--reuse", action="store_true", help="keep exports already in WORK (same checkpoint!)"
+    )
     args = parser.parse_args(argv)
     args.work.mkdir(parents=True, exist_ok=True)
     frames = frame_subset(args.frames, args.work / "frames", args.limit) if args.limit else args.frames
     args.svd = args.svd or default_rank(args.checkpoint)
     results = {}
     for name, options in variants(args.svd).items():
-        model = args.work / f"{name}.onnx"
-        export_model(args.checkpoint, model, frames, calib=args.calib, calib_frames=args.calib_frames,
-                     threads=args.threads, **options)  # fmt: skip
-        results[name] = detect_and_score(model, frames, args.work, name, args.threads)
+        stem = name.replace("svd", f"svd{args.svd}")
+        model = args.work / f"{stem}.onnx"
+        if not (args.reuse and model.is_file()):
+            export_model(args.checkpoint, model, frames, calib=args.calib, calib_frames=args.calib_frames,
+                         threads=args.threads, **options)  # fmt: skip
+        results[name] = detect_and_score(model, frames, args.work, stem, args.threads)
 
     base = results["fp32"]["map"][PRIMARY_IOU]
     print(f"\nmAP@{PRIMARY_IOU} of {args.checkpoint} on {frames} (percent; delta vs fp32 in points)")

@@ -59,6 +59,8 @@ from a3d.runtime.image_io import (
 logger = logging.getLogger(__name__)
 
 INTRINSICS_FILE = "intrinsics.json"
+MODEL_FILE = "model.onnx"  # a3d-run's default model, kept beside the frames it was made for
+_FOLDER_FILES = {INTRINSICS_FILE, MODEL_FILE}
 COLOR_SUFFIXES = (".color.png", ".color.jpg", ".color.jpeg")
 DEPTH_SUFFIXES = (".depth.png", ".depth.npy")
 PROPOSALS_SUFFIX = ".proposals.npz"
@@ -199,7 +201,7 @@ def scan_folder(folder: str | os.PathLike) -> FolderListing:
     skipped: list[SkippedFile] = []
     for entry in sorted(os.scandir(folder), key=lambda e: e.name):
         path = Path(entry.path)
-        if entry.name.startswith(".") or entry.name == INTRINSICS_FILE:
+        if entry.name.startswith(".") or entry.name in _FOLDER_FILES:
             continue
         if entry.is_dir():
             skipped.append(SkippedFile(path, "a folder (frames are not searched for in sub-folders)"))

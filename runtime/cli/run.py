@@ -40,6 +40,7 @@ from a3d.runtime import viewer
 from a3d.runtime.detections_io import format_line, parse_line
 from a3d.runtime.errors import InputError, ModelError
 from a3d.runtime.frames import (
+    MODEL_FILE,
     FrameRef,
     GroundTruth,
     SkippedFile,
@@ -52,7 +53,7 @@ from a3d.runtime.model import DetectorModel
 from a3d.runtime.pipeline import PROPOSAL_SOURCES, FrameOutcome, PipelineConfig, detect_frames
 
 PROG = "a3d-run"
-DEFAULT_MODEL = "model.onnx"
+DEFAULT_MODEL = MODEL_FILE
 DEFAULT_OUTPUT = "detections.jsonl"
 
 load_model = DetectorModel.load  # the model loader (tests substitute a fake model here)
