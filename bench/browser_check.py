@@ -459,18 +459,20 @@ def screenshot_stats(png: Path) -> ScreenshotStats:
 
 
 def recording_classes(recording: Path) -> list[str]:
-    """Class names of the detections logged in the recording (from the boxes' labels)."""
+    """Class names of the detections on screen: those logged at the recording's last frame (the
+    viewer opens at the end of the timeline), from the boxes' class ids."""
     import rerun.chunk as rc
 
-    names: set[str] = set()
+    by_frame: dict[int, set[str]] = {}
     for chunk in rc.RrdReader(str(recording)).stream():
         batch = chunk.to_record_batch()
         if batch.schema.metadata.get(b"rerun:entity_path", b"").decode() != "/world/detections":
             continue
-        if "Boxes3D:class_ids" in batch.schema.names:
-            for ids in batch.column("Boxes3D:class_ids").to_pylist():
-                names.update(CLASSES[i - 1] for i in ids or [])
-    return sorted(names)
+        if "Boxes3D:class_ids" in batch.schema.names and "frame" in batch.schema.names:
+            frames = batch.column("frame").to_pylist()
+            for frame, ids in zip(frames, batch.column("Boxes3D:class_ids").to_pylist(), strict=True):
+                by_frame.setdefault(frame, set()).update(CLASSES[i - 1] for i in ids or [])
+    return sorted(by_frame[max(by_frame)]) if by_frame else []
 
 
 # ----------------------------------------------------------------------------- CLI

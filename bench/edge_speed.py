@@ -8,7 +8,7 @@ frames, with
     and RoI pooling, fc6/fc7 of 4096, random weights. The layout is the ``vgg16-fused``
     preset (a3d.train.model.config): the trunk maps are fused by a 1x1 conv to 512 channels
     before pooling, so fc6 sees 2 x 512 x 7 x 7 inputs instead of the plain layout's
-    4 x 512 x 7 x 7 (whose fc6 alone is 25088 x 2 x 4096 weights, 1.6 GB in fp32); it is the
+    4 x 512 x 7 x 7 (whose fc6 alone is 100352 x 4096 weights, 1.6 GB in fp32); it is the
     layout PLATFORM.md measured. The checkpoint is written with a3d.train.checkpoint and
     exported with a3d-export twice: fp32 (no SVD), and ``--svd RANK --int8`` calibrated on the
     first ``--calib-frames`` frames;
@@ -38,7 +38,9 @@ thread count). Times move between machines and with the load, so the targets are
         [--small-model samples/model.onnx] [--frames 8] [--max-proposals 500] [--svd 1024]
 
 The checkpoint and the exports are kept in ``--work`` and reused by later runs (``--rebuild``
-makes them again); building them takes a few minutes and 3-5 GB of memory.
+makes them again); building them takes about 10 minutes on 2 busy cores and up to 8.4 GB of
+memory (the int8 export). The CPU line says whether the machine has VNNI: without it ONNX
+Runtime's int8 kernels gain about 2x over fp32 instead of PLATFORM.md's 3.8x.
 """
 
 from __future__ import annotations
@@ -59,13 +61,14 @@ from unittest import mock
 
 import numpy as np
 
+from a3d.runtime.pipeline import STAGES as PIPELINE_STAGES
+from a3d.runtime.pipeline import PreparedFrame
+
 BIN = Path(sys.executable).parent
 PAPER_SECONDS = 0.739  # Deng & Latecki 2017, Titan X, network only
 TARGET_E2E_OVER_NETWORK = 1.3
 TARGET_ORT_OVER_TORCH = 1.3
 TARGET_PEAK_BYTES = 2 * 1024**3
-PIPELINE_STAGES = ("read", "depth_fill", "gravity", "proposals", "lifting", "network_input", "network",
-                   "postprocess")  # fmt: skip
 RUN_STAGES = (*PIPELINE_STAGES, "output", "rerun")
 STAGE_LABELS = {
     "read": "read",
@@ -160,7 +163,7 @@ class RunResult:
 
 
 def measure_run(model: Path, frames: Path, *, max_proposals: int, threads: int = 2, overlap: bool = False,
-                rrd: Path | None = None, output: Path | None = None) -> RunResult:  # fmt: skip
+                rrd: Path | None = None) -> RunResult:  # fmt: skip
     """Run a3d-run's main on ``frames`` with ``model`` and time every stage of every frame.
 
     The pipeline's own per-frame ``timing`` gives the stages up to NMS + decoding; a3d-run's
@@ -171,7 +174,7 @@ def measure_run(model: Path, frames: Path, *, max_proposals: int, threads: int =
     from a3d.runtime.detections_io import read_detections
 
     with tempfile.TemporaryDirectory(prefix="a3d-edge-") as tmp:
-        output = output or Path(tmp) / "detections.jsonl"
+        output = Path(tmp) / "detections.jsonl"
         rrd = rrd or Path(tmp) / "run.rrd"
         argv = [str(frames), "--model", str(model), "--output", str(output), "--threads", str(threads),
                 "--max-proposals", str(max_proposals), "--save", str(rrd)]  # fmt: skip
@@ -232,19 +235,9 @@ def _timed(function: Callable, spent: dict[str, list[float]], stage: str, new: b
 # ----------------------------------------------------------------------------- the network alone
 
 
-@dataclass
-class NetworkInputs:
-    """One frame's network inputs from the runtime's front end."""
-
-    name: str
-    color: np.ndarray
-    depth: np.ndarray
-    rois: np.ndarray
-    context_rois: np.ndarray
-
-
-def network_inputs(model: Path, frames: Path, max_proposals: int) -> list[NetworkInputs]:
-    """The inputs a3d-run feeds ``model`` for each frame of ``frames`` (a3d.runtime.pipeline.prepare)."""
+def network_inputs(model: Path, frames: Path, max_proposals: int) -> list[PreparedFrame]:
+    """What a3d-run feeds ``model`` for each frame of ``frames`` (a3d.runtime.pipeline.prepare;
+    a3d.export.verify.folder_inputs does the same but brings torch into the process)."""
     from a3d.runtime.frames import list_frames, read_folder_intrinsics
     from a3d.runtime.model import DetectorModel
     from a3d.runtime.pipeline import PipelineConfig, prepare
@@ -252,11 +245,7 @@ def network_inputs(model: Path, frames: Path, max_proposals: int) -> list[Networ
     metadata = DetectorModel.load(model, threads=1).metadata
     config = PipelineConfig.from_metadata(metadata, max_proposals=max_proposals)
     intrinsics = read_folder_intrinsics(frames)
-    out = []
-    for ref in list_frames(frames):
-        p = prepare(ref, intrinsics, config)
-        out.append(NetworkInputs(ref.name, p.color_input, p.depth_input, p.rois, p.context_rois))
-    return out
+    return [prepare(ref, intrinsics, config) for ref in list_frames(frames)]
 
 
 @dataclass
@@ -285,34 +274,32 @@ def measure_ort(model: Path, frames: Path, *, max_proposals: int, threads: int =
     return _network_result("onnxruntime", model.name, detector.run, inputs)
 
 
-def measure_torch(checkpoint: Path, frames: Path, model: Path, *, max_proposals: int, threads: int = 2,
-                  svd: int | None = None) -> NetworkResult:  # fmt: skip
-    """Torch eager fp32 (a3d.train.inference.TorchNetwork) of ``checkpoint`` (its SVD copy at
-    rank ``svd``) on the inputs a3d-run feeds ``model``."""
+def measure_torch(checkpoint: Path, frames: Path, model: Path, *, max_proposals: int,
+                  threads: int = 2) -> NetworkResult:  # fmt: skip
+    """Torch eager fp32 (a3d.train.inference.TorchNetwork) of ``checkpoint`` on the inputs a3d-run
+    feeds ``model`` (its fp32 export)."""
     import torch
 
     from a3d.export.onnx_export import load_trained
-    from a3d.export.svd import svd_compress
     from a3d.train.inference import TorchNetwork
 
     torch.set_num_threads(threads)
     inputs = network_inputs(model, frames, max_proposals)
     trained = load_trained(checkpoint)
-    net = trained.net if svd is None else svd_compress(trained.net, svd)[0]
-    network = TorchNetwork(net, trained.stats, trained.config.inference.regress_3d)
+    network = TorchNetwork(trained.net, trained.stats, trained.config.inference.regress_3d)
     return _network_result("torch eager", checkpoint.name, network.run, inputs)
 
 
-def _network_result(engine: str, model: str, run: Callable, inputs: list[NetworkInputs]) -> NetworkResult:
+def _network_result(engine: str, model: str, run: Callable, inputs: list[PreparedFrame]) -> NetworkResult:
     used = [i for i in inputs if len(i.rois)]
     if not used:
         raise RuntimeError("no frame with a usable proposal")
-    run(used[0].color, used[0].depth, used[0].rois, used[0].context_rois)  # warm-up
+    run(used[0].color_input, used[0].depth_input, used[0].rois, used[0].context_rois)  # warm-up
     full, one = [], []
     for item in used:
         for seconds, count in ((full, len(item.rois)), (one, 1)):
             start = time.perf_counter()
-            run(item.color, item.depth, item.rois[:count], item.context_rois[:count])
+            run(item.color_input, item.depth_input, item.rois[:count], item.context_rois[:count])
             seconds.append(time.perf_counter() - start)
     return NetworkResult(engine, model, float(np.mean(full)), float(np.mean(one)),
                          float(np.mean([len(i.rois) for i in used])))  # fmt: skip
@@ -336,7 +323,7 @@ def in_child(kind: str, **kwargs) -> dict:
 
 def _worker(kind: str, spec: Path, result: Path) -> None:
     kwargs = json.loads(spec.read_text())
-    paths = {"model", "frames", "checkpoint", "rrd", "output"}
+    paths = {"model", "frames", "checkpoint", "rrd"}
     kwargs = {k: Path(v) if k in paths and v is not None else v for k, v in kwargs.items()}
     value = asdict(WORKERS[kind](**kwargs))
     value["peak_bytes"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # KiB on Linux
