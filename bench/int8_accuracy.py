@@ -18,10 +18,14 @@ same resample for fp32 and the variant). Target: svd+int8 costs <= 1.0 mAP point
 Calibrate on training frames, not on the held-out ones (the ranges would have seen the test set).
 
     .venv/bin/python bench/int8_accuracy.py RUN_DIR/checkpoint.pt TEST_FRAMES --calib TRAIN_FRAMES \\
-        --work /tmp/a3d_int8 [--svd RANK] [--calib-frames 16] [--limit 0] [--threads 2]
-e.g.
-    .venv/bin/python bench/int8_accuracy.py /tmp/a3d_dev/runs/A/checkpoint.pt \\
-        /tmp/a3d_dev/synth/s300/test --calib /tmp/a3d_dev/synth/s300/train --work /tmp/a3d_int8
+        --work /tmp/a3d_int8 [--svd RANK] [--calib-frames 16] [--limit 0] [--bootstrap 100] [--reuse]
+e.g., held-out frames from another generator seed than the training set's:
+    .venv/bin/a3d-synth /tmp/a3d_heldout --frames 200 --seed 777 --split test=1.0
+    .venv/bin/python bench/int8_accuracy.py RUN_DIR/checkpoint.pt /tmp/a3d_heldout/test \\
+        --calib SYNTH/train --work /tmp/a3d_int8
+
+Time: each export and a3d-run takes a minute or two for a CPU preset on 200 frames; the
+bootstrap about 4 s per resample there (4 evaluations).
 
 Writes WORK/VARIANT.onnx (the SVD ones named with their rank, e.g. svd128+int8.onnx),
 WORK/VARIANT.jsonl, WORK/eval_VARIANT/eval.json and WORK/summary.json; ``--reuse`` keeps the
