@@ -14,8 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from a3d.runtime.frames import write_frame, write_intrinsics
-from a3d.runtime.geometry import Intrinsics
+from tests.test_export import _frames as write_test_frames
 
 pytestmark = pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")
 BENCH = Path(__file__).resolve().parents[1] / "bench" / "edge_speed.py"
@@ -36,27 +35,9 @@ def edge_speed():
     sys.modules.pop("edge_speed", None)
 
 
-def _frames(folder: Path, count: int) -> Path:
-    """Small RGB-D frames: coloured rectangles at their own depths, a few depth holes."""
-    rng = np.random.default_rng(0)
-    height, width = 96, 128
-    write_intrinsics(folder, Intrinsics(110.0, 110.0, (width - 1) / 2, (height - 1) / 2))
-    for k in range(count):
-        color = np.empty((height, width, 3), np.uint8)
-        color[:] = rng.integers(60, 200, 3)
-        depth = np.full((height, width), 3.0, np.float32)
-        for _ in range(5):
-            y, x = rng.integers(0, height - 20), rng.integers(0, width - 20)
-            h, w = rng.integers(10, height // 2), rng.integers(10, width // 2)
-            color[y : y + h, x : x + w] = rng.integers(0, 255, 3)
-            depth[y : y + h, x : x + w] = rng.uniform(1.0, 3.0)
-        depth[rng.random((height, width)) < 0.05] = 0.0
-        write_frame(folder, f"{k:04d}", color, depth)
-    return folder
-
-
 def test_breakdown_accounts_for_the_whole_frame(edge_speed, tmp_path: Path) -> None:
-    frames = _frames(tmp_path / "frames", 4)
+    frames = tmp_path / "frames"
+    write_test_frames(frames, 4, np.random.default_rng(0))
     checkpoint = edge_speed.random_checkpoint(tmp_path / "run" / "checkpoint.pt", "cpu-eighth", TINY)
     model = tmp_path / "tiny.onnx"
     edge_speed.export_model(checkpoint, model, frames, threads=1)
