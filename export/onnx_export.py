@@ -98,7 +98,7 @@ class RuntimeGraph(nn.Module):
 
 
 def fold_target_stats(net: A3DNet, stats: TargetStats, regress_3d: bool = True) -> A3DNet:
-    """An eval-mode copy of ``net`` whose box heads answer raw deltas.
+    """An eval-mode copy of ``net`` whose box heads answer raw deltas (and trunk BatchNorms folded).
 
     The network predicts normalised deltas n = W x + b, and raw = n * std + mean per class and
     coordinate (output row k * 7 + j for class k, coordinate j); so W' = std * W (row-wise) and
@@ -106,6 +106,9 @@ def fold_target_stats(net: A3DNet, stats: TargetStats, regress_3d: bool = True) 
     Without ``regress_3d`` the 3D head becomes zero (std = mean = 0).
     """
     folded = copy.deepcopy(net).eval()
+    for trunk in (folded.color_trunk, folded.depth_trunk):
+        if trunk is not None:
+            trunk.fold_batch_norms()
     keep = 1.0 if regress_3d else 0.0
     with torch.no_grad():
         for layer, mean, std in (

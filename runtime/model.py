@@ -41,6 +41,7 @@ import onnxruntime as ort
 from a3d.runtime.classes import CLASSES, NUM_CLASSES, NUM_OUTPUTS
 from a3d.runtime.errors import ModelError
 from a3d.runtime.preprocess import COLOR_MEAN_BGR, DEPTH_MEAN
+from a3d.runtime.proposals import proposal_config_from_dict
 
 SCHEMA_VERSION = 1
 METADATA_KEY = "a3d"
@@ -134,7 +135,7 @@ class ModelMetadata:
             nms_iou=check.number(data["nms_iou"], "nms_iou", 0.0, 1.0, closed=True),
             top_k=check.count(data["top_k"], "top_k"),
             max_proposals=check.count(data["max_proposals"], "max_proposals"),
-            proposal_config=check.mapping(data["proposal_config"], "proposal_config"),
+            proposal_config=check.proposal_config(data["proposal_config"]),
             content_sha256=check.digest(data["content_sha256"], "content_sha256"),
             provenance=check.mapping(data["provenance"], "provenance"),
         )
@@ -336,6 +337,11 @@ class _Checker:
             )
             raise self.fail(key, f"a finite number{bounds}", value)
         return float(value)
+
+    def proposal_config(self, value: Any) -> dict[str, Any]:
+        """The plain settings, kept as they are once they build a valid ProposalConfig."""
+        proposal_config_from_dict(value, f"{self.where}: a3d metadata proposal_config")
+        return value
 
     def count(self, value: Any, key: str) -> int:
         if not isinstance(value, int) or isinstance(value, bool) or value < 1:

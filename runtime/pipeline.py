@@ -25,7 +25,7 @@ from __future__ import annotations
 import dataclasses
 import time
 import typing
-from collections.abc import Callable, Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Any, Literal, Protocol
@@ -49,7 +49,7 @@ from a3d.runtime.gravity import estimate_rtilt
 from a3d.runtime.lifting import lift
 from a3d.runtime.network_input import network_inputs, scale_boxes
 from a3d.runtime.postprocess import decode_detections, select_detections
-from a3d.runtime.proposals import ProposalConfig, Proposals, propose
+from a3d.runtime.proposals import ProposalConfig, Proposals, proposal_config_from_dict, propose
 
 ProposalSource = Literal["auto", "compute", "precomputed"]
 PROPOSAL_SOURCES: tuple[str, ...] = typing.get_args(ProposalSource)
@@ -112,31 +112,6 @@ class PipelineConfig:
             nms_iou=float(metadata.nms_iou),
             min_score=float(metadata.score_threshold if min_score is None else min_score),
         )
-
-
-def proposal_config_from_dict(values: Mapping[str, Any], where: str = "proposal_config") -> ProposalConfig:
-    """A ProposalConfig from its plain form (nested dicts, lists for tuples); missing keys keep defaults."""
-    return _dataclass_from_plain(ProposalConfig, values, where)
-
-
-def _dataclass_from_plain(cls: type, values: Any, where: str) -> Any:
-    if not isinstance(values, Mapping):
-        raise ModelError(f"model metadata {where}: expected an object, got {type(values).__name__}")
-    hints = typing.get_type_hints(cls)
-    known = {f.name for f in dataclasses.fields(cls)}
-    unknown = sorted(set(values) - known)
-    if unknown:
-        raise ModelError(f"model metadata {where}: unknown setting(s) {', '.join(unknown)}")
-    return cls(**{key: _from_plain(hints[key], value, f"{where}.{key}") for key, value in values.items()})
-
-
-def _from_plain(hint: Any, value: Any, where: str) -> Any:
-    if dataclasses.is_dataclass(hint):
-        return _dataclass_from_plain(hint, value, where)
-    if typing.get_origin(hint) is tuple:
-        item = typing.get_args(hint)[0] if typing.get_args(hint) else Any
-        return tuple(_from_plain(item, v, where) for v in value)
-    return value
 
 
 # ----------------------------------------------------------------------------- stages

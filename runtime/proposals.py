@@ -32,7 +32,9 @@ about 0.12 s per frame on one core.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import cv2
 import numpy as np
@@ -49,6 +51,7 @@ from a3d.runtime.grouping import (
     outer_similarity,
 )
 from a3d.runtime.normals import NormalConfig, surface_normals
+from a3d.runtime.plain_config import MAX_COUNT, dataclass_from_plain
 from a3d.runtime.superpixels import SuperpixelConfig, depth_edges, oversegment
 
 DEFAULT_STRATEGIES: tuple[Strategy, ...] = (
@@ -96,6 +99,17 @@ class ProposalConfig:
     seed: int = 0
     duplicate_iou: float = 0.95
 
+
+_LIMITS = {  # settings narrower than plain_config's defaults (ints in [0, MAX_COUNT], floats >= 0)
+    "max_proposals": (1, MAX_COUNT), "scale": (1, 64), "n_segments": (1, MAX_COUNT), "step": (1, 64),
+    "window": (1, 255), "color_bins": (1, 256), "duplicate_iou": (0.0, 1.0), "min_valid_fraction": (0.0, 1.0),
+}  # fmt: skip
+
+
+def proposal_config_from_dict(values: Mapping[str, Any], where: str = "proposal_config") -> ProposalConfig:
+    """A ProposalConfig from its plain form (nested dicts, lists for tuples; missing keys keep
+    defaults), every value type- and range-checked: a ModelError names the first bad setting."""
+    return dataclass_from_plain(ProposalConfig, values, where, _LIMITS)
 
 @dataclass(frozen=True)
 class Proposals:

@@ -37,7 +37,7 @@ from a3d.train.model import A3DNet
 pytestmark = pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")
 SVD_RANK = 8
 CONFIG = {
-    "net": {"width": 0.125, "fuse_channels": 32, "fc6": 64, "fc7": 48},
+    "net": {"width": 0.125, "fuse_channels": 32, "fc6": 64, "fc7": 48, "trunk_norm": True},
     "data": {"input_scale": 0.75},
     "proposals": {"min_area": 20, "max_proposals": 150},
     "inference": {"top_k": 50, "nms_iou": 0.4, "min_score": 0.02},
@@ -63,12 +63,15 @@ def _frames(folder: Path, count: int, rng: np.random.Generator) -> None:
 
 
 def _checkpoint(path: Path, rng: np.random.Generator, stats: TargetStats | None = None) -> None:
-    """A checkpoint as a3d.train.loop writes it, with non-trivial BatchNorm, heads and target stats."""
+    """A checkpoint as a3d.train.loop writes it, with non-trivial BatchNorms (trunks and head), heads
+    and target stats."""
     config = TrainConfig.from_dict(CONFIG)
     torch.manual_seed(0)
     net = A3DNet(config.net).eval()
     with torch.no_grad():
-        for bn in (net.bn6, net.bn7):
+        trunk_norms = [m for m in net.modules() if isinstance(m, torch.nn.BatchNorm2d)]
+        assert len(trunk_norms) == 26  # exported folded into the convs
+        for bn in (net.bn6, net.bn7, *trunk_norms):
             bn.running_mean.normal_(0, 0.1)
             bn.running_var.uniform_(0.5, 2.0)
             bn.weight.uniform_(0.5, 1.5)

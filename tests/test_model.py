@@ -177,3 +177,19 @@ def test_config_validation_presets_and_round_trip() -> None:
                 {"roi_pool": "max"}):  # fmt: skip
         with pytest.raises(ValueError, match="NetConfig"):
             NetConfig(**bad)
+
+
+def test_trunk_batch_norms_fold_into_the_convs() -> None:
+    trunk = VGG16Trunk(0.125, batch_norm=True)
+    assert [i for i, _ in trunk.convs()] == list(TORCHVISION_VGG16_CONVS)  # ImageNet keys still map
+    trunk.train()
+    gen = torch.Generator().manual_seed(3)
+    for _ in range(3):  # move the running statistics away from (0, 1)
+        trunk(torch.randn(2, 3, 40, 48, generator=gen) * 30 + 10)
+    trunk.eval()
+    image = torch.randn(1, 3, 40, 48, generator=gen) * 30
+    want = trunk(image)
+    trunk.fold_batch_norms()
+    assert not any(isinstance(m, torch.nn.BatchNorm2d) for m in trunk.modules())
+    assert len(trunk.features) == len(VGG16Trunk(0.125).features)
+    torch.testing.assert_close(trunk(image), want, rtol=1e-4, atol=1e-4 * want.abs().max().item())

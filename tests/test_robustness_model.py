@@ -70,6 +70,20 @@ def _newer(meta: dict) -> str:
     return json.dumps({**meta, "schema_version": SCHEMA_VERSION + 1, "a_new_field": [1, 2]})
 
 
+def _proposal_setting(path: str, value: object) -> Callable[[dict], str]:
+    """Set proposal_config.PATH (dotted) to value in the metadata."""
+
+    def edit(meta: dict) -> str:
+        *parents, leaf = path.split(".")
+        node = meta["proposal_config"]
+        for key in parents:
+            node = node.setdefault(key, {})
+        node[leaf] = value
+        return json.dumps(meta)
+
+    return edit
+
+
 CASES = {
     "truncated": (_truncated, "truncated or corrupted ONNX file"),
     "cut_at_the_end": (_cut_at_the_end, "truncated or corrupted ONNX file"),
@@ -84,6 +98,18 @@ CASES = {
     "huge_number": (
         _edited_metadata(lambda meta: json.dumps(meta).replace('"nms_iou": 0.3', '"nms_iou": 1' + "0" * 400)),
         "a3d metadata nms_iou must be a finite number",
+    ),
+    "proposal_setting_type": (
+        _edited_metadata(_proposal_setting("superpixels.n_segments", "many")),
+        "a3d metadata proposal_config.superpixels.n_segments must be an integer in [1, 10000000], got 'many'",
+    ),
+    "proposal_count_huge": (
+        _edited_metadata(_proposal_setting("max_proposals", 10**30)),
+        "a3d metadata proposal_config.max_proposals must be an integer in [1, 10000000]",
+    ),
+    "proposal_weights_short": (
+        _edited_metadata(_proposal_setting("edge_weights", [1.0, 2.0])),
+        "a3d metadata proposal_config.edge_weights must be a list of 3 values",
     ),
 }
 

@@ -30,10 +30,10 @@ from a3d.runtime.frames import (
 from a3d.runtime.geometry import Intrinsics, batched_nms_2d, box_corners_camera, rtilt_from_pitch_roll
 from a3d.runtime.model import SCHEMA_VERSION, ModelMetadata
 from a3d.runtime.network_input import network_inputs, scale_boxes, with_batch_index
-from a3d.runtime.pipeline import PipelineConfig, detect, detect_frames, proposal_config_from_dict
+from a3d.runtime.pipeline import PipelineConfig, detect, detect_frames
 from a3d.runtime.postprocess import decode_detections, select_detections
 from a3d.runtime.preprocess import COLOR_MEAN_BGR, DEPTH_MEAN, color_input, depth_input
-from a3d.runtime.proposals import ProposalConfig
+from a3d.runtime.proposals import ProposalConfig, proposal_config_from_dict
 
 H, W = 72, 96
 K = Intrinsics(fx=80.0, fy=80.0, cx=47.5, cy=35.5)

@@ -105,3 +105,14 @@ def test_proposal_cache_hits_and_misses(scenes, tmp_path, monkeypatch):
     other = apply_overrides(config, ["proposals.min_area=30"])
     with pytest.raises(AssertionError, match="proposal stage ran"):
         build_roidb(scenes, other, cache)  # another proposal config: another cache key
+
+
+def test_front_end_worker_processes_give_the_serial_result(scenes, tmp_path):
+    serial = build_roidb(scenes, apply_overrides(load_config("vgg16"), TINY), tmp_path / "serial")
+    config = apply_overrides(load_config("vgg16"), [*TINY, "data.front_end_workers=2"])
+    parallel = build_roidb(scenes, config, tmp_path / "parallel")
+    assert len(list((tmp_path / "parallel").glob("*.npz"))) == 4  # the workers filled the cache
+    assert [r.name for r in parallel.records] == [r.name for r in serial.records]
+    for a, b in zip(serial.records, parallel.records, strict=True):
+        np.testing.assert_array_equal(a.boxes, b.boxes)
+        np.testing.assert_array_equal(a.init_boxes, b.init_boxes)

@@ -109,6 +109,7 @@ TINY = (
     "proposals.superpixels.n_segments=120",
     "data.rois_per_image=32",
     "data.workers=0",
+    "data.front_end_workers=1",
     "solver.threads=1",
     "log.progress=false",
     "log.log_every=1",

@@ -48,6 +48,7 @@ class DataConfig:
     depth_truncation_m: float = 10.0  # metres mapped to 255 in the depth trunk's input
     workers: int = 1  # DataLoader worker processes (0: load in the training process)
     cache_dir: str = ""  # per-frame proposal cache; "" = RUN_DIR/cache
+    front_end_workers: int = 0  # processes computing uncached proposals for the RoI database; 0 = all cores
 
 
 @dataclass

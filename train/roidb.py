@@ -24,10 +24,13 @@ from __future__ import annotations
 
 import hashlib
 import json
+import multiprocessing
 import os
 import tempfile
 from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -223,8 +226,9 @@ def build_roidb(
     if mean_sizes is None:
         mean_sizes = class_mean_sizes([gt for _, gt in annotated])
     records = []
-    for ref, gt in tqdm(annotated, desc="RoI database", disable=not progress, unit="frame"):
-        front = cached_front_end(ref, gt, intrinsics, config.proposals, cache_dir)
+    for (ref, gt), front in zip(
+        annotated, _front_ends(annotated, intrinsics, config, cache_dir, progress), strict=True
+    ):
         record = frame_rois(ref, gt, front, mean_sizes, config.data.fg_iou, config.data.bg_iou_low)
         if len(record.labels):
             records.append(record)
@@ -233,6 +237,34 @@ def build_roidb(
     if not records:
         raise InputError(f"{folder}: no frame has a single training RoI")
     return RoiDB(records, np.asarray(mean_sizes, np.float64), skipped)
+
+
+def _front_ends(annotated: list[tuple[FrameRef, GroundTruth]], intrinsics: Intrinsics | None, config,
+                cache_dir: str | os.PathLike, progress: bool):
+    """cached_front_end of every frame, in order; uncached frames in ``data.front_end_workers`` processes."""
+    compute = partial(_cached_front_end_of, intrinsics=intrinsics, proposal_config=config.proposals,
+                      cache_dir=cache_dir)  # fmt: skip
+    workers = config.data.front_end_workers or os.cpu_count() or 1
+    missing = sum(not _cache_path(ref, config.proposals, cache_dir).is_file() for ref, _ in annotated)
+    bar = partial(tqdm, total=len(annotated), desc="RoI database", disable=not progress, unit="frame")
+    if workers == 1 or missing < 2 * workers:
+        yield from bar(map(compute, annotated))
+        return
+    # spawn, not fork: the training process may already run torch's thread pools.
+    context = multiprocessing.get_context("spawn")
+    with ProcessPoolExecutor(min(workers, missing), mp_context=context) as pool:
+        yield from bar(pool.map(compute, annotated, chunksize=4))
+
+
+def _cached_front_end_of(
+    item: tuple[FrameRef, GroundTruth], intrinsics: Intrinsics | None, proposal_config: ProposalConfig,
+    cache_dir: str | os.PathLike,
+) -> FrontEnd:
+    return cached_front_end(item[0], item[1], intrinsics, proposal_config, cache_dir)
+
+
+def _cache_path(ref: FrameRef, proposal_config: ProposalConfig, cache_dir: str | os.PathLike) -> Path:
+    return Path(cache_dir) / f"{ref.name}-{cache_key(ref, proposal_config)}.npz"
 
 
 def cache_key(ref: FrameRef, proposal_config) -> str:
@@ -249,7 +281,7 @@ def cached_front_end(
     cache_dir: str | os.PathLike,
 ) -> FrontEnd:
     """Proposals and lifted centres of one frame (and of its ground-truth segments), cached on disk."""
-    path = Path(cache_dir) / f"{ref.name}-{cache_key(ref, proposal_config)}.npz"
+    path = _cache_path(ref, proposal_config, cache_dir)
     if path.is_file():
         try:
             with np.load(path) as z:

@@ -23,6 +23,8 @@ class NetConfig:
 
     width: trunk channel scale; 1.0 is VGG16's exact layout (64 .. 512 channels), 0.5 / 0.25 /
         0.125 keep the layer layout with ``round(c * width)`` channels per layer.
+    trunk_norm: BatchNorm after every trunk conv (a departure, for from-scratch training on
+        synthetic data; folded into the convs at export, see a3d.train.model.vgg).
     use_depth: False is the colour-only ablation (one trunk; the depth input is ignored).
     use_context: False drops the context-box pooling (the context RoIs are ignored).
     fuse_channels: None = the paper's plain concatenation of the pooled conv5_3 blocks; an int F =
@@ -38,6 +40,7 @@ class NetConfig:
     """
 
     width: float = 1.0
+    trunk_norm: bool = False
     use_depth: bool = True
     use_context: bool = True
     fuse_channels: int | None = None

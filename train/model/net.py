@@ -49,8 +49,8 @@ class A3DNet(nn.Module):
     def __init__(self, config: NetConfig | None = None) -> None:
         super().__init__()
         self.config = config = config or NetConfig()
-        self.color_trunk = VGG16Trunk(config.width)
-        self.depth_trunk = VGG16Trunk(config.width) if config.use_depth else None
+        self.color_trunk = VGG16Trunk(config.width, config.trunk_norm)
+        self.depth_trunk = VGG16Trunk(config.width, config.trunk_norm) if config.use_depth else None
         trunk_channels = self.color_trunk.out_channels * (2 if config.use_depth else 1)
         boxes = 2 if config.use_context else 1
         if config.fuse_channels is None:

@@ -7,12 +7,19 @@ key layout map one to one; pool5 (index 30) is left out, as in Fast R-CNN.
 The max-pools round up (``ceil_mode=True``), as Caffe's do (the paper's release is Caffe): the
 conv5_3 map of a 427 x 561 image is 27 x 36 and covers the whole image (27 * 16 >= 427), where
 torchvision's floor rounding gives 26 x 35 and drops the last 11 rows and 17 columns.
+
+``batch_norm=True`` (a departure from the paper, for training from scratch) puts a BatchNorm2d
+between each conv and its ReLU *inside the ReLU's slot*: module N+1 becomes ``Sequential(BN, ReLU)``,
+so the convs keep torchvision's indices and ImageNet weights still load. ``fold_batch_norms``
+turns an eval-mode trunk back into the plain layout (BN folded into the conv), which is what is
+exported.
 """
 
 from __future__ import annotations
 
 import torch
 from torch import nn
+from torch.nn.utils.fusion import fuse_conv_bn_eval
 
 # Conv output channels, "M" = 2x2 max-pool with stride 2.
 VGG16_LAYOUT: tuple[int | str, ...] = (
@@ -37,7 +44,7 @@ def conv5_size(height: int, width: int) -> tuple[int, int]:
 class VGG16Trunk(nn.Module):
     """conv1_1 .. conv5_3, ReLUs, four ceil-mode max-pools: (B,3,H,W) -> (B,C,ceil(H/16),ceil(W/16))."""
 
-    def __init__(self, width: float = 1.0) -> None:
+    def __init__(self, width: float = 1.0, batch_norm: bool = False) -> None:
         super().__init__()
         layers: list[nn.Module] = []
         in_channels = 3
@@ -46,7 +53,10 @@ class VGG16Trunk(nn.Module):
                 layers.append(nn.MaxPool2d(kernel_size=2, stride=2, ceil_mode=True))
             else:
                 out_channels = scaled_channels(int(item), width)
-                layers += [nn.Conv2d(in_channels, out_channels, 3, padding=1), nn.ReLU(inplace=True)]
+                relu: nn.Module = nn.ReLU(inplace=True)
+                if batch_norm:
+                    relu = nn.Sequential(nn.BatchNorm2d(out_channels), relu)
+                layers += [nn.Conv2d(in_channels, out_channels, 3, padding=1), relu]
                 in_channels = out_channels
         self.features = nn.Sequential(*layers)
         self.out_channels = in_channels
@@ -60,3 +70,11 @@ class VGG16Trunk(nn.Module):
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:
         return self.features(image)
+
+    def fold_batch_norms(self) -> None:
+        """Fold each BatchNorm's running statistics into its conv (in place; eval-mode semantics)."""
+        for index, conv in self.convs():
+            slot = self.features[index + 1]
+            if isinstance(slot, nn.Sequential):
+                self.features[index] = fuse_conv_bn_eval(conv.eval(), slot[0].eval())
+                self.features[index + 1] = slot[1]
