@@ -32,6 +32,7 @@ import numpy as np
 from a3d.runtime.classes import CLASSES
 from a3d.runtime.errors import InputError
 from a3d.runtime.geometry import box_corners_camera, check_rotation
+from a3d.runtime.json_input import parse_json
 
 _CLASS_INDEX = {name: i for i, name in enumerate(CLASSES)}
 METRE_DECIMALS = 6  # box3d and corners are written to 1 micrometre
@@ -160,12 +161,7 @@ def read_detections(path: str | os.PathLike) -> list[FrameDetections]:
 
 def parse_line(text: str, where: str) -> FrameDetections:
     """One validated line; ``where`` ("FILE:LINE") starts every error message."""
-    try:
-        obj = json.loads(text)
-    except json.JSONDecodeError as e:
-        raise InputError(f"{where}: not valid JSON ({e.msg} at column {e.colno})") from None
-    except (ValueError, RecursionError) as e:  # an integer of > 4300 digits; nesting too deep
-        raise InputError(f"{where}: unreadable JSON ({e})") from None
+    obj = parse_json(text, where)
     if not isinstance(obj, dict):
         raise InputError(f"{where}: expected a JSON object, got {type(obj).__name__}")
     frame = obj.get("frame")

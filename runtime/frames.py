@@ -55,6 +55,7 @@ from a3d.runtime.image_io import (
     read_bytes,
     read_image_header,
 )
+from a3d.runtime.json_input import parse_json
 
 logger = logging.getLogger(__name__)
 
@@ -535,17 +536,7 @@ def _no_unknown_keys(document: dict, known: Sequence[str], path: Path, what: str
 
 
 def _load_json(path: Path) -> Any:
-    text = read_bytes(path)
-    try:
-        return json.loads(text.decode("utf-8"))
-    except UnicodeDecodeError as error:
-        raise InputError(f"{path}: not UTF-8 text (byte {error.start})") from None
-    except json.JSONDecodeError as error:
-        raise InputError(
-            f"{path}: malformed JSON at line {error.lineno} column {error.colno}: {error.msg}"
-        ) from None
-    except (ValueError, RecursionError) as error:  # an integer of > 4300 digits; nesting too deep
-        raise InputError(f"{path}: unreadable JSON ({error})") from None
+    return parse_json(read_bytes(path), str(path))
 
 
 def _describe(header: ImageHeader) -> str:

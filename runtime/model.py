@@ -40,6 +40,7 @@ import onnxruntime as ort
 
 from a3d.runtime.classes import CLASSES, NUM_CLASSES, NUM_OUTPUTS
 from a3d.runtime.errors import ModelError
+from a3d.runtime.json_input import parse_json
 from a3d.runtime.preprocess import COLOR_MEAN_BGR, DEPTH_MEAN
 from a3d.runtime.proposals import proposal_config_from_dict
 
@@ -95,12 +96,7 @@ class ModelMetadata:
     @classmethod
     def from_json(cls, text: str, where: str) -> ModelMetadata:
         """Parse and type-check; ModelError "WHERE: problem" (one line) on anything malformed."""
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as e:
-            raise ModelError(f"{where}: a3d metadata is not JSON ({e.msg} at character {e.pos})") from None
-        except (ValueError, RecursionError) as e:  # an integer of > 4300 digits; nesting too deep
-            raise ModelError(f"{where}: a3d metadata is unreadable JSON ({e})") from None
+        data = parse_json(text, where, "a3d metadata", ModelError)
         if not isinstance(data, dict):
             raise ModelError(f"{where}: a3d metadata must be a JSON object")
         version = data.get("schema_version")

@@ -152,7 +152,7 @@ def test_cli_thresholds_and_no_nms(scene, tmp_path) -> None:
 @pytest.mark.parametrize(
     ("line", "message"),
     [
-        ("{not json", "not valid JSON"),
+        ("{not json", "malformed JSON at line 1 column 2"),
         (
             '{"frame": "f0", "R_tilt": [[1,0,0],[0,1,0],[0,0,1]], "detections": [{"class": "sofa bed", '
             '"score": 1, "box2d": [0,0,1,1], "box3d": [0,0,3,1,1,1,0]}]}',

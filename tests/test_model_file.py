@@ -201,7 +201,7 @@ def test_metadata_of_a_newer_schema_is_refused(tmp_path: Path, model_file: Path)
 @pytest.mark.parametrize(
     ("edit", "expected"),
     [
-        ("{not json", "not JSON"),
+        ("{not json", "a3d metadata malformed JSON at line 1 column 2"),
         (lambda d: json.dumps({k: v for k, v in d.items() if k != "mean_sizes"}), "missing ['mean_sizes']"),
         (lambda d: json.dumps({**d, "top_k": 0}), "top_k must be a positive integer"),
         (

@@ -94,7 +94,7 @@ CASES = {
         f"schema version {SCHEMA_VERSION + 1} is newer than this runtime's",
     ),
     "inputs": (_renamed_input, "model inputs image float[1,3,?,?], depth"),
-    "deep_json": (_edited_metadata(lambda meta: "[" * 100_000), "a3d metadata is unreadable JSON"),
+    "deep_json": (_edited_metadata(lambda meta: "[" * 100_000), "a3d metadata unreadable JSON"),
     "huge_number": (
         _edited_metadata(lambda meta: json.dumps(meta).replace('"nms_iou": 0.3', '"nms_iou": 1' + "0" * 400)),
         "a3d metadata nms_iou must be a finite number",
