@@ -14,6 +14,13 @@ visible 2D box covers >= 95% of the amodal 2D box, a proxy blind to occlusion in
 and for all objects; the 3D IoU of the initial boxes built with the class mean sizes (over the
 objects seen); per-stage wall and CPU times (median and max, ms).
 
+With proposals, also the "without 3D regression" reference of issue 4: the initial boxes of the
+real proposals (lifted centre, class mean size, theta 0) labelled by an oracle, i.e. each
+proposal with 2D IoU >= 0.5 to a visible ground-truth box takes that object's class and its
+IoU as score, then per-class 2D NMS 0.3 and a3d.runtime.evaluation's mAP@0.25. The mean sizes
+are those of the evaluated frames' own ground truth (an oracle too), so this bounds what the
+network's classifier could reach on these proposals without any 3D regression.
+
     .venv/bin/python bench/gravity_lifting.py --synth 100000 30
     .venv/bin/python bench/gravity_lifting.py --folder /tmp/synth_small/test [--limit 50]
 """
@@ -32,6 +39,8 @@ import numpy as np
 
 from a3d.runtime.classes import NUM_CLASSES
 from a3d.runtime.depth import fill_depth
+from a3d.runtime.detections_io import FrameDetections
+from a3d.runtime.evaluation import FrameTruth, evaluate
 from a3d.runtime.frames import (
     GroundTruth,
     list_frames,
@@ -108,6 +117,7 @@ def main() -> None:
     grav_err: list[float] = []
     statuses: Counter[str] = Counter()
     objects = []  # (class id, fully visible, centre distance, initial centre, gt box, R_tilt)
+    oracle = {}  # frame -> (truth, class ids, scores, 2D boxes, centres, R_tilt) of labelled proposals
     n_frames = 0
     for fr in frames:
         n_frames += 1
@@ -134,8 +144,10 @@ def main() -> None:
                     )
         if not args.no_proposals:
             props = _timed(times, "propose", propose, fr.color, filled, fr.K)
-            _timed(times, "lift_proposals", lift, props, fr.depth, filled, fr.K)
+            lifted = _timed(times, "lift_proposals", lift, props, fr.depth, filled, fr.K)
             n_proposals.append(len(props))
+            if fr.gt is not None:
+                oracle[f"{n_frames:06d}"] = _oracle_labels(fr, props.boxes, lifted, est.R_tilt)
 
     print(f"{n_frames} frames from {args.folder or f'a3d.synth seeds {args.synth[0]}+{args.synth[1]}'}")
     if grav_err:
@@ -164,12 +176,42 @@ def main() -> None:
                 )
     if n_proposals:
         print(f"proposals per frame: median {np.median(n_proposals):.0f}, max {max(n_proposals)}")
+    if oracle and objects:
+        result = _oracle_map(oracle, mean_sizes)
+        present = sum(c.present for c in result.classes)
+        print(
+            f"without 3D regression (oracle class, initial boxes of the real proposals): mAP@0.25 "
+            f"{100 * result.map_all(0.25):.1f} over 19 classes, {100 * result.map_present(0.25):.1f} "
+            f"over the {present} present"
+        )
     for stage, t in times.items():
         wall, cpu = 1e3 * np.asarray(t).T
         print(
             f"time {stage:16s} wall median {np.median(wall):6.1f} ms, max {wall.max():6.1f} ms; "
             f"cpu median {np.median(cpu):6.1f} ms, max {cpu.max():6.1f} ms"
         )
+
+
+def _oracle_labels(fr: BenchFrame, boxes: np.ndarray, lifted, R_est: np.ndarray) -> tuple:
+    """The proposals that overlap a visible box by >= 0.5, with that object's class and IoU."""
+    R_tilt = fr.R_tilt if fr.R_tilt is not None else R_est  # what the runtime would use
+    truth = FrameTruth(fr.gt.class_ids, fr.gt.boxes3d, R_tilt)  # the boxes' theta is in the frame's R_tilt
+    if not len(fr.gt) or not len(boxes):
+        return truth, np.zeros(0, int), np.zeros(0), np.zeros((0, 4)), np.zeros((0, 3)), R_tilt
+    overlaps = iou_2d(boxes, fr.gt.boxes2d_visible)
+    best = overlaps.argmax(1)
+    score = overlaps.max(1)
+    keep = (score >= 0.5) & lifted.valid
+    return truth, fr.gt.class_ids[best[keep]], score[keep], boxes[keep], lifted.centers[keep], R_tilt
+
+
+def _oracle_map(oracle: dict, mean_sizes: np.ndarray):
+    truths, detections = {}, {}
+    for name, (truth, class_ids, scores, boxes2d, centers, R_tilt) in oracle.items():
+        boxes3d = initial_boxes(centers, mean_sizes)[np.arange(len(class_ids)), class_ids]
+        truths[name] = truth
+        detections[name] = FrameDetections(name, R_tilt, class_ids, scores, boxes2d, boxes3d.reshape(-1, 7))
+    return evaluate(truths, detections)
 
 
 if __name__ == "__main__":
