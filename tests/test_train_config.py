@@ -15,6 +15,7 @@ def test_presets_differ_where_they_should():
     assert (paper.solver.lr, paper.solver.momentum, paper.solver.weight_decay) == (0.005, 0.9, 0.0005)
     assert (paper.data.images_per_batch, paper.data.rois_per_image, paper.data.fg_fraction) == (2, 128, 0.25)
     assert cpu.net.width == 0.25 and cpu.net.fuse_channels is not None
+    assert cpu.net.trunk_norm and not paper.net.trunk_norm  # from scratch on CPU vs ImageNet VGG16
     assert cpu.data.input_scale < 1.0 and cpu.solver.iterations < paper.solver.iterations
     assert set(PRESETS) >= {"vgg16", "cpu-small"}
 

@@ -133,16 +133,17 @@ def _vgg16() -> TrainConfig:
 
 
 def _cpu_small() -> TrainConfig:
-    """Quarter-width trunks fused to 128 channels, fc 512, at input scale 0.5: a model that trains
-    from scratch on 2 CPU cores (about 2 iterations per second on a3d-synth frames when the
-    machine is otherwise idle). 5000 iterations is the 60-minute budget's length; the
-    validation mAP was still rising at 3000 (see bench/train_synth.py)."""
+    """Quarter-width trunks with BatchNorm, fused to 128 channels, fc 512, at input scale 0.5: a
+    model that trains from scratch on 2 CPU cores. On 1050 a3d-synth frames the 5000 iterations
+    take 41 minutes with the RoI database (2.3 iterations per second) and reach mAP@0.25 42.6 on
+    350 held-out frames. BatchNorm (folded at export) is what lets lr 0.02 train from scratch;
+    without it, lr 0.005 reached 27.8 on a smaller set in 3000 iterations."""
     return apply_values(
         TrainConfig(),
         {
-            "net": {"width": 0.25, "fuse_channels": 128, "fc6": 512, "fc7": 512},
+            "net": {"width": 0.25, "fuse_channels": 128, "fc6": 512, "fc7": 512, "trunk_norm": True},
             "data": {"input_scale": 0.5, "workers": 1},
-            "solver": {"iterations": 5000, "lr_steps": [3800]},
+            "solver": {"iterations": 5000, "lr": 0.02, "lr_steps": [3800]},
             "log": {"log_every": 10, "checkpoint_every": 500, "val_every": 1000},
         },
         "preset cpu-small",
