@@ -22,7 +22,7 @@ import pytest
 from a3d.runtime.detections_io import parse_line
 from tests.test_run import write_scene_folder
 
-FRAMES = 24
+FRAMES = 96  # ~10 s a run: the kill lands mid-folder even when a loaded machine delays the poller
 
 
 def _command(folder: Path, model: Path, output: Path, *extra: str) -> list[str]:
