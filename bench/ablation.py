@@ -2,7 +2,7 @@
 
     .venv/bin/python bench/ablation.py TRAIN_DIR TEST_DIR --out out/ablation [--config cpu-small]
         [--iters N] [--set KEY=VALUE ...] [--only full,color,no-context,no-3dreg]
-        [--full RUN_DIR] [--parallel N]
+        [--full RUN_DIR] [--parallel N] [--bootstrap 100] [--reuse]
 
 Variants (all with the same configuration otherwise, each trained from scratch into OUT/VARIANT):
   full        colour + depth + context + 3D regression          (paper: 40.9)
@@ -20,7 +20,10 @@ instead of training one; the other variants are then trained with that run's con
 N variants at once, each with cores / N torch threads and its data loading in-process (on 2
 cores two single-thread runs do about 1.3x the iterations per second of one two-thread run);
 iterations and every other setting are unchanged. A variant whose run folder already has a
-checkpoint is resumed (to its configured length) rather than retrained.
+checkpoint is resumed (to its configured length) rather than retrained. --bootstrap N adds,
+per variant, a 90 % interval of (full - variant) in points over N paired resamples of the test
+frames (bench/int8_accuracy.py's bootstrap; about 1 s per variant and resample on 350 frames).
+--reuse keeps a variant's scores from an earlier call (OUT/eval-VARIANT) instead of detecting again.
 """
 
 from __future__ import annotations
@@ -33,7 +36,8 @@ import sys
 import time
 from pathlib import Path
 
-from train_synth import BIN, detect_and_score  # bench/ is the script's folder, first on sys.path
+from int8_accuracy import bootstrap_costs  # bench/ is the script's folder, first on sys.path
+from train_synth import BIN, detect_and_score
 
 VARIANTS = {
     "full": ([], [], 40.9),
@@ -54,6 +58,9 @@ def main() -> int:
     parser.add_argument("--only", default=",".join(VARIANTS), help="comma-separated variants")
     parser.add_argument("--full", type=Path, help="an existing run folder to score as the full model")
     parser.add_argument("--parallel", type=int, default=1, help="variants trained at once")
+    parser.add_argument("--bootstrap", type=int, default=0,
+                        help="paired resamples (90 %% interval of full - variant)")  # fmt: skip
+    parser.add_argument("--reuse", action="store_true", help="keep the scores already in OUT/eval-VARIANT")
     parser.add_argument("--device")
     args = parser.parse_args()
     chosen = args.only.split(",")
@@ -74,17 +81,38 @@ def main() -> int:
     for name in chosen:
         train_sets, infer_sets, paper = VARIANTS[name]
         run_dir = run_dirs["full" if train_sets is None else name]
-        scores = detect_and_score(run_dir / "checkpoint.pt", args.test_dir, args.out / f"eval-{name}",
-                                  infer_sets, args.device or "cpu")  # fmt: skip
+        report = args.out / f"eval-{name}" / "eval" / "eval.json"
+        if args.reuse and report.exists():
+            scores = scores_of(json.loads(report.read_text()))
+        else:
+            scores = detect_and_score(run_dir / "checkpoint.pt", args.test_dir, args.out / f"eval-{name}",
+                                      infer_sets, args.device or "cpu")  # fmt: skip
         results[name] = {"map25": scores["map25_all"], "map25_present": scores["map25_present"],
                          "paper_map25": paper, "train_seconds": seconds.get(name), "run": str(run_dir),
                          "test_frames": scores["test_frames"]}  # fmt: skip
         path.write_text(json.dumps(results, indent=1))
 
-    print(f"{'variant':<12} {'mAP@0.25':>9} {'present':>8} {'paper':>6}")
+    scored = {n: args.out / f"eval-{n}" / "detections.jsonl" for n in results}
+    if args.bootstrap and "full" in scored:
+        intervals = bootstrap_costs(args.test_dir, scored, args.bootstrap, reference="full")
+        for name, interval in intervals.items():
+            results[name]["full_minus_variant_90"] = interval
+        path.write_text(json.dumps(results, indent=1))
+
+    print(f"{'variant':<12} {'mAP@0.25':>9} {'present':>8} {'paper':>6}  full - variant, 90 % interval")
     for name, r in results.items():
-        print(f"{name:<12} {100 * r['map25']:9.1f} {100 * r['map25_present']:8.1f} {r['paper_map25']:6.1f}")
+        interval = r.get("full_minus_variant_90")
+        shown = f"  [{interval[0]:+.1f}, {interval[1]:+.1f}]" if interval else ""
+        scores = f"{100 * r['map25']:9.1f} {100 * r['map25_present']:8.1f} {r['paper_map25']:6.1f}"
+        print(f"{name:<12} {scores}{shown}")
     return 0
+
+
+def scores_of(report: dict) -> dict:
+    """The numbers detect_and_score returns, from an a3d-eval report (eval.json)."""
+    primary = report["map"]["0.25"]
+    return {"map25_all": primary["all_classes"], "map25_present": primary["present_classes"],
+            "test_frames": report["inputs"]["frames_with_gt"]}  # fmt: skip
 
 
 def train_all(args: argparse.Namespace, config: str, sets: list[str], names: list[str],

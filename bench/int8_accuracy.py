@@ -80,11 +80,11 @@ def detect_and_score(model: Path, frames: Path, detections: Path, threads: int, 
 
 
 def bootstrap_costs(
-    frames: Path, detections: dict[str, Path], resamples: int, seed: int = 0
+    frames: Path, detections: dict[str, Path], resamples: int, seed: int = 0, reference: str = "fp32"
 ) -> dict[str, list]:
-    """90 % interval (points) of fp32's mAP minus each variant's over ``resamples`` paired
-    resamples of the annotated frames (drawn with replacement; fp32 and the variants scored on
-    the same draw with a3d.runtime.evaluation, as a3d-eval scores)."""
+    """90 % interval (points) of the ``reference`` variant's mAP minus each other variant's over
+    ``resamples`` paired resamples of the annotated frames (drawn with replacement; all variants
+    scored on the same draw with a3d.runtime.evaluation, as a3d-eval scores)."""
     from a3d.runtime.cli.eval import load_truth
     from a3d.runtime.detections_io import read_detections
     from a3d.runtime.evaluation import EvalConfig, evaluate
@@ -93,7 +93,7 @@ def bootstrap_costs(
     names = sorted(truth)
     lines = {v: {d.frame: d for d in read_detections(path)} for v, path in detections.items()}
     rng = np.random.default_rng(seed)
-    costs: dict[str, list[float]] = {v: [] for v in lines if v != "fp32"}
+    costs: dict[str, list[float]] = {v: [] for v in lines if v != reference}
     for _ in range(resamples):
         draw = {f"{i}:{n}": n for i, n in enumerate(rng.choice(names, len(names)))}  # unique keys
         sample = {key: truth[name] for key, name in draw.items()}
@@ -102,7 +102,7 @@ def bootstrap_costs(
             picked = {k: det[n] for k, n in draw.items() if n in det}
             maps[v] = evaluate(sample, picked, EvalConfig()).map_all(PRIMARY_IOU)
         for v in costs:
-            costs[v].append(100 * (maps["fp32"] - maps[v]))
+            costs[v].append(100 * (maps[reference] - maps[v]))
     return {v: np.percentile(c, [5, 95]).tolist() for v, c in costs.items()}
 
 
