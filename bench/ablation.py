@@ -10,6 +10,9 @@ Variants (all with the same configuration otherwise, each trained from scratch i
   no-context  colour + depth without the context box            (paper: "img+d" 40.1)
   no-3dreg    the full model's detections with their initial boxes, i.e. no 3D regression
               (inference.regress_3d=false; no training)           (paper: 15.5)
+and, with --only, rows for a3d's departures from the paper (paper column empty):
+  no-trunk-bn no BatchNorm in the trunks, at the paper's lr 0.005 (net.trunk_norm=false)
+  no-fuse     the paper's plain concatenation of the pooled blocks (net.fuse_channels=null)
 Each is scored with a3d-eval at 3D IoU 0.25 (mAP over the 19 classes) on TEST_DIR, through the
 torch reference path. Prints the table and writes OUT/ablation.json (merged with the variants
 an earlier call scored there).
@@ -45,6 +48,12 @@ VARIANTS = {
     "no-context": (["net.use_context=false"], [], 40.1),
     "no-3dreg": (None, ["inference.regress_3d=false"], 15.5),  # None: the full model's checkpoint
 }
+TABLE_2 = ",".join(VARIANTS)
+DEPARTURES = {  # rows for a3d's departures from the paper (README "Training"); not in the paper
+    "no-trunk-bn": (["net.trunk_norm=false", "solver.lr=0.005"], [], float("nan")),
+    "no-fuse": (["net.fuse_channels=null"], [], float("nan")),
+}
+VARIANTS.update(DEPARTURES)
 
 
 def main() -> int:
@@ -55,7 +64,7 @@ def main() -> int:
     parser.add_argument("--config", default="cpu-small", help="preset or file (ignored with --full)")
     parser.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE")
     parser.add_argument("--iters", type=int)
-    parser.add_argument("--only", default=",".join(VARIANTS), help="comma-separated variants")
+    parser.add_argument("--only", default=TABLE_2, help=f"comma-separated variants of {', '.join(VARIANTS)}")
     parser.add_argument("--full", type=Path, help="an existing run folder to score as the full model")
     parser.add_argument("--parallel", type=int, default=1, help="variants trained at once")
     parser.add_argument("--bootstrap", type=int, default=0,
