@@ -32,12 +32,11 @@ import numpy as np
 from a3d.runtime.classes import CLASSES
 from a3d.runtime.errors import InputError
 from a3d.runtime.geometry import box_corners_camera, check_rotation
-from a3d.runtime.json_input import parse_json
+from a3d.runtime.json_input import is_finite_number, parse_json
 
 _CLASS_INDEX = {name: i for i, name in enumerate(CLASSES)}
 METRE_DECIMALS = 6  # box3d and corners are written to 1 micrometre
 PIXEL_DECIMALS = 4  # box2d and box2d_amodal to 1e-4 pixel
-_FLOAT_MAX = float(np.finfo(np.float64).max)
 
 
 @dataclass(frozen=True)
@@ -257,11 +256,7 @@ def _optional_str(obj: dict, key: str, where: str) -> str | None:
 
 
 def _timing(value, where: str) -> dict[str, float]:
-    # abs(v) <= max float: finite, also for a JSON integer beyond float64 (float(v) would raise)
-    ok = isinstance(value, dict) and all(
-        isinstance(v, int | float) and not isinstance(v, bool) and abs(v) <= _FLOAT_MAX
-        for v in value.values()
-    )
+    ok = isinstance(value, dict) and all(is_finite_number(v) for v in value.values())
     if not ok:
         raise InputError(f"{where}: 'timing' must map stage names to seconds (finite numbers)")
     return {str(k): float(v) for k, v in value.items()}

@@ -8,6 +8,7 @@ integer of more than 4300 digits (ValueError) and nesting deeper than the recurs
 from __future__ import annotations
 
 import json
+import sys
 from typing import Any
 
 from a3d.runtime.errors import InputError
@@ -24,3 +25,9 @@ def parse_json(text: str | bytes, where: str, subject: str = "", error: type[Val
         raise error(f"{prefix}malformed JSON at line {e.lineno} column {e.colno}: {e.msg}") from None
     except (ValueError, RecursionError) as e:  # an integer of > 4300 digits; nesting too deep
         raise error(f"{prefix}unreadable JSON ({e})") from None
+
+
+def is_finite_number(value: Any) -> bool:
+    """A JSON number (int or float, not a boolean) that is finite, also for an integer beyond
+    float64's range (``math.isfinite`` and ``float()`` raise on those; ``abs(v) <= max`` does not)."""
+    return isinstance(value, int | float) and not isinstance(value, bool) and abs(value) <= sys.float_info.max

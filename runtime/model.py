@@ -40,7 +40,7 @@ import onnxruntime as ort
 
 from a3d.runtime.classes import CLASSES, NUM_CLASSES, NUM_OUTPUTS
 from a3d.runtime.errors import ModelError
-from a3d.runtime.json_input import parse_json
+from a3d.runtime.json_input import is_finite_number, parse_json
 from a3d.runtime.preprocess import COLOR_MEAN_BGR, DEPTH_MEAN
 from a3d.runtime.proposals import proposal_config_from_dict
 
@@ -51,7 +51,6 @@ OUTPUT_NAMES = ("class_probs", "deltas3d", "deltas2d")
 # Contract shapes: an int is a fixed size, None a free (symbolic or fixed) one.
 _INPUT_SHAPES = ((1, 3, None, None), (1, 3, None, None), (None, 4), (None, 4))
 _OUTPUT_SHAPES = ((None, NUM_OUTPUTS), (None, NUM_OUTPUTS, 7), (None, NUM_OUTPUTS, 4))
-_FLOAT_MAX = float(np.finfo(np.float64).max)
 _METADATA_PROPS_FIELD = 14  # ModelProto.metadata_props (repeated StringStringEntryProto {key=1, value=2})
 
 
@@ -321,8 +320,7 @@ class _Checker:
 
     def number(self, value: Any, key: str, low: float | None = None, high: float | None = None,
                closed: bool = False) -> float:  # fmt: skip
-        # abs(v) <= max float: finite, also for a JSON integer beyond float64 (math.isfinite raises)
-        ok = isinstance(value, (int, float)) and not isinstance(value, bool) and abs(value) <= _FLOAT_MAX
+        ok = is_finite_number(value)
         if ok and low is not None:
             ok = value >= low if closed else value > low
         if ok and high is not None:

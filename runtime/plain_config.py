@@ -16,12 +16,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import sys
 import typing
 from collections.abc import Mapping
 from typing import Any, TypeVar
 
 from a3d.runtime.errors import ModelError
+from a3d.runtime.json_input import is_finite_number
 
 MAX_COUNT = 10_000_000  # beyond any sensible count; stops a huge integer before it allocates
 T = TypeVar("T")
@@ -70,9 +70,7 @@ def _value(hint: Any, value: Any, where: str, name: str, tighter: dict[str, tupl
         return value
     if hint in (int, float):
         low, high = tighter.get(name, (0, MAX_COUNT if hint is int else math.inf))
-        is_number = isinstance(value, int | float) and not isinstance(value, bool)
-        # abs(v) <= max float: finite, also for a JSON integer beyond float64 (float() would raise)
-        ok = is_number and (isinstance(value, int) if hint is int else abs(value) <= sys.float_info.max)
+        ok = is_finite_number(value) and (isinstance(value, int) or hint is float)
         if not ok or not low <= value <= high:
             kind = "an integer" if hint is int else "a finite number"
             bounds = f">= {low}" if math.isinf(high) else f"in [{low}, {high}]"
