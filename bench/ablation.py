@@ -40,7 +40,7 @@ import time
 from pathlib import Path
 
 from int8_accuracy import bootstrap_costs  # bench/ is the script's folder, first on sys.path
-from train_synth import BIN, detect_and_score
+from train_synth import BIN, detect_and_score, scores_of
 
 VARIANTS = {
     "full": ([], [], 40.9),
@@ -115,13 +115,6 @@ def main() -> int:
         scores = f"{100 * r['map25']:9.1f} {100 * r['map25_present']:8.1f} {r['paper_map25']:6.1f}"
         print(f"{name:<12} {scores}{shown}")
     return 0
-
-
-def scores_of(report: dict) -> dict:
-    """The numbers detect_and_score returns, from an a3d-eval report (eval.json)."""
-    primary = report["map"]["0.25"]
-    return {"map25_all": primary["all_classes"], "map25_present": primary["present_classes"],
-            "test_frames": report["inputs"]["frames_with_gt"]}  # fmt: skip
 
 
 def train_all(args: argparse.Namespace, config: str, sets: list[str], names: list[str],

@@ -87,14 +87,23 @@ def detect_and_score(checkpoint: Path, test_dir: Path, out: Path, overrides: lis
         for k, v in f.timing.items():
             stages[k] = stages.get(k, 0.0) + v / max(len(frames), 1)
     return {
-        "map25_all": report["map"]["0.25"]["all_classes"],
-        "map25_present": report["map"]["0.25"]["present_classes"],
-        "map50_all": report["map"]["0.5"]["all_classes"],
-        "ap25": {c: v["ap"]["0.25"] for c, v in report["classes"].items() if v["present"]},
+        **scores_of(report),
         "test_frames": len(frames),
         "detect_seconds": detect_s,
         "seconds_per_frame": {k: round(v, 4) for k, v in stages.items()},
         "eval_seconds": eval_s,
+    }
+
+
+def scores_of(report: dict) -> dict:
+    """mAP@0.25 (19 classes, present classes), mAP@0.5, per-class AP@0.25 and the annotated frame
+    count of an a3d-eval report (eval.json)."""
+    return {
+        "map25_all": report["map"]["0.25"]["all_classes"],
+        "map25_present": report["map"]["0.25"]["present_classes"],
+        "map50_all": report["map"]["0.5"]["all_classes"],
+        "ap25": {c: v["ap"]["0.25"] for c, v in report["classes"].items() if v["present"]},
+        "test_frames": report["inputs"]["frames_with_gt"],
     }
 
 

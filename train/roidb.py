@@ -242,25 +242,19 @@ def build_roidb(
 def _front_ends(annotated: list[tuple[FrameRef, GroundTruth]], intrinsics: Intrinsics | None, config,
                 cache_dir: str | os.PathLike, progress: bool):
     """cached_front_end of every frame, in order; uncached frames in ``data.front_end_workers`` processes."""
-    compute = partial(_cached_front_end_of, intrinsics=intrinsics, proposal_config=config.proposals,
+    compute = partial(cached_front_end, intrinsics=intrinsics, proposal_config=config.proposals,
                       cache_dir=cache_dir)  # fmt: skip
+    refs, truths = [ref for ref, _ in annotated], [gt for _, gt in annotated]
     workers = config.data.front_end_workers or os.cpu_count() or 1
-    missing = sum(not _cache_path(ref, config.proposals, cache_dir).is_file() for ref, _ in annotated)
+    missing = sum(not _cache_path(ref, config.proposals, cache_dir).is_file() for ref in refs)
     bar = partial(tqdm, total=len(annotated), desc="RoI database", disable=not progress, unit="frame")
     if workers == 1 or missing < 2 * workers:
-        yield from bar(map(compute, annotated))
+        yield from bar(map(compute, refs, truths))
         return
     # spawn, not fork: the training process may already run torch's thread pools.
     context = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(min(workers, missing), mp_context=context) as pool:
-        yield from bar(pool.map(compute, annotated, chunksize=4))
-
-
-def _cached_front_end_of(
-    item: tuple[FrameRef, GroundTruth], intrinsics: Intrinsics | None, proposal_config: ProposalConfig,
-    cache_dir: str | os.PathLike,
-) -> FrontEnd:
-    return cached_front_end(item[0], item[1], intrinsics, proposal_config, cache_dir)
+        yield from bar(pool.map(compute, refs, truths, chunksize=4))
 
 
 def _cache_path(ref: FrameRef, proposal_config: ProposalConfig, cache_dir: str | os.PathLike) -> Path:
