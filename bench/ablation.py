@@ -13,6 +13,7 @@ Variants (all with the same configuration otherwise, each trained from scratch i
 and, with --only, rows for a3d's departures from the paper (paper column empty):
   no-trunk-bn no BatchNorm in the trunks, at the paper's lr 0.005 (net.trunk_norm=false)
   no-fuse     the paper's plain concatenation of the pooled blocks (net.fuse_channels=null)
+  roi-max     the paper's max RoI pooling instead of RoIAlign (net.roi_pool=max)
 Each is scored with a3d-eval at 3D IoU 0.25 (mAP over the 19 classes) on TEST_DIR, through the
 torch reference path. Prints the table and writes OUT/ablation.json (merged with the variants
 an earlier call scored there).
@@ -52,6 +53,7 @@ TABLE_2 = ",".join(VARIANTS)
 DEPARTURES = {  # rows for a3d's departures from the paper (README "Training"); not in the paper
     "no-trunk-bn": (["net.trunk_norm=false", "solver.lr=0.005"], [], float("nan")),
     "no-fuse": (["net.fuse_channels=null"], [], float("nan")),
+    "roi-max": (["net.roi_pool=max"], [], float("nan")),
 }
 VARIANTS.update(DEPARTURES)
 

@@ -119,6 +119,11 @@ def main(argv: list[str] | None = None) -> int:
 def export(args: argparse.Namespace) -> Path:
     """Steps 1-5 of the module docstring; returns the path written."""
     trained = load_trained(args.checkpoint)
+    if trained.config.net.roi_pool != "align":
+        raise ExportError(
+            f"{args.checkpoint}: network uses {trained.config.net.roi_pool!r} RoI pooling, a training-only "
+            "ablation; a3d-export exports RoIAlign networks (net.roi_pool=align)"
+        )
     reference = trained.net
     options: dict = {"opset": args.opset, "int8": args.int8, "svd_rank": args.svd}
     if args.svd is not None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -28,7 +29,7 @@ from a3d.runtime.frames import write_frame, write_intrinsics
 from a3d.runtime.geometry import Intrinsics
 from a3d.runtime.model import DetectorModel
 from a3d.runtime.pipeline import PipelineConfig
-from a3d.train.checkpoint import save_checkpoint
+from a3d.train.checkpoint import load_checkpoint, save_checkpoint
 from a3d.train.config import TrainConfig
 from a3d.train.dataset import TargetStats
 from a3d.train.inference import TorchNetwork
@@ -220,6 +221,17 @@ def test_cli_prints_the_run_command_and_refuses_bad_usage(run, capsys, tmp_path:
     assert not (tmp_path / "m.onnx").exists()
     command = run.stdout["float"].strip().splitlines()[-1]
     assert command.startswith("a3d-run FRAMES --model ") and str(run.float.resolve()) in command
+
+
+def test_max_roi_pooling_networks_are_refused(run, capsys, tmp_path: Path) -> None:
+    """net.roi_pool=max is the training-only ablation of the paper's pooling: not exported."""
+    state = load_checkpoint(run.checkpoint)
+    config = TrainConfig.from_json(state["config"], "fixture")
+    state["config"] = replace(config, net=replace(config.net, roi_pool="max")).to_json()
+    save_checkpoint(tmp_path / "max.pt", state)
+    assert cli.main([str(tmp_path / "max.pt"), "-o", str(tmp_path / "m.onnx")]) == 2
+    assert "max.pt: network uses 'max' RoI pooling" in capsys.readouterr().err
+    assert not (tmp_path / "m.onnx").exists()
 
 
 def test_a_graph_unlike_torch_fails_verification_and_writes_nothing(

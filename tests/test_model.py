@@ -10,7 +10,7 @@ import torch
 from a3d.runtime.classes import NUM_OUTPUTS
 from a3d.train.model.config import PRESETS, NetConfig, preset
 from a3d.train.model.net import A3DNet
-from a3d.train.model.roi_pool import roi_align
+from a3d.train.model.roi_pool import roi_align, roi_max_pool
 from a3d.train.model.vgg import VGG16Trunk, conv5_size
 
 TINY = NetConfig(width=0.125, fc6=32, fc7=32, dropout=0.0)
@@ -70,6 +70,7 @@ def test_width_scaled_trunks_keep_the_layout(width: float) -> None:
         (NetConfig(width=0.125, fc6=32, fc7=32, use_depth=False), 2 * 64 * 49),
         (NetConfig(width=0.125, fc6=32, fc7=32, use_context=False), 2 * 64 * 49),
         (NetConfig(width=0.125, fc6=32, fc7=32, use_depth=False, use_context=False, fuse_channels=8), 8 * 49),
+        (NetConfig(width=0.125, fc6=32, fc7=32, fuse_channels=16, roi_pool="max"), 2 * 16 * 49),
     ],
 )
 def test_output_shapes_and_fc6_size(config: NetConfig, fc6_inputs: int) -> None:
@@ -88,14 +89,15 @@ def test_output_shapes_and_fc6_size(config: NetConfig, fc6_inputs: int) -> None:
     assert all(torch.equal(a, b) for a, b in zip(split, (logits, deltas3d, deltas2d), strict=True))
 
 
-def test_plain_layout_feeds_fc6_the_pooled_blocks_in_order() -> None:
+@pytest.mark.parametrize(("kind", "pool"), [("align", roi_align), ("max", roi_max_pool)])
+def test_plain_layout_feeds_fc6_the_pooled_blocks_in_order(kind: str, pool) -> None:
     """fc6's input is [colour RoI, depth RoI, colour context, depth context], each (C, y, x)."""
-    net = A3DNet(TINY).eval()
+    net = A3DNet(replace(TINY, roi_pool=kind)).eval()
     color, depth, rois, context = _inputs()
     seen = _record_fc6_input(net)
     with torch.no_grad():
         net(color, depth, rois, context)
-        blocks = [roi_align(trunk(image), boxes) for boxes in (rois, context)
+        blocks = [pool(trunk(image), boxes) for boxes in (rois, context)
                   for trunk, image in ((net.color_trunk, color), (net.depth_trunk, depth))]  # fmt: skip
     torch.testing.assert_close(seen["x"], torch.cat([b.flatten(1) for b in blocks], dim=1))
 
@@ -141,9 +143,10 @@ def test_a_roi_depends_only_on_its_own_image() -> None:
     assert not torch.allclose(base[0], moved[0])
 
 
-def test_training_step_reaches_both_trunks_and_all_heads() -> None:
+@pytest.mark.parametrize("kind", ["align", "max"])
+def test_training_step_reaches_both_trunks_and_all_heads(kind: str) -> None:
     torch.manual_seed(0)
-    net = A3DNet(NetConfig(width=0.125, fc6=32, fc7=32, fuse_channels=16)).train()
+    net = A3DNet(NetConfig(width=0.125, fc6=32, fc7=32, fuse_channels=16, roi_pool=kind)).train()
     logits, deltas3d, deltas2d = net(*_inputs())
     loss = torch.nn.functional.cross_entropy(logits, torch.tensor([0, 3, 5])) + deltas3d.square().sum()
     (loss + deltas2d.square().sum()).backward()
@@ -174,7 +177,7 @@ def test_config_validation_presets_and_round_trip() -> None:
     with pytest.raises(ValueError, match="unknown keys"):
         NetConfig.from_dict({"width": 0.5, "depth": True})
     for bad in ({"width": 0.0}, {"width": 2.0}, {"fc6": 0}, {"dropout": 1.0}, {"fuse_channels": 0},
-                {"roi_pool": "max"}):  # fmt: skip
+                {"roi_pool": "avg"}):  # fmt: skip
         with pytest.raises(ValueError, match="NetConfig"):
             NetConfig(**bad)
 

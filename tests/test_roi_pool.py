@@ -1,4 +1,5 @@
-"""RoIAlign (a3d.train.model.roi_pool) against an independent per-RoI, per-sample reference."""
+"""RoI pooling (a3d.train.model.roi_pool) against independent per-RoI references: torchvision's
+RoIAlign per sample, Fast R-CNN's max RoI pooling per bin."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import numpy as np
 import pytest
 import torch
 
-from a3d.train.model.roi_pool import roi_align
+from a3d.train.model.roi_pool import roi_align, roi_max_pool
 
 
 def _bilinear(fmap: np.ndarray, y: float, x: float) -> np.ndarray:
@@ -133,3 +134,55 @@ def test_gradient_matches_finite_differences() -> None:
     roi_align(features, inside, output_size=3).sum().backward()
     assert math.isclose(features.grad[0].sum().item(), 2 * 9, rel_tol=1e-12)  # 2 channels x 9 bins
     assert features.grad[1].abs().max().item() == 0.0
+
+
+def round_half_away(v: float) -> float:
+    """C's round(): halves away from zero."""
+    return math.copysign(math.floor(abs(v) + 0.5), v)
+
+
+def reference_roi_max_pool(
+    features: np.ndarray, rois: np.ndarray, output_size: int, scale: float
+) -> np.ndarray:
+    """Fast R-CNN's Caffe ROIPoolingLayer::Forward_cpu, transcribed loop by loop; rois in Caffe's
+    0-based pixel indices (first and last pixel of the box)."""
+    _, channels, height, width = features.shape
+    out = np.zeros((len(rois), channels, output_size, output_size))
+    for r, (b, x1, y1, x2, y2) in enumerate(rois):
+        sw, sh, ew, eh = (int(round_half_away(v * scale)) for v in (x1, y1, x2, y2))
+        bin_h, bin_w = max(eh - sh + 1, 1) / output_size, max(ew - sw + 1, 1) / output_size
+        for ph in range(output_size):
+            for pw in range(output_size):
+                hs = min(max(math.floor(ph * bin_h) + sh, 0), height)
+                he = min(max(math.ceil((ph + 1) * bin_h) + sh, 0), height)
+                ws = min(max(math.floor(pw * bin_w) + sw, 0), width)
+                we = min(max(math.ceil((pw + 1) * bin_w) + sw, 0), width)
+                if he > hs and we > ws:
+                    out[r, :, ph, pw] = features[int(b), :, hs:he, ws:we].max(axis=(1, 2))
+    return out
+
+
+@pytest.mark.parametrize("output_size", [7, 3, 2])
+def test_max_pool_matches_fast_rcnn(output_size: int) -> None:
+    gen = torch.Generator().manual_seed(4)
+    features = torch.randn(2, 3, 5, 7, generator=gen)
+    rois = torch.tensor(ROIS)
+    got = roi_max_pool(features, rois, output_size, 1 / 16)
+    caffe = rois.numpy() + np.array([0.0, 0.5, 0.5, -0.5, -0.5])  # README extent -> first/last pixel
+    want = reference_roi_max_pool(features.numpy().astype(np.float64), caffe, output_size, 1 / 16)
+    assert got.shape == (len(ROIS), 3, output_size, output_size)
+    np.testing.assert_allclose(got.numpy(), want, atol=1e-6)
+    assert np.abs(want[6]).max() == 0.0  # a box far outside the image pools to zero
+
+
+def test_max_pool_gradient_goes_to_each_bins_maximum() -> None:
+    features = torch.randn(1, 2, 4, 4, generator=torch.Generator().manual_seed(5), requires_grad=True)
+    rois = torch.tensor([[0, -0.5, -0.5, 55.5, 55.5]])  # pixels 0 .. 55 round to cells 0 .. 3: the whole map
+    pooled = roi_max_pool(features, rois, output_size=4)
+    torch.testing.assert_close(pooled[0], features[0])
+    roi_max_pool(features, rois, output_size=2).sum().backward()  # 2 x 2 cells per bin
+    grad = features.grad[0]
+    assert grad.sum().item() == 2 * 4 and set(grad.unique().tolist()) == {0.0, 1.0}
+    blocks = features[0].detach().reshape(2, 2, 2, 2, 2).permute(0, 1, 3, 2, 4).reshape(2, 2, 2, 4)
+    winners = grad.reshape(2, 2, 2, 2, 2).permute(0, 1, 3, 2, 4).reshape(2, 2, 2, 4).argmax(-1)
+    assert torch.equal(winners, blocks.argmax(-1))

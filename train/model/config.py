@@ -35,8 +35,8 @@ class NetConfig:
     pool_size: RoI pooling output is pool_size x pool_size per channel (ImageNet fc6 needs 7).
     sampling_ratio: bilinear samples per pooling bin along each axis (fixed, so pooling is
         separable and exports with standard ONNX ops).
-    roi_pool: pooling kind; only "align" (bilinear RoIAlign, see roi_pool.py) is implemented —
-        the paper's max RoI pooling has no torch op without torchvision.
+    roi_pool: "align" (bilinear RoIAlign, a3d's departure; exportable) or "max" (the paper's max RoI
+        pooling, for training and the ablation only: a3d-export refuses it). See roi_pool.py.
     """
 
     width: float = 1.0
@@ -49,7 +49,7 @@ class NetConfig:
     dropout: float = 0.5
     pool_size: int = 7
     sampling_ratio: int = 2
-    roi_pool: Literal["align"] = "align"
+    roi_pool: Literal["align", "max"] = "align"
 
     def __post_init__(self) -> None:
         if not 0.0 < self.width <= 1.0:
@@ -61,8 +61,8 @@ class NetConfig:
             raise ValueError(f"NetConfig.fuse_channels must be None or positive, got {self.fuse_channels}")
         if not 0.0 <= self.dropout < 1.0:
             raise ValueError(f"NetConfig.dropout must be in [0, 1), got {self.dropout}")
-        if self.roi_pool != "align":
-            raise ValueError(f"NetConfig.roi_pool: only 'align' is implemented, got {self.roi_pool!r}")
+        if self.roi_pool not in ("align", "max"):
+            raise ValueError(f"NetConfig.roi_pool must be 'align' or 'max', got {self.roi_pool!r}")
 
     def to_dict(self) -> dict[str, Any]:
         """Plain JSON-able dict (for checkpoints and ONNX metadata)."""

@@ -3,7 +3,7 @@
 colour (B,3,H,W) -> VGG16 trunk -> conv5_3 --+
                                               +-> concat (B, T*C, H/16, W/16)   ("trunk features")
 depth  (B,3,H,W) -> VGG16 trunk -> conv5_3 --+
-    -> 7x7 RoIAlign of each RoI and of its context box (roi_pool.py)
+    -> 7x7 RoIAlign (or max RoI pooling) of each RoI and of its context box (roi_pool.py)
     -> fc6 -> BN -> ReLU -> dropout -> fc7 -> BN -> ReLU -> dropout
     -> cls_score (20 logits), bbox_pred_3d (20 x 7 deltas), bbox_pred_2d (20 x 4 deltas)
 
@@ -24,12 +24,14 @@ statistics are folded in), the 2D deltas are Fast R-CNN deltas toward the amodal
 
 from __future__ import annotations
 
+from functools import partial
+
 import torch
 from torch import nn
 
 from a3d.runtime.classes import NUM_OUTPUTS
 from a3d.train.model.config import NetConfig
-from a3d.train.model.roi_pool import roi_align
+from a3d.train.model.roi_pool import roi_align, roi_max_pool
 from a3d.train.model.vgg import FEATURE_STRIDE, VGG16Trunk
 
 BOX3D_SIZE = 7
@@ -111,16 +113,16 @@ class A3DNet(nn.Module):
             if context_rois is None:
                 raise ValueError("A3DNet: this network uses context (use_context=True) but no context_rois")
             boxes.append((self.fuse_context, context_rois))
-        pooled = [
-            roi_align(
-                features if fuse is None else fuse(features),
-                box_rois,
-                config.pool_size,
-                1.0 / FEATURE_STRIDE,
-                config.sampling_ratio,
-            ).flatten(1)
-            for fuse, box_rois in boxes
-        ]
+        if config.roi_pool == "max":
+            pool = partial(roi_max_pool, output_size=config.pool_size, spatial_scale=1.0 / FEATURE_STRIDE)
+        else:
+            pool = partial(
+                roi_align,
+                output_size=config.pool_size,
+                spatial_scale=1.0 / FEATURE_STRIDE,
+                sampling_ratio=config.sampling_ratio,
+            )
+        pooled = [pool(features if f is None else f(features), box_rois).flatten(1) for f, box_rois in boxes]
         x = torch.cat(pooled, dim=1) if len(pooled) > 1 else pooled[0]
         x = self.dropout(torch.relu(self.bn6(self.fc6(x))))
         x = self.dropout(torch.relu(self.bn7(self.fc7(x))))

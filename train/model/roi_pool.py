@@ -1,10 +1,11 @@
-"""Bilinear RoI pooling (RoIAlign) in plain torch, as two matrix products per RoI.
+"""RoI pooling in plain torch: bilinear RoIAlign as two matrix products per RoI, and max pooling.
 
 Departure from the paper: Deng & Latecki use Fast R-CNN's max RoI pooling (integer-rounded
 bins, max per bin). We use RoIAlign with torchvision's ``roi_align(aligned=True)`` semantics and
 a fixed ``sampling_ratio``, because (PLATFORM.md "RoI pooling without torchvision") it needs no
 custom op, is differentiable, exports to ONNX with standard ops and is the fastest of the
-measured forms in ONNX Runtime. Max RoI pooling has no torch op without torchvision.
+measured forms in ONNX Runtime. Max RoI pooling has no torch op without torchvision;
+``roi_max_pool`` writes it with masked maxima, for the ablation that measures this departure.
 
 With a fixed number of samples per bin, bilinear sampling factorises by axis: for one RoI on a
 map F (C, H, W), ``pooled[c] = Wy @ F[c] @ Wx.T`` where ``Wy`` (P, H) and ``Wx`` (P, W) hold the
@@ -71,3 +72,41 @@ def roi_align(
     pooled_rows = (wy @ rows).reshape(-1, output_size * channels, width)  # (R, P*C, W)
     pooled = pooled_rows @ wx.transpose(1, 2)  # (R, P*C, P)
     return pooled.reshape(-1, output_size, channels, output_size).permute(0, 2, 1, 3)
+
+
+def roi_max_pool(
+    features: torch.Tensor,
+    rois: torch.Tensor,
+    output_size: int = 7,
+    spatial_scale: float = 1.0 / 16.0,
+) -> torch.Tensor:
+    """The paper's max RoI pooling (Fast R-CNN's ROIPoolingLayer), for training and the ablation.
+
+    Same arguments and output layout as ``roi_align``. The RoI's first and last pixel
+    (README coordinates: ``x1 + 0.5`` .. ``x2 - 0.5``) are scaled and rounded to map cells, the
+    rounded RoI is split into output_size bins per axis with floor / ceil edges and each bin takes
+    the maximum of its cells inside the map (0 for a bin wholly outside). Those bin edges are
+    ``adaptive_max_pool2d``'s, so each RoI is its crop of the map (padded with -inf where it
+    leaves the map) through that op: one small op per RoI. Not exportable: ``a3d-export``
+    supports RoIAlign networks only.
+    """
+    _, channels, height, width = features.shape
+    pixels = rois[:, 1:5].double() + torch.tensor([0.5, 0.5, -0.5, -0.5], dtype=torch.float64)
+    scaled = pixels * spatial_scale  # first and last pixel, in map cells
+    rounded = (torch.sign(scaled) * torch.floor(scaled.abs() + 0.5)).long()  # C's round(): half away from 0
+    out = []
+    for b, (x0, y0, x1, y1) in zip(rois[:, 0].tolist(), rounded.tolist(), strict=True):
+        x1, y1 = max(x1, x0), max(y1, y0)  # a RoI is at least one cell
+        crop = features[int(b), :, max(y0, 0) : min(y1 + 1, height), max(x0, 0) : min(x1 + 1, width)]
+        pads = (max(-x0, 0), max(x1 + 1 - width, 0), max(-y0, 0), max(y1 + 1 - height, 0))
+        if any(pads) or crop.numel() == 0:
+            shape = (channels, y1 - y0 + 1, x1 - x0 + 1)
+            full = features.new_full(shape, float("-inf"))
+            ys, xs = max(-y0, 0), max(-x0, 0)
+            full[:, ys : ys + crop.shape[1], xs : xs + crop.shape[2]] = crop
+            crop = full
+        out.append(torch.nn.functional.adaptive_max_pool2d(crop, output_size))
+    if not out:
+        return features.new_zeros((0, channels, output_size, output_size))
+    pooled = torch.stack(out)
+    return pooled.masked_fill(torch.isneginf(pooled), 0.0)
