@@ -6,7 +6,8 @@
 
 Variants (all with the same configuration otherwise, each trained from scratch into OUT/VARIANT):
   full        colour + depth + context + 3D regression          (paper: 40.9)
-  color       colour only, one trunk (net.use_depth=false)       (paper: "img" 30.0)
+  color       colour only: one trunk, no context box              (paper: "img" 30.0)
+              (net.use_depth=false, net.use_context=false)
   no-context  colour + depth without the context box            (paper: "img+d" 40.1)
   no-3dreg    the full model's detections with their initial boxes, i.e. no 3D regression
               (inference.regress_3d=false; no training)           (paper: 15.5)
@@ -45,7 +46,7 @@ from train_synth import BIN, detect_and_score, scores_of
 
 VARIANTS = {
     "full": ([], [], 40.9),
-    "color": (["net.use_depth=false"], [], 30.0),
+    "color": (["net.use_depth=false", "net.use_context=false"], [], 30.0),
     "no-context": (["net.use_context=false"], [], 40.1),
     "no-3dreg": (None, ["inference.regress_3d=false"], 15.5),  # None: the full model's checkpoint
 }
