@@ -1,6 +1,7 @@
 """``a3d-synth``: write a synthetic RGB-D training and test set, or summarise one.
 
     a3d-synth OUT --frames N --seed S [--split test=0.3] [--workers K] [--size HxW] [--sensor kinect-v1]
+        [--appearance typical]
     a3d-synth --stats OUT
 
 Frame i of a run is rendered from ``frame_seed(S, i)``, so a set is the same whatever the number
@@ -25,7 +26,7 @@ from tqdm import tqdm
 from a3d.runtime.errors import InputError
 from a3d.runtime.frames import write_frame, write_intrinsics
 from a3d.runtime.geometry import NYU_CROP_INTRINSICS, NYU_CROP_SIZE, Intrinsics
-from a3d.synth.scene import SceneConfig, generate_frame
+from a3d.synth.scene import APPEARANCES, SceneConfig, generate_frame
 from a3d.synth.sensor import SENSORS
 from a3d.synth.stats import RECORDS_FILE, format_summary, frame_record, read_records, summarise
 
@@ -162,6 +163,12 @@ def main(argv: list[str] | None = None) -> int:
         default="a3d",
         help="depth error model (a3d.synth.sensor): a3d (default) or kinect-v1's full error",
     )
+    parser.add_argument(
+        "--appearance",
+        choices=APPEARANCES,
+        default="independent",
+        help="materials drawn whatever the class (default), or class-typical (a3d.synth.appearance)",
+    )
     parser.add_argument("--depth-format", choices=("png", "npy"), default="png")
     parser.add_argument(
         "--stats", type=Path, metavar="FOLDER", help="print the statistics of a generated set and exit"
@@ -184,6 +191,7 @@ def main(argv: list[str] | None = None) -> int:
         intrinsics=scaled_intrinsics(args.size),
         min_visible_px=args.min_visible_px,
         depth_sensor=SENSORS[args.sensor],
+        appearance=args.appearance,
     )
     try:
         records = generate(

@@ -4,7 +4,8 @@ Each builder draws its style and sizes from ``rng`` (sizes in metres, ranges aft
 furniture dimensions and NYUv2 box statistics) and returns a ``Furniture`` in the object frame
 of ``a3d.synth.parts`` (x lateral, z to the front, h up, origin at the middle of the base).
 Wall-standing objects have their back at the lowest z. Parts name a material *slot* (0 main,
-1 secondary, 2 and 3 extra); the materials themselves are drawn later, independent of class.
+1 secondary, 2 and 3 extra); the materials themselves are drawn later, independent of class
+unless class-typical appearance is asked for (``a3d.synth.appearance``).
 """
 
 from __future__ import annotations

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 BOX, CYL = 0, 1
-N_SLOTS = 4  # material slots per object; each object draws N_SLOTS materials i.i.d. (class-blind)
+N_SLOTS = 4  # material slots per object; each object draws N_SLOTS materials i.i.d. (class-blind by default)
 
 
 @dataclass(frozen=True)

@@ -36,7 +36,7 @@ from a3d.runtime.geometry import (
     canonical_boxes,
     project_boxes_to_2d,
 )
-from a3d.synth import shading
+from a3d.synth import appearance, shading
 from a3d.synth.camera import CameraPose, CameraRanges, choose_camera
 from a3d.synth.layout import Placed
 from a3d.synth.parts import N_SLOTS
@@ -44,6 +44,8 @@ from a3d.synth.raycast import PartArrays, RayGrid, cast, room_exit
 from a3d.synth.rooms import furnish
 from a3d.synth.sensor import DepthSensor, sense_colour, sense_depth
 
+APPEARANCES = ("independent", "typical")
+PER_FAMILY = 2  # with "typical" appearance: materials of each family drawn per frame
 OUTSIDE_STRIDE = 4  # pixels between samples of an object's projection outside the image
 TRUNCATED_FRACTION = 0.02  # share of the projection outside the image that makes an object "cut"
 
@@ -51,7 +53,14 @@ TRUNCATED_FRACTION = 0.02  # share of the projection outside the image that make
 @dataclass(frozen=True)
 class SceneConfig:
     """What to render: image size (H, W) and intrinsics, camera pose ranges, annotation threshold,
-    sensor models (``noise`` False gives exact depth and noise-free colour), room type (None: random)."""
+    sensor models (``noise`` False gives exact depth and noise-free colour), room type (None: random),
+    and whether materials are drawn independently of the class or class-typical."""
+
+    def __post_init__(self) -> None:
+        if self.appearance not in APPEARANCES:
+            raise ValueError(f"SceneConfig: appearance must be one of {APPEARANCES}, not {self.appearance!r}")
+        if not 0.0 <= self.typical_share <= 1.0:
+            raise ValueError(f"SceneConfig: typical_share must lie in [0, 1], not {self.typical_share}")
 
     image_size: tuple[int, int] = NYU_CROP_SIZE
     intrinsics: Intrinsics = NYU_CROP_INTRINSICS
@@ -61,6 +70,8 @@ class SceneConfig:
     depth_sensor: DepthSensor = field(default_factory=DepthSensor)
     palette: int = 12  # object materials drawn per frame
     room_type: str | None = None
+    appearance: str = "independent"  # or "typical": class-typical materials (a3d.synth.appearance)
+    typical_share: float = 0.7  # with "typical": the share of models in class-typical materials
 
 
 @dataclass(frozen=True)
@@ -106,7 +117,7 @@ def generate_frame(seed: int, config: SceneConfig = SceneConfig()) -> SynthFrame
     R = pose.R_tilt
     K = config.intrinsics.matrix()
     placed = [p for p in layout.objects if p.render]
-    parts, mats, room_faces = build_parts(placed, pose, rng, config.palette)
+    parts, mats, room_faces = build_parts(placed, pose, rng, config)
     n_obj, n_parts = len(placed), len(parts)
 
     grid = RayGrid.make(np.zeros(3), R, K, (H, W))
@@ -163,20 +174,26 @@ def generate_frame(seed: int, config: SceneConfig = SceneConfig()) -> SynthFrame
 
 
 def build_parts(
-    placed: list[Placed], pose: CameraPose, rng: np.random.Generator, palette: int
+    placed: list[Placed], pose: CameraPose, rng: np.random.Generator, config: SceneConfig
 ) -> tuple[PartArrays, shading.Materials, np.ndarray]:
     """All rendered parts in the tilt frame, the materials (object palette, then floor, wall and
-    ceiling) and the room's material per surface (indexed FLOOR, CEILING, WALL).
+    ceiling, then with "typical" appearance the family materials) and the room's material per
+    surface (indexed FLOOR, CEILING, WALL).
 
     Every distinct furniture model picks N_SLOTS materials uniformly from the palette, whatever
-    its class (pieces placed several times, like a set of chairs, share theirs).
+    its class (pieces placed several times, like a set of chairs, share theirs); with "typical"
+    appearance some then take class-typical ones (``appearance.typical_slots``).
     """
-    mats = shading.concat_materials(
+    palette, typical = config.palette, config.appearance == "typical"
+    banks = [
         shading.draw_materials(rng, palette),
         shading.draw_materials(rng, 1, "floor"),
         shading.draw_materials(rng, 1, "wall"),
         shading.draw_materials(rng, 1, "ceiling"),
-    )
+    ]
+    if typical:
+        banks.append(appearance.draw_family_materials(rng, PER_FAMILY))
+    mats = shading.concat_materials(*banks)
     room_faces = palette + np.array([0, 2, 1])  # floor, wall, ceiling materials follow the palette
     slots: dict[int, np.ndarray] = {}
     kind, centre, half, yaw, obj, material = [], [], [], [], [], []
@@ -184,6 +201,10 @@ def build_parts(
         key = id(p.item)
         if key not in slots:
             slots[key] = rng.integers(0, palette, N_SLOTS)
+            if typical:
+                slots[key] = appearance.typical_slots(
+                    rng, p.item.cls, slots[key], palette + 3, PER_FAMILY, config.typical_share
+                )
         for q in p.item.parts:
             x, z = p.to_room(q.centre[0], q.centre[2])
             centre.append((x, p.base + q.centre[1], z))

@@ -1,13 +1,13 @@
 """Materials, textures, surface normals and lighting of the rendered scenes.
 
 Materials are drawn from one distribution for every object whatever its class (so colour and
-texture say nothing about the class); rooms draw their floor, wall and ceiling materials from
-their own distributions. A material is a tileable procedural texture (plain, mottled noise,
-wood grain, fabric weave, checker tiles, stripes, speckle, brushed metal) in linear RGB albedo,
-a tile size in metres and a gloss. Lighting is Lambertian: an ambient term, a shadowed main
-point light under the ceiling (shadow map rendered by ``a3d.synth.raycast``), fill point lights
-and sometimes a directional "window" light, plus a Blinn-Phong highlight on glossy materials and
-screen-space ambient occlusion from the depth map.
+texture say nothing about the class; ``a3d.synth.appearance`` optionally ties them); rooms draw
+their floor, wall and ceiling materials from their own distributions. A material is a tileable
+procedural texture (plain, mottled noise, wood grain, fabric weave, checker tiles, stripes,
+speckle, brushed metal) in linear RGB albedo, a tile size in metres and a gloss. Lighting is
+Lambertian: an ambient term, a shadowed main point light under the ceiling (shadow map rendered
+by ``a3d.synth.raycast``), fill point lights and sometimes a directional "window" light, plus a
+Blinn-Phong highlight on glossy materials and screen-space ambient occlusion from the depth map.
 """
 
 from __future__ import annotations
@@ -64,11 +64,16 @@ def _noise(rng: np.random.Generator, beta: float, aniso: float = 1.0) -> np.ndar
     return field if rng.random() < 0.5 else -field
 
 
-def _hsv_colour(rng: np.random.Generator, sat: tuple[float, float], val: tuple[float, float]) -> np.ndarray:
-    """A linear-RGB colour from a random hue and the given saturation and value ranges
-    (saturation skewed low, as in most furnishings)."""
+def _hsv_colour(
+    rng: np.random.Generator,
+    sat: tuple[float, float],
+    val: tuple[float, float],
+    hue: tuple[float, float] = (0.0, 180.0),
+) -> np.ndarray:
+    """A linear-RGB colour from hue, saturation and value ranges (OpenCV's 0-180 hue; saturation
+    skewed low, as in most furnishings)."""
     s = sat[0] + (sat[1] - sat[0]) * rng.random() ** 2
-    hsv = np.array([[[rng.uniform(0, 180), s * 255, rng.uniform(*val) * 255]]], np.float32)
+    hsv = np.array([[[rng.uniform(*hue), s * 255, rng.uniform(*val) * 255]]], np.float32)
     srgb = cv2.cvtColor(hsv.astype(np.uint8), cv2.COLOR_HSV2RGB)[0, 0].astype(np.float32) / 255
     return srgb**2.2
 
@@ -131,22 +136,40 @@ def draw_materials(rng: np.random.Generator, n: int, surface: str = "object") ->
         surface
     ]
     sat = {"object": (0.0, 0.75), "floor": (0.0, 0.6), "wall": (0.0, 0.3), "ceiling": (0.0, 0.08)}[surface]
-    tex, tile, gloss, kind = [], [], [], []
+    drawn = []
     for _ in range(n):
         k = str(rng.choice(kinds[0], p=kinds[1]))
-        base = _hsv_colour(rng, sat, val)
-        other = _hsv_colour(rng, sat, val) if rng.random() < 0.6 else base * float(rng.uniform(0.3, 0.7))
-        tex.append(_mip_levels(np.clip(make_texture(rng, k, base, other), 0.0, 1.0)))
-        tile.append(
-            float(rng.uniform(0.25, 1.2)) if k not in ("fabric", "speckle") else float(rng.uniform(0.15, 0.5))
-        )
-        gloss.append(float(rng.choice([0.0, 0.0, rng.uniform(0.05, 0.3), 0.5 if k == "metal" else 0.1])))
-        kind.append(KINDS.index(k))
+        texture, tile = material_texture(rng, k, sat, val)
+        gloss = float(rng.choice([0.0, 0.0, rng.uniform(0.05, 0.3), 0.5 if k == "metal" else 0.1]))
+        drawn.append((texture, tile, gloss, k))
+    return stack_materials(drawn)
+
+
+def material_texture(
+    rng: np.random.Generator,
+    kind: str,
+    sat: tuple[float, float],
+    val: tuple[float, float],
+    hue: tuple[float, float] = (0.0, 180.0),
+) -> tuple[np.ndarray, float]:
+    """Texture levels (MIP_LEVELS, TEX, TEX, 3) and tile size (metres) of one material of a
+    texture kind, in two colours drawn from the hue, saturation and value ranges."""
+    base = _hsv_colour(rng, sat, val, hue)
+    other = _hsv_colour(rng, sat, val, hue) if rng.random() < 0.6 else base * float(rng.uniform(0.3, 0.7))
+    texture = _mip_levels(np.clip(make_texture(rng, kind, base, other), 0.0, 1.0))
+    fine = kind in ("fabric", "speckle")
+    tile = float(rng.uniform(0.15, 0.5)) if fine else float(rng.uniform(0.25, 1.2))
+    return texture, tile
+
+
+def stack_materials(drawn: list[tuple[np.ndarray, float, float, str]]) -> Materials:
+    """Materials from (texture levels, tile, gloss, kind name) tuples."""
+    texture, tile, gloss, kind = zip(*drawn, strict=True)
     return Materials(
-        np.stack(tex).astype(np.float32),
+        np.stack(texture).astype(np.float32),
         np.array(tile, np.float32),
         np.array(gloss, np.float32),
-        np.array(kind, np.int64),
+        np.array([KINDS.index(k) for k in kind], np.int64),
     )
 
 

@@ -28,13 +28,15 @@ from a3d.synth.agreement import (
     in_box,
     sensed_inside_shares,
 )
+from a3d.synth.appearance import CLASS_FAMILIES, FAMILIES
 from a3d.synth.camera import CameraPose
 from a3d.synth.cli import frame_seed, main, scaled_intrinsics
-from a3d.synth.parts import CYL, Furniture, box, cyl
+from a3d.synth.parts import CYL, N_SLOTS, Furniture, box, cyl
 from a3d.synth.raycast import PartArrays, RayGrid, cast
 from a3d.synth.rooms import furnish
 from a3d.synth.scene import build_parts
 from a3d.synth.sensor import SENSORS, depth_sigma, projector_shadow, sense_depth
+from a3d.synth.shading import KINDS
 from a3d.synth.stats import summarise
 
 SEEDS = (11, 12, 13, 14, 15)
@@ -240,17 +242,18 @@ def test_layouts_follow_the_placement_rules() -> None:
                     assert not (masks[i] & masks[j]).any(), (seed, a.item.cls, b.item.cls)
 
 
-def test_materials_do_not_depend_on_the_class() -> None:
-    """Texture kind and brightness of each object's first material slot, over many rooms, are
-    independent of its class: their class-dependence statistics are not extreme among those of
-    200 shufflings of the class labels within each room (which keep the rooms' shared palettes)."""
+def _class_dependence_p_values(config: SceneConfig) -> np.ndarray:
+    """Permutation p-values of the class-dependence of the texture kind and of the brightness of
+    each object's first material slot, over 40 rooms: the share of 200 shufflings of the class
+    labels within each room (which keep the rooms' shared palettes) whose chi-square of class x
+    kind counts, and whose between-class variance of the luminance, reach the observed ones."""
     rooms, classes, kinds, lums = [], [], [], []
     for seed in range(40):
         rng = np.random.default_rng(seed)
         _, L = furnish(rng)
         placed = [p for p in L.objects if p.render]
         pose = CameraPose(L.room.width / 2, L.room.depth / 2, 1.5, 0.0, -0.3, 0.0)
-        parts, mats, _ = build_parts(placed, pose, rng, 12)
+        parts, mats, _ = build_parts(placed, pose, rng, config)
         for i, p in enumerate(placed):
             if p.item.cls is None:
                 continue
@@ -263,7 +266,6 @@ def test_materials_do_not_depend_on_the_class() -> None:
     onehot = np.eye(8)[kinds_a]
 
     def dependence(labels: np.ndarray) -> tuple[float, float]:
-        """Chi-square of class x kind counts, and between-class variance of the luminance."""
         counts = np.zeros((len(CLASSES), 8))
         np.add.at(counts, labels, onehot)
         expected = counts.sum(1, keepdims=True) * counts.sum(0, keepdims=True) / counts.sum()
@@ -281,10 +283,62 @@ def test_materials_do_not_depend_on_the_class() -> None:
             idx = np.flatnonzero(rooms_a == r)
             labels[idx] = labels[rng.permutation(idx)]
         shuffled.append(dependence(labels))
-    shuffled = np.array(shuffled)
     assert len(classes) > 300
-    for k in range(2):
-        assert (shuffled[:, k] >= observed[k]).mean() > 0.01, ("kind", "luminance")[k]
+    return (np.array(shuffled) >= np.array(observed)).mean(axis=0)
+
+
+def test_materials_do_not_depend_on_the_class() -> None:
+    """By default texture kind and brightness are independent of the class (not extreme among
+    the shufflings), and with class-typical appearance both depend on it (more than all 200)."""
+    assert (_class_dependence_p_values(SceneConfig()) > 0.01).all()
+    assert (_class_dependence_p_values(SceneConfig(appearance="typical")) == 0.0).all()
+
+
+def test_typical_appearance_gives_ceramic_toilets_and_dark_screens() -> None:
+    """With typical_share 1 every toilet, sink and bathtub is ceramic (bright, unsaturated,
+    glossy) in its first slot and every monitor and television dark; the default never ties
+    them so (some are dark, some saturated)."""
+    config = SceneConfig(appearance="typical", typical_share=1.0)
+    seen: dict[str, list[tuple[float, float, float]]] = {"ceramic": [], "screen": []}
+    plain: list[float] = []
+    for seed in range(60):
+        rng = np.random.default_rng(seed)
+        _, L = furnish(rng, "bathroom" if seed % 2 else "office")
+        placed = [p for p in L.objects if p.render]
+        pose = CameraPose(L.room.width / 2, L.room.depth / 2, 1.5, 0.0, -0.3, 0.0)
+        for cfg in (config, SceneConfig()):
+            parts, mats, _ = build_parts(placed, pose, np.random.default_rng(seed), cfg)
+            for i, p in enumerate(placed):
+                family = {"toilet": "ceramic", "sink": "ceramic", "bathtub": "ceramic",
+                          "monitor": "screen", "television": "screen"}.get(p.item.cls)  # fmt: skip
+                if family is None:
+                    continue
+                own = zip(np.flatnonzero(parts.obj == i), p.item.parts, strict=True)
+                m = parts.material[next(k for k, q in own if q.slot == 0)]
+                albedo = mats.texture[m, 0].reshape(-1, 3).mean(axis=0)
+                if cfg is config:
+                    spread = float(albedo.max() - albedo.min())
+                    seen[family].append((float(albedo.mean()), spread, float(mats.gloss[m])))
+                else:
+                    plain.append(float(albedo.mean()))
+    ceramic, screen = np.array(seen["ceramic"]), np.array(seen["screen"])
+    assert len(ceramic) >= 20 and len(screen) >= 10
+    assert (ceramic[:, 0] > 0.55).all() and (ceramic[:, 1] < 0.12).all() and (ceramic[:, 2] >= 0.35).all()
+    assert (screen[:, 0] < 0.02).all() and (screen[:, 2] >= 0.3).all()
+    assert min(plain) < 0.05 < 0.5 < max(plain)
+
+
+def test_class_families_cover_every_class_with_known_families() -> None:
+    assert set(CLASS_FAMILIES) == set(CLASSES)
+    for slots in CLASS_FAMILIES.values():
+        assert slots and all(0 <= k < N_SLOTS for k in slots)
+        assert all(f in FAMILIES for families in slots.values() for f in families)
+    for family in FAMILIES.values():
+        assert set(family.kinds) <= set(KINDS) and abs(sum(family.weights) - 1) < 1e-9
+    with pytest.raises(ValueError, match="appearance"):
+        SceneConfig(appearance="class-coloured")
+    with pytest.raises(ValueError, match="typical_share"):
+        SceneConfig(typical_share=1.5)
 
 
 def test_frames_are_deterministic_per_seed(frames) -> None:
@@ -316,6 +370,12 @@ def test_cli_writes_the_same_set_with_any_worker_count(tmp_path) -> None:
     np.testing.assert_array_equal(read_instances(ref), direct.instances)
     assert np.all(box_area_2d(gt.boxes2d_visible) > 0)
     assert main(["--stats", str(tmp_path / "a")]) == 0
+    # Class-typical appearance draws other materials for the same scenes: same ground truth.
+    assert main([str(tmp_path / "c"), *args, "--appearance", "typical"]) == 0
+    for split in ("train", "test"):
+        for a, c in zip(refs[split], list_frames(tmp_path / "c" / split), strict=True):
+            assert c.gt_path.read_bytes() == a.gt_path.read_bytes()
+            assert c.color_path.read_bytes() != a.color_path.read_bytes()
 
 
 def test_cli_sensor_option_picks_the_depth_error_model(tmp_path) -> None:
