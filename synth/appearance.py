@@ -78,8 +78,7 @@ CLASS_FAMILIES: dict[str, dict[int, tuple[str, ...]]] = {  # class -> material s
 def draw_family_materials(rng: np.random.Generator, per_family: int) -> Materials:
     """``per_family`` materials of every family, family by family in FAMILY_NAMES order."""
     drawn = []
-    for name in FAMILY_NAMES:
-        family = FAMILIES[name]
+    for family in FAMILIES.values():
         for _ in range(per_family):
             kind = str(rng.choice(family.kinds, p=family.weights))
             texture, tile = material_texture(rng, kind, family.sat, family.val, family.hue)
@@ -93,7 +92,7 @@ def typical_slots(
     """A model's material per slot: ``slots`` (palette picks), with probability ``share`` the
     slots its class names in CLASS_FAMILIES replaced by a material of one of their families
     (``first``: the index of the first family material in the frame's bank)."""
-    named = CLASS_FAMILIES.get(cls) if cls is not None else None
+    named = CLASS_FAMILIES.get(cls)  # None for clutter (cls None)
     if named is None or rng.random() >= share:
         return slots
     out = slots.copy()

@@ -56,12 +56,6 @@ class SceneConfig:
     sensor models (``noise`` False gives exact depth and noise-free colour), room type (None: random),
     and whether materials are drawn independently of the class or class-typical."""
 
-    def __post_init__(self) -> None:
-        if self.appearance not in APPEARANCES:
-            raise ValueError(f"SceneConfig: appearance must be one of {APPEARANCES}, not {self.appearance!r}")
-        if not 0.0 <= self.typical_share <= 1.0:
-            raise ValueError(f"SceneConfig: typical_share must lie in [0, 1], not {self.typical_share}")
-
     image_size: tuple[int, int] = NYU_CROP_SIZE
     intrinsics: Intrinsics = NYU_CROP_INTRINSICS
     camera: CameraRanges = field(default_factory=CameraRanges)
@@ -72,6 +66,12 @@ class SceneConfig:
     room_type: str | None = None
     appearance: str = "independent"  # or "typical": class-typical materials (a3d.synth.appearance)
     typical_share: float = 0.7  # with "typical": the share of models in class-typical materials
+
+    def __post_init__(self) -> None:
+        if self.appearance not in APPEARANCES:
+            raise ValueError(f"SceneConfig: appearance must be one of {APPEARANCES}, not {self.appearance!r}")
+        if not 0.0 <= self.typical_share <= 1.0:
+            raise ValueError(f"SceneConfig: typical_share must lie in [0, 1], not {self.typical_share}")
 
 
 @dataclass(frozen=True)
@@ -191,6 +191,7 @@ def build_parts(
         shading.draw_materials(rng, 1, "wall"),
         shading.draw_materials(rng, 1, "ceiling"),
     ]
+    first_family = sum(len(bank.tile) for bank in banks)  # the family materials follow the room's
     if typical:
         banks.append(appearance.draw_family_materials(rng, PER_FAMILY))
     mats = shading.concat_materials(*banks)
@@ -203,7 +204,7 @@ def build_parts(
             slots[key] = rng.integers(0, palette, N_SLOTS)
             if typical:
                 slots[key] = appearance.typical_slots(
-                    rng, p.item.cls, slots[key], palette + 3, PER_FAMILY, config.typical_share
+                    rng, p.item.cls, slots[key], first_family, PER_FAMILY, config.typical_share
                 )
         for q in p.item.parts:
             x, z = p.to_room(q.centre[0], q.centre[2])
