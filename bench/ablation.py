@@ -2,7 +2,7 @@
 
     .venv/bin/python bench/ablation.py TRAIN_DIR TEST_DIR --out out/ablation [--config cpu-small]
         [--iters N] [--set KEY=VALUE ...] [--only full,color,no-context,no-3dreg]
-        [--full RUN_DIR] [--parallel N] [--bootstrap 100] [--reuse]
+        [--full RUN_DIR] [--parallel N] [--bootstrap 100] [--reuse] [--per-class]
 
 Variants (all with the same configuration otherwise, each trained from scratch into OUT/VARIANT):
   full        colour + depth + context + 3D regression          (paper: 40.9)
@@ -29,6 +29,10 @@ checkpoint is resumed (to its configured length) rather than retrained. --bootst
 per variant, a 90 % interval of (full - variant) in points over N paired resamples of the test
 frames (bench/int8_accuracy.py's bootstrap; about 1 s per variant and resample on 350 frames).
 --reuse keeps a variant's scores from an earlier call (OUT/eval-VARIANT) instead of detecting again.
+With the four Table 2 rows scored, the paper's conclusions are checked as differences of two
+rows, each with its paired interval from the same resamples: 3D regression's gain minus depth's
+(colour only - initial boxes) and minus context's, colour + depth minus colour only (both without
+context), and context minus none. --per-class prints AP@0.25 per class, ours beside the paper's.
 """
 
 from __future__ import annotations
@@ -41,20 +45,24 @@ import sys
 import time
 from pathlib import Path
 
-from int8_accuracy import bootstrap_costs  # bench/ is the script's folder, first on sys.path
+import numpy as np
+from int8_accuracy import bootstrap_maps, interval_90  # bench/ is the script's folder, first on sys.path
+from paper_table2 import PAPER_AP, PAPER_MAP
 from train_synth import BIN, detect_and_score, scores_of
 
-VARIANTS = {
-    "full": ([], [], 40.9),
-    "color": (["net.use_depth=false", "net.use_context=false"], [], 30.0),
-    "no-context": (["net.use_context=false"], [], 40.1),
-    "no-3dreg": (None, ["inference.regress_3d=false"], 15.5),  # None: the full model's checkpoint
+from a3d.runtime.classes import CLASSES
+
+VARIANTS = {  # name: (training --set overrides, inference overrides)
+    "full": ([], []),
+    "color": (["net.use_depth=false", "net.use_context=false"], []),
+    "no-context": (["net.use_context=false"], []),
+    "no-3dreg": (None, ["inference.regress_3d=false"]),  # None: the full model's checkpoint
 }
 TABLE_2 = ",".join(VARIANTS)
 DEPARTURES = {  # rows for a3d's departures from the paper (README "Training"); not in the paper
-    "no-trunk-bn": (["net.trunk_norm=false", "solver.lr=0.005"], [], float("nan")),
-    "no-fuse": (["net.fuse_channels=null"], [], float("nan")),
-    "roi-max": (["net.roi_pool=max"], [], float("nan")),
+    "no-trunk-bn": (["net.trunk_norm=false", "solver.lr=0.005"], []),
+    "no-fuse": (["net.fuse_channels=null"], []),
+    "roi-max": (["net.roi_pool=max"], []),
 }
 VARIANTS.update(DEPARTURES)
 
@@ -72,6 +80,7 @@ def main() -> int:
     parser.add_argument("--parallel", type=int, default=1, help="variants trained at once")
     parser.add_argument("--bootstrap", type=int, default=0,
                         help="paired resamples (90 %% interval of full - variant)")  # fmt: skip
+    parser.add_argument("--per-class", action="store_true", help="AP per class beside Table 2's")
     parser.add_argument("--reuse", action="store_true", help="keep the scores already in OUT/eval-VARIANT")
     parser.add_argument("--device")
     args = parser.parse_args()
@@ -91,7 +100,7 @@ def main() -> int:
     path = args.out / "ablation.json"
     results = json.loads(path.read_text()) if path.exists() else {}
     for name in chosen:
-        train_sets, infer_sets, paper = VARIANTS[name]
+        train_sets, infer_sets = VARIANTS[name]
         run_dir = run_dirs["full" if train_sets is None else name]
         report = args.out / f"eval-{name}" / "eval" / "eval.json"
         if args.reuse and report.exists():
@@ -100,16 +109,17 @@ def main() -> int:
             scores = detect_and_score(run_dir / "checkpoint.pt", args.test_dir, args.out / f"eval-{name}",
                                       infer_sets, args.device or "cpu")  # fmt: skip
         results[name] = {"map25": scores["map25_all"], "map25_present": scores["map25_present"],
-                         "paper_map25": paper, "train_seconds": seconds.get(name), "run": str(run_dir),
-                         "test_frames": scores["test_frames"]}  # fmt: skip
+                         "paper_map25": PAPER_MAP.get(name, float("nan")), "train_seconds": seconds.get(name),
+                         "run": str(run_dir), "test_frames": scores["test_frames"]}  # fmt: skip
         path.write_text(json.dumps(results, indent=1))
 
     scored = {n: args.out / f"eval-{n}" / "detections.jsonl" for n in results}
+    maps = {}
     if args.bootstrap and "full" in scored:
-        intervals = bootstrap_costs(args.test_dir, scored, args.bootstrap, reference="full")
-        for name, interval in intervals.items():
-            results[name]["full_minus_variant_90"] = interval
-        path.write_text(json.dumps(results, indent=1))
+        maps = bootstrap_maps(args.test_dir, scored, args.bootstrap)
+    for name in maps.keys() - {"full"}:
+        results[name]["full_minus_variant_90"] = interval_90(maps["full"] - maps[name])
+    path.write_text(json.dumps(results, indent=1))
 
     print(f"{'variant':<12} {'mAP@0.25':>9} {'present':>8} {'paper':>6}  full - variant, 90 % interval")
     for name, r in results.items():
@@ -117,7 +127,43 @@ def main() -> int:
         shown = f"  [{interval[0]:+.1f}, {interval[1]:+.1f}]" if interval else ""
         scores = f"{100 * r['map25']:9.1f} {100 * r['map25_present']:8.1f} {r['paper_map25']:6.1f}"
         print(f"{name:<12} {scores}{shown}")
+    if args.per_class:
+        print_per_class(args.out, [n for n in results if n in PAPER_AP])
+    if set(PAPER_MAP) <= results.keys():
+        print_ordering(results, maps)
     return 0
+
+
+def print_per_class(out: Path, names: list[str]) -> None:
+    """AP@0.25 per class of each Table 2 variant, ours / the paper's (OUT/eval-VARIANT's eval.json)."""
+    ap = {n: json.loads((out / f"eval-{n}" / "eval" / "eval.json").read_text())["classes"] for n in names}
+    print(f"{'class':<13}" + "".join(f" {n:>13}" for n in names) + "   (ours / paper)")
+    for c, cls in enumerate(CLASSES):
+        cells = [f"{100 * ap[n][cls]['ap']['0.25']:5.1f} / {PAPER_AP[n][c]:5.1f}" for n in names]
+        print(f"{cls:<13}" + "".join(f" {cell:>13}" for cell in cells))
+
+
+def print_ordering(results: dict, maps: dict[str, np.ndarray]) -> None:
+    """The paper's three conclusions from Table 2, each as a difference of two variants' mAP@0.25
+    (points) with its paired 90 % interval when bootstrapped: 3D regression is the largest gain
+    (its gain minus depth's and minus context's), colour + depth beats colour only ("img+d" vs
+    "img", both without context), context does not hurt (full vs no-context)."""
+    checks = [  # (label, a, b, "no harm" check: a - b need only not be significantly negative)
+        ("3D regression gain - depth gain", "color", "no-3dreg", False),
+        ("3D regression gain - context gain", "no-context", "no-3dreg", False),
+        ("colour + depth - colour only", "no-context", "color", False),
+        ("context - no context", "full", "no-context", True),
+    ]
+    print("the paper's ordering: a - b in points (paper's), paired 90 % interval")
+    for label, a, b, no_harm in checks:
+        diff = 100 * (results[a]["map25"] - results[b]["map25"])
+        lo, hi = interval_90(maps[a] - maps[b]) if maps else (diff, diff)
+        shown = f"  [{lo:+.1f}, {hi:+.1f}]" if maps else ""
+        if no_harm:
+            verdict = "holds" if hi >= 0 else "fails"
+        else:
+            verdict = "holds, significant" if lo > 0 else "holds" if diff > 0 else "fails"
+        print(f"  {label:<34} {diff:+6.1f} ({PAPER_MAP[a] - PAPER_MAP[b]:+5.1f}){shown}  {verdict}")
 
 
 def train_all(args: argparse.Namespace, config: str, sets: list[str], names: list[str],

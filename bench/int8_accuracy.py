@@ -79,12 +79,12 @@ def detect_and_score(model: Path, frames: Path, detections: Path, threads: int, 
     return {"map": json.loads((out / "eval.json").read_text())["map"], "run_seconds": seconds}
 
 
-def bootstrap_costs(
-    frames: Path, detections: dict[str, Path], resamples: int, seed: int = 0, reference: str = "fp32"
-) -> dict[str, list]:
-    """90 % interval (points) of the ``reference`` variant's mAP minus each other variant's over
-    ``resamples`` paired resamples of the annotated frames (drawn with replacement; all variants
-    scored on the same draw with a3d.runtime.evaluation, as a3d-eval scores)."""
+def bootstrap_maps(
+    frames: Path, detections: dict[str, Path], resamples: int, seed: int = 0
+) -> dict[str, np.ndarray]:
+    """mAP@0.25 (points) of every variant on each of ``resamples`` paired resamples of the annotated
+    frames (drawn with replacement; all variants scored on the same draw with
+    a3d.runtime.evaluation, as a3d-eval scores): any difference of two variants is paired."""
     from a3d.runtime.cli.eval import load_truth
     from a3d.runtime.detections_io import read_detections
     from a3d.runtime.evaluation import EvalConfig, evaluate
@@ -93,17 +93,28 @@ def bootstrap_costs(
     names = sorted(truth)
     lines = {v: {d.frame: d for d in read_detections(path)} for v, path in detections.items()}
     rng = np.random.default_rng(seed)
-    costs: dict[str, list[float]] = {v: [] for v in lines if v != reference}
+    maps: dict[str, list[float]] = {v: [] for v in lines}
     for _ in range(resamples):
         draw = {f"{i}:{n}": n for i, n in enumerate(rng.choice(names, len(names)))}  # unique keys
         sample = {key: truth[name] for key, name in draw.items()}
-        maps = {}
         for v, det in lines.items():
             picked = {k: det[n] for k, n in draw.items() if n in det}
-            maps[v] = evaluate(sample, picked, EvalConfig()).map_all(PRIMARY_IOU)
-        for v in costs:
-            costs[v].append(100 * (maps[reference] - maps[v]))
-    return {v: np.percentile(c, [5, 95]).tolist() for v, c in costs.items()}
+            maps[v].append(100 * evaluate(sample, picked, EvalConfig()).map_all(PRIMARY_IOU))
+    return {v: np.asarray(m) for v, m in maps.items()}
+
+
+def interval_90(differences: np.ndarray) -> list[float]:
+    """The 5th and 95th percentiles of paired bootstrap differences."""
+    return np.percentile(differences, [5, 95]).tolist()
+
+
+def bootstrap_costs(
+    frames: Path, detections: dict[str, Path], resamples: int, seed: int = 0, reference: str = "fp32"
+) -> dict[str, list]:
+    """90 % interval (points) of the ``reference`` variant's mAP minus each other variant's over
+    ``resamples`` paired resamples of the annotated frames (bootstrap_maps)."""
+    maps = bootstrap_maps(frames, detections, resamples, seed)
+    return {v: interval_90(maps[reference] - m) for v, m in maps.items() if v != reference}
 
 
 def main(argv: list[str] | None = None) -> int:
