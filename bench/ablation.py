@@ -29,10 +29,11 @@ checkpoint is resumed (to its configured length) rather than retrained. --bootst
 per variant, a 90 % interval of (full - variant) in points over N paired resamples of the test
 frames (bench/int8_accuracy.py's bootstrap; about 1 s per variant and resample on 350 frames).
 --reuse keeps a variant's scores from an earlier call (OUT/eval-VARIANT) instead of detecting again.
-With the four Table 2 rows scored, the paper's conclusions are checked as differences of two
-rows, each with its paired interval from the same resamples: 3D regression's gain minus depth's
-(colour only - initial boxes) and minus context's, colour + depth minus colour only (both without
-context), and context minus none. --per-class prints AP@0.25 per class, ours beside the paper's.
+With the four Table 2 rows scored, the paper's conclusions are checked on its steps (depth:
+colour only -> no-context; context: no-context -> full; 3D regression: no-3dreg -> full), each
+difference with its paired interval from the same resamples: 3D regression's gain minus depth's
+and minus context's, depth's gain, context's gain. --per-class prints AP@0.25 per class, ours
+beside the paper's.
 """
 
 from __future__ import annotations
@@ -144,26 +145,27 @@ def print_per_class(out: Path, names: list[str]) -> None:
 
 
 def print_ordering(results: dict, maps: dict[str, np.ndarray]) -> None:
-    """The paper's three conclusions from Table 2, each as a difference of two variants' mAP@0.25
-    (points) with its paired 90 % interval when bootstrapped: 3D regression is the largest gain
-    (its gain minus depth's and minus context's), colour + depth beats colour only ("img+d" vs
-    "img", both without context), context does not hurt (full vs no-context)."""
-    checks = [  # (label, a, b, "no harm" check: a - b need only not be significantly negative)
-        ("3D regression gain - depth gain", "color", "no-3dreg", False),
-        ("3D regression gain - context gain", "no-context", "no-3dreg", False),
-        ("colour + depth - colour only", "no-context", "color", False),
-        ("context - no context", "full", "no-context", True),
-    ]
-    print("the paper's ordering: a - b in points (paper's), paired 90 % interval")
-    for label, a, b, no_harm in checks:
-        diff = 100 * (results[a]["map25"] - results[b]["map25"])
-        lo, hi = interval_90(maps[a] - maps[b]) if maps else (diff, diff)
+    """The paper's three conclusions from Table 2 as differences of its steps "img" -> "img+d"
+    (depth), "img+d" -> "img+d+ct" (context) and initial boxes -> "img+d+ct" (3D regression), in
+    mAP@0.25 points, with paired 90 % intervals when bootstrapped: 3D regression is the largest
+    gain, colour + depth beats colour only, context does not hurt."""
+    checks = {  # label: ({variant: coefficient}, "no harm": need only not be significantly negative)
+        "3D regression gain - depth gain": ({"full": 1, "no-3dreg": -1, "no-context": -1, "color": 1}, False),
+        "3D regression gain - context gain": ({"no-context": 1, "no-3dreg": -1}, False),
+        "depth gain (colour + depth - colour)": ({"no-context": 1, "color": -1}, False),
+        "context gain": ({"full": 1, "no-context": -1}, True),
+    }
+    print("the paper's ordering, in points: ours (paper's), paired 90 % interval")
+    for label, (terms, no_harm) in checks.items():
+        diff = sum(k * 100 * results[v]["map25"] for v, k in terms.items())
+        paper = sum(k * PAPER_MAP[v] for v, k in terms.items())
+        lo, hi = interval_90(sum(k * maps[v] for v, k in terms.items())) if maps else (diff, diff)
         shown = f"  [{lo:+.1f}, {hi:+.1f}]" if maps else ""
         if no_harm:
             verdict = "holds" if hi >= 0 else "fails"
         else:
             verdict = "holds, significant" if lo > 0 else "holds" if diff > 0 else "fails"
-        print(f"  {label:<34} {diff:+6.1f} ({PAPER_MAP[a] - PAPER_MAP[b]:+5.1f}){shown}  {verdict}")
+        print(f"  {label:<37} {diff:+6.1f} ({paper:+5.1f}){shown}  {verdict}")
 
 
 def train_all(args: argparse.Namespace, config: str, sets: list[str], names: list[str],
