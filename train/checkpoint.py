@@ -41,16 +41,20 @@ class CheckpointError(ModelError):
 
 def save_checkpoint(path: str | os.PathLike, payload: dict) -> None:
     """Atomically write ``payload`` (plain data and tensors only) to ``path``."""
-    path = Path(path)
     _check_plain(payload, "checkpoint")
-    payload = {"format": FORMAT, "version": VERSION, **payload}
+    atomic_torch_save(path, {"format": FORMAT, "version": VERSION, **payload})
+
+
+def atomic_torch_save(path: str | os.PathLike, obj: object) -> None:
+    """torch.save to a temporary file beside ``path``, fsync'ed, then renamed over it."""
+    path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     for stale in path.parent.glob(f".{path.name}.tmp-*"):  # left by a writer that was killed
         stale.unlink(missing_ok=True)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     try:
         with open(tmp, "wb") as f:
-            torch.save(payload, f)
+            torch.save(obj, f)
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
