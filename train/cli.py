@@ -31,14 +31,19 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("data", type=Path, help="folder of training frames with NAME.gt.json")
     parser.add_argument("--out", type=Path, required=True, help="run folder (checkpoint, metrics, plots)")
-    parser.add_argument("--config", help=f"preset ({', '.join(PRESETS)}) or JSON/TOML file; default vgg16")
-    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                        help="override one setting, e.g. solver.lr=0.001 (repeatable)")  # fmt: skip
+    add_config_arguments(parser, "solver.lr=0.001")
     parser.add_argument("--resume", action="store_true", help="continue from RUN_DIR/checkpoint.pt")
-    parser.add_argument("--device", help="cpu, cuda or cuda:N (default: cuda when available)")
     parser.add_argument("--iters", type=int, help="total iterations (overrides solver.iterations)")
     parser.add_argument("--val", type=Path, help="annotated frames for periodic validation mAP")
     return parser
+
+
+def add_config_arguments(parser: argparse.ArgumentParser, example: str) -> None:
+    """--config, --set (into ``overrides``) and --device, as a3d-train and a3d-pretrain take them."""
+    parser.add_argument("--config", help=f"preset ({', '.join(PRESETS)}) or JSON/TOML file; default vgg16")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                        help=f"override one setting, e.g. {example} (repeatable)")  # fmt: skip
+    parser.add_argument("--device", help="cpu, cuda or cuda:N (default: cuda when available)")
 
 
 def resolve_config(args: argparse.Namespace) -> TrainConfig:

@@ -19,7 +19,8 @@ from pathlib import Path
 import torch
 
 from a3d.runtime.errors import InputError
-from a3d.train.config import PRESETS, load_config
+from a3d.train.cli import add_config_arguments
+from a3d.train.config import load_config
 from a3d.train.loop import resolve_device
 from a3d.train.pretrain import PretrainConfig, pretrain
 
@@ -31,17 +32,14 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("data", type=Path, help="folder of annotated frames, disjoint from the detector's")
     parser.add_argument("--out", type=Path, required=True, help="weights file to write (.pt)")
-    parser.add_argument("--config", help=f"preset ({', '.join(PRESETS)}) or JSON/TOML file; default vgg16")
-    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                        help="override one network setting, e.g. net.width=0.5 (repeatable)")  # fmt: skip
-    parser.add_argument("--iters", type=int, default=defaults.iterations)
-    parser.add_argument("--batch", type=int, default=defaults.batch)
-    parser.add_argument("--lr", type=float, default=defaults.lr)
+    add_config_arguments(parser, "net.width=0.5")
+    parser.add_argument("--iters", type=int, default=defaults.iterations, help="SGD iterations")
+    parser.add_argument("--batch", type=int, default=defaults.batch, help="crops per iteration")
+    parser.add_argument("--lr", type=float, default=defaults.lr, help="learning rate (x0.1 after 3/4)")
     parser.add_argument("--crop", type=int, default=defaults.crop, help="crop side (px); 16 x net.pool_size")
-    parser.add_argument("--val-share", type=float, default=defaults.val_share)
+    parser.add_argument("--val-share", type=float, default=defaults.val_share, help="frames held out")
     parser.add_argument("--seed", type=int, default=defaults.seed)
     parser.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
-    parser.add_argument("--device", help="cpu, cuda or cuda:N (default: cuda when available)")
     return parser
 
 
