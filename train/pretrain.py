@@ -173,6 +173,8 @@ def torchvision_state(model: CropClassifier) -> dict[str, torch.Tensor]:
 
 @dataclass
 class PretrainResult:
+    """What a3d-pretrain reports (and writes to WEIGHTS.pt.json)."""
+
     iterations: int
     train_crops: int
     val_crops: int
@@ -198,8 +200,8 @@ def pretrain(data: str | os.PathLike, out: str | os.PathLike, net: NetConfig, co
         raise InputError(f"{data}: no training crops left after holding out {len(val_frames)} frames")
 
     model = CropClassifier(net, config.crop).to(device)
-    decay = [p for n, p in model.named_parameters() if p.dim() > 1]
-    no_decay = [p for n, p in model.named_parameters() if p.dim() <= 1]
+    decay = [p for p in model.parameters() if p.dim() > 1]  # weight decay on weights only, as a3d-train
+    no_decay = [p for p in model.parameters() if p.dim() <= 1]
     optimizer = torch.optim.SGD([{"params": decay, "weight_decay": config.weight_decay},
                                  {"params": no_decay, "weight_decay": 0.0}],
                                 lr=config.lr, momentum=config.momentum)  # fmt: skip
