@@ -22,6 +22,7 @@ are those of the evaluated frames' own ground truth (an oracle too), so this bou
 network's classifier could reach on these proposals without any 3D regression.
 
     .venv/bin/python bench/gravity_lifting.py --synth 100000 30
+    .venv/bin/python bench/gravity_lifting.py --synth 100000 120 --per-class
     .venv/bin/python bench/gravity_lifting.py --folder /tmp/synth_small/test [--limit 50]
 """
 
@@ -200,7 +201,7 @@ def _print_per_class(cls: np.ndarray, ious: np.ndarray, boxes: np.ndarray, resul
     """Why initial boxes score what they score, class by class: the spread of the true sizes
     (coefficient of variation of the volume), how far the true yaw is from the initial theta 0,
     the ground-truth masks' initial-box hit rate and the oracle AP, beside Table 2's
-    "img+d+ct-3dreg" row (NYUv2, with the network's classifier, so a lower bound's companion)."""
+    "img+d+ct-3dreg" row (NYUv2, scored with the network's own classifier, not an oracle)."""
     print("class            n  vol cv |yaw| med IoU>=.25 oracle AP  paper")
     for c, (name, paper) in enumerate(zip(CLASSES, PAPER_AP["no-3dreg"], strict=True)):
         sel = cls == c
