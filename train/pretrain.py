@@ -38,6 +38,7 @@ from a3d.runtime.frames import list_frames, read_folder_intrinsics, read_frame, 
 from a3d.runtime.geometry import iou_2d
 from a3d.runtime.preprocess import COLOR_MEAN_BGR
 from a3d.train.checkpoint import atomic_torch_save
+from a3d.train.loop import param_groups
 from a3d.train.model.config import NetConfig
 from a3d.train.model.vgg import FEATURE_STRIDE, VGG16Trunk, conv5_size
 from a3d.train.model.weights import TORCHVISION_STD_RGB
@@ -117,7 +118,7 @@ def frame_crops(bgr: np.ndarray, boxes: np.ndarray, class_ids: np.ndarray, size:
             bw, bh = sides[int(rng.integers(len(sides)))]
             x0, y0 = rng.uniform(0, max(w - bw, 1)), rng.uniform(0, max(h - bh, 1))
             box = np.array([x0, y0, x0 + bw, y0 + bh])
-            if not len(boxes) or iou_2d(box[None], boxes).max() <= BACKGROUND_MAX_IOU:
+            if iou_2d(box[None], boxes).max() <= BACKGROUND_MAX_IOU:  # sides: boxes is not empty
                 crops.append(_warp(bgr, box, size))
                 labels.append(0)
                 break
@@ -201,11 +202,8 @@ def pretrain(data: str | os.PathLike, out: str | os.PathLike, net: NetConfig, co
         raise InputError(f"{data}: no training crops left after holding out {len(val_frames)} frames")
 
     model = CropClassifier(net, config.crop).to(device)
-    decay = [p for p in model.parameters() if p.dim() > 1]  # weight decay on weights only, as a3d-train
-    no_decay = [p for p in model.parameters() if p.dim() <= 1]
-    optimizer = torch.optim.SGD([{"params": decay, "weight_decay": config.weight_decay},
-                                 {"params": no_decay, "weight_decay": 0.0}],
-                                lr=config.lr, momentum=config.momentum)  # fmt: skip
+    groups = param_groups(model, config.weight_decay)  # decay on weights only, as a3d-train
+    optimizer = torch.optim.SGD(groups, lr=config.lr, momentum=config.momentum)
     step_at = math.ceil(config.lr_step * config.iterations)
     bar = tqdm(range(config.iterations), desc="a3d-pretrain", unit="it", disable=not progress)
     order, cursor = rng.permutation(train_idx), 0
