@@ -24,7 +24,6 @@ import json
 import math
 import os
 from dataclasses import dataclass
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -33,6 +32,7 @@ from torch import nn
 from tqdm import tqdm
 
 from a3d.runtime.classes import NUM_CLASSES
+from a3d.runtime.detections_io import atomic_write_bytes
 from a3d.runtime.errors import InputError
 from a3d.runtime.frames import list_frames, read_folder_intrinsics, read_frame, read_ground_truth
 from a3d.runtime.geometry import iou_2d
@@ -236,7 +236,7 @@ def pretrain(data: str | os.PathLike, out: str | os.PathLike, net: NetConfig, co
     result = PretrainResult(config.iterations, len(train_idx), len(val_idx), float(np.mean(losses[:tenth])),
                             float(np.mean(losses[-tenth:])), fit, accuracy, balanced)  # fmt: skip
     report = {**result.__dict__, "net": net.__dict__, "pretrain": config.__dict__}
-    Path(f"{out}.json").write_text(json.dumps(report, indent=1, default=str))
+    atomic_write_bytes(f"{out}.json", json.dumps(report, indent=1, default=str).encode("utf-8"))
     return result
 
 
