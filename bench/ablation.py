@@ -51,7 +51,7 @@ from int8_accuracy import bootstrap_maps, interval_90  # bench/ is the script's 
 from paper_table2 import PAPER_AP, PAPER_MAP
 from train_synth import BIN, detect_and_score, scores_of
 
-from a3d.runtime.classes import CLASSES
+from a3d.runtime.structures.classes import CLASSES
 
 VARIANTS = {  # name: (training --set overrides, inference overrides)
     "full": ([], []),

@@ -44,7 +44,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from a3d.runtime.classes import CLASS_COLORS_RGB, CLASSES
+from a3d.runtime.structures.classes import CLASS_COLORS_RGB, CLASSES
 
 RERUN = Path(sys.prefix) / "bin" / "rerun"
 CHROMIUM = Path("/usr/bin/chromium")

@@ -24,7 +24,7 @@ threads, which the frame time includes), the frame time (steady-state period bet
 frames/s and the peak resident memory.
 
 Network alone, on the same inputs (the runtime's front end on the same frames), each in its own
-process: ONNX Runtime (a3d.runtime.model.DetectorModel, the runtime's own session) for the fp32
+process: ONNX Runtime (a3d.runtime.network.model.DetectorModel, the runtime's own session) for the fp32
 and int8 + SVD files, with all RoIs and with one RoI (about the trunks' share; the head is the
 difference), and torch eager fp32 (a3d.train.inference.TorchNetwork, the same checkpoint, same
 thread count). Times move between machines and with the load, so the targets are also ratios:
@@ -93,7 +93,7 @@ def random_checkpoint(path: Path, net_preset: str, overrides: dict | None = None
     seeded random class mean sizes."""
     import torch
 
-    from a3d.runtime.classes import CLASSES
+    from a3d.runtime.structures.classes import CLASSES
     from a3d.train.checkpoint import save_checkpoint
     from a3d.train.config import TrainConfig, apply_values
     from a3d.train.dataset import TargetStats
@@ -129,7 +129,7 @@ def export_model(checkpoint: Path, out: Path, frames: Path, *, svd: int | None =
 
 def frame_subset(folder: Path, out: Path, count: int) -> Path:
     """A folder of symbolic links to the first ``count`` frames of ``folder`` (and its intrinsics)."""
-    from a3d.runtime.frames import INTRINSICS_FILE, list_frames
+    from a3d.runtime.sources.folder import INTRINSICS_FILE, list_frames
 
     out.mkdir(parents=True, exist_ok=True)
     keep = {ref.name for ref in list_frames(folder)[:count]}
@@ -171,7 +171,7 @@ def measure_run(model: Path, frames: Path, *, max_proposals: int, threads: int =
     the frame period by the moments a3d-run's loop receives each frame's result.
     """
     from a3d.runtime.cli import run as run_cli
-    from a3d.runtime.detections_io import read_detections
+    from a3d.runtime.io.detections_io import read_detections
 
     with tempfile.TemporaryDirectory(prefix="a3d-edge-") as tmp:
         output = Path(tmp) / "detections.jsonl"
@@ -238,9 +238,9 @@ def _timed(function: Callable, spent: dict[str, list[float]], stage: str, new: b
 def network_inputs(model: Path, frames: Path, max_proposals: int) -> list[PreparedFrame]:
     """What a3d-run feeds ``model`` for each frame of ``frames`` (a3d.runtime.pipeline.prepare;
     a3d.export.verify.folder_inputs does the same but brings torch into the process)."""
-    from a3d.runtime.frames import list_frames, read_folder_intrinsics
-    from a3d.runtime.model import DetectorModel
+    from a3d.runtime.network.model import DetectorModel
     from a3d.runtime.pipeline import PipelineConfig, prepare
+    from a3d.runtime.sources.folder import list_frames, read_folder_intrinsics
 
     metadata = DetectorModel.load(model, threads=1).metadata
     config = PipelineConfig.from_metadata(metadata, max_proposals=max_proposals)
@@ -267,7 +267,7 @@ class NetworkResult:
 
 def measure_ort(model: Path, frames: Path, *, max_proposals: int, threads: int = 2) -> NetworkResult:
     """ONNX Runtime through the runtime's DetectorModel (its session options and threads)."""
-    from a3d.runtime.model import DetectorModel
+    from a3d.runtime.network.model import DetectorModel
 
     inputs = network_inputs(model, frames, max_proposals)
     detector = DetectorModel.load(model, threads=threads)

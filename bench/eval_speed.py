@@ -1,4 +1,4 @@
-"""Speed of the evaluator (a3d.runtime.evaluation) at NYUv2 test-set scale, on one core.
+"""Speed of the evaluator (a3d.runtime.evaluation.metric) at NYUv2 test-set scale, on one core.
 
 Generates in memory 654 frames with a plausible ground truth (about 12 objects a frame, chairs
 most common, class-typical sizes, random yaw and a small random gravity tilt) and, per frame,
@@ -29,10 +29,10 @@ from pathlib import Path  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from a3d.runtime.classes import NUM_CLASSES, class_index  # noqa: E402
-from a3d.runtime.detections_io import FrameDetections, read_detections, write_detections  # noqa: E402
-from a3d.runtime.evaluation import EvalConfig, FrameTruth, evaluate  # noqa: E402
-from a3d.runtime.geometry import NYU_CROP_INTRINSICS, NYU_CROP_SIZE, rtilt_from_pitch_roll  # noqa: E402
+from a3d.runtime.evaluation.metric import EvalConfig, FrameTruth, evaluate  # noqa: E402
+from a3d.runtime.io.detections_io import FrameDetections, read_detections, write_detections  # noqa: E402
+from a3d.runtime.structures.classes import NUM_CLASSES, class_index  # noqa: E402
+from a3d.runtime.structures.geometry import NYU_CROP_INTRINSICS, NYU_CROP_SIZE, rtilt_from_pitch_roll  # noqa: E402
 
 # Rough class sizes [l, w, h] in metres and relative frequencies of NYUv2-like scenes.
 _SIZES = np.full((NUM_CLASSES, 3), 0.6)

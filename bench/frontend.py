@@ -1,8 +1,9 @@
 """Proposal recall and the time of the whole runtime front end, on frames with ground truth.
 
 Per frame of a folder in the frame format (e.g. a3d-synth's test split): hole filling
-(a3d.runtime.depth.fill_depth), gravity (a3d.runtime.gravity.estimate_rtilt), segment proposals
-(a3d.runtime.proposals.propose) and lifting (a3d.runtime.lifting.lift), each timed (wall clock,
+(a3d.runtime.frontend.depth.fill_depth), gravity (a3d.runtime.frontend.gravity.estimate_rtilt),
+segment proposals (a3d.runtime.frontend.proposals.propose) and lifting
+(a3d.runtime.frontend.lifting.lift), each timed (wall clock,
 the process's CPU time alongside; the machine's load average is printed because other work on
 a 2-core machine inflates both).
 
@@ -30,18 +31,18 @@ from typing import Any
 
 import numpy as np
 
-from a3d.runtime.depth import fill_depth
-from a3d.runtime.frames import (
+from a3d.runtime.frontend.depth import fill_depth
+from a3d.runtime.frontend.gravity import estimate_rtilt
+from a3d.runtime.frontend.lifting import lift
+from a3d.runtime.frontend.proposals import ProposalConfig, propose
+from a3d.runtime.sources.folder import (
     list_frames,
     read_folder_intrinsics,
     read_frame,
     read_ground_truth,
     read_instances,
 )
-from a3d.runtime.geometry import Intrinsics, iou_2d
-from a3d.runtime.gravity import estimate_rtilt
-from a3d.runtime.lifting import lift
-from a3d.runtime.proposals import ProposalConfig, propose
+from a3d.runtime.structures.geometry import Intrinsics, iou_2d
 
 STAGES = ("fill_depth", "gravity", "proposals", "lifting")
 

@@ -5,7 +5,7 @@ the fly by a3d.synth.generate_frame from held-out seeds (`--synth FIRST COUNT`),
 gives each object's exact visible fraction. Per frame: hole filling, surface normals, gravity
 (R_tilt) estimation, lifting of the ground-truth instance masks to initial 3D boxes (SPEC.md
 "Proposals and 3D box initialisation"), and the lifting of the frame's real proposals
-(a3d.runtime.proposals) for timing.
+(a3d.runtime.frontend.proposals) for timing.
 
 Reports: gravity angle error vs the frame's R_tilt (median, 95th percentile; targets <= 1.5 and
 <= 5 degrees); initial-centre distance to the true amodal centre (target median <= 15 cm) for
@@ -17,7 +17,7 @@ objects seen); per-stage wall and CPU times (median and max, ms).
 With proposals, also the "without 3D regression" reference of issue 4: the initial boxes of the
 real proposals (lifted centre, class mean size, theta 0) labelled by an oracle, i.e. each
 proposal with 2D IoU >= 0.5 to a visible ground-truth box takes that object's class and its
-IoU as score, then per-class 2D NMS 0.3 and a3d.runtime.evaluation's mAP@0.25. The mean sizes
+IoU as score, then per-class 2D NMS 0.3 and a3d.runtime.evaluation.metric's mAP@0.25. The mean sizes
 are those of the evaluated frames' own ground truth (an oracle too), so this bounds what the
 network's classifier could reach on these proposals without any 3D regression.
 
@@ -39,11 +39,14 @@ from types import SimpleNamespace
 import numpy as np
 from paper_table2 import PAPER_AP  # bench/ is the script's folder, first on sys.path
 
-from a3d.runtime.classes import CLASSES, NUM_CLASSES
-from a3d.runtime.depth import fill_depth
-from a3d.runtime.detections_io import FrameDetections
-from a3d.runtime.evaluation import FrameTruth, evaluate
-from a3d.runtime.frames import (
+from a3d.runtime.evaluation.metric import FrameTruth, evaluate
+from a3d.runtime.frontend.depth import fill_depth
+from a3d.runtime.frontend.gravity import estimate_gravity
+from a3d.runtime.frontend.lifting import initial_boxes, lift
+from a3d.runtime.frontend.normals import surface_normals
+from a3d.runtime.frontend.proposals import propose
+from a3d.runtime.io.detections_io import FrameDetections
+from a3d.runtime.sources.folder import (
     GroundTruth,
     list_frames,
     read_folder_intrinsics,
@@ -51,11 +54,8 @@ from a3d.runtime.frames import (
     read_ground_truth,
     read_instances,
 )
-from a3d.runtime.geometry import Intrinsics, iou_2d, iou_3d
-from a3d.runtime.gravity import estimate_gravity
-from a3d.runtime.lifting import initial_boxes, lift
-from a3d.runtime.normals import surface_normals
-from a3d.runtime.proposals import propose
+from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES
+from a3d.runtime.structures.geometry import Intrinsics, iou_2d, iou_3d
 
 FULLY_VISIBLE = 0.95
 

@@ -9,7 +9,7 @@ folder):
   svd+int8    --svd RANK --int8, calibrated like int8
 
 then runs each with a3d-run (``--headless``, the model's own settings) over the held-out frames
-and scores them with a3d-eval (the paper's protocol, a3d.runtime.evaluation). Prints mAP@0.25
+and scores them with a3d-eval (the paper's protocol, a3d.runtime.evaluation.metric). Prints mAP@0.25
 over the 19 classes (the paper's number) and over the classes present, the difference to fp32 in
 points and, because a one-point difference is near the noise of a few hundred frames, a 90 %
 paired bootstrap interval of each variant's cost (``--bootstrap`` resamples of the frames, the
@@ -84,10 +84,10 @@ def bootstrap_maps(
 ) -> dict[str, np.ndarray]:
     """mAP@0.25 (points) of every variant on each of ``resamples`` paired resamples of the annotated
     frames (drawn with replacement; all variants scored on the same draw with
-    a3d.runtime.evaluation, as a3d-eval scores): any difference of two variants is paired."""
+    a3d.runtime.evaluation.metric, as a3d-eval scores): any difference of two variants is paired."""
     from a3d.runtime.cli.eval import load_truth
-    from a3d.runtime.detections_io import read_detections
-    from a3d.runtime.evaluation import EvalConfig, evaluate
+    from a3d.runtime.evaluation.metric import EvalConfig, evaluate
+    from a3d.runtime.io.detections_io import read_detections
 
     truth, _ = load_truth(frames)
     names = sorted(truth)

@@ -4,7 +4,7 @@ import time
 
 import numpy as np
 
-from a3d.runtime.geometry import iou_3d, rtilt_from_pitch_roll
+from a3d.runtime.structures.geometry import iou_3d, rtilt_from_pitch_roll
 
 rng = np.random.default_rng(0)
 

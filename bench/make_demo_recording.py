@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
-from a3d.runtime import viewer
+from a3d.runtime.viewer import view as viewer
 from a3d.synth import SceneConfig, generate_frame
 
 

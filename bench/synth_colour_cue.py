@@ -21,7 +21,7 @@ from dataclasses import replace
 import cv2
 import numpy as np
 
-from a3d.runtime.classes import CLASSES
+from a3d.runtime.structures.classes import CLASSES
 from a3d.synth.cli import frame_seed
 from a3d.synth.scene import APPEARANCES, SceneConfig, generate_frame
 

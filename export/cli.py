@@ -52,7 +52,7 @@ from a3d.export.verify import (
     synthetic_inputs,
 )
 from a3d.runtime.errors import InputError, ModelError
-from a3d.runtime.model import DetectorModel, ModelMetadata
+from a3d.runtime.network.model import DetectorModel, ModelMetadata
 from a3d.runtime.pipeline import PipelineConfig
 from a3d.train.inference import TorchNetwork
 

@@ -3,7 +3,7 @@
 Values come from the checkpoint (classes, mean sizes, training config) through
 ``TrainConfig.pipeline`` (the runtime pipeline settings the pure-torch validation detector of
 a3d.train.inference uses, so a3d-run reproduces it) and from the shared preprocessing constants
-(a3d.runtime.preprocess), never typed in twice. ``score_threshold`` can be set at export
+(a3d.runtime.network.preprocess), never typed in twice. ``score_threshold`` can be set at export
 (``--score-threshold``).
 """
 
@@ -20,9 +20,9 @@ from typing import Any
 import numpy as np
 
 from a3d.export.onnx_export import ExportError
-from a3d.runtime.classes import CLASSES, NUM_CLASSES
-from a3d.runtime.model import SCHEMA_VERSION, ModelMetadata
-from a3d.runtime.preprocess import COLOR_MEAN_BGR, DEPTH_MEAN
+from a3d.runtime.network.model import SCHEMA_VERSION, ModelMetadata
+from a3d.runtime.network.preprocess import COLOR_MEAN_BGR, DEPTH_MEAN
+from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES
 from a3d.train.config import TrainConfig
 
 METRICS_FILE = "metrics.jsonl"  # a3d.train.loop writes it next to checkpoint.pt

@@ -1,4 +1,4 @@
-"""A3DNet -> the runtime's ONNX graph (the a3d.runtime.model contract) and the model file.
+"""A3DNet -> the runtime's ONNX graph (the a3d.runtime.network.model contract) and the model file.
 
 ``RuntimeGraph`` wraps a trained A3DNet into what the runtime runs: one image, (R, 4) RoIs (the
 batch index column of zeros is added inside), softmax inside, outputs reshaped to (R, 20, 7) and
@@ -25,9 +25,9 @@ import onnx
 import torch
 from torch import nn
 
-from a3d.runtime.classes import NUM_OUTPUTS
-from a3d.runtime.detections_io import atomic_write_bytes
-from a3d.runtime.model import INPUT_NAMES, METADATA_KEY, OUTPUT_NAMES, ModelMetadata, content_digest
+from a3d.runtime.io.detections_io import atomic_write_bytes
+from a3d.runtime.network.model import INPUT_NAMES, METADATA_KEY, OUTPUT_NAMES, ModelMetadata, content_digest
+from a3d.runtime.structures.classes import NUM_OUTPUTS
 from a3d.train.checkpoint import load_checkpoint
 from a3d.train.config import TrainConfig
 from a3d.train.dataset import TargetStats

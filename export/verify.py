@@ -4,7 +4,7 @@ The reference is a3d.train.inference.TorchNetwork, the network of the pure-torch
 training validates with: the eager A3DNet (the checkpoint's, or its SVD copy) with the softmax and
 the training target de-normalisation (``TargetStats.denormalise_3d/2d``) applied outside the
 network, so a wrong fold of the statistics into the weights shows up as a difference. The model
-side is the file as the runtime opens it (``a3d.runtime.model.DetectorModel``).
+side is the file as the runtime opens it (``a3d.runtime.network.model.DetectorModel``).
 
 Differences are reported per output as the largest absolute difference and, for the deltas, that
 difference relative to the largest reference magnitude (``rel``; element-wise ratios blow up at
@@ -28,10 +28,10 @@ import numpy as np
 import onnx
 
 from a3d.export.onnx_export import ExportError, example_inputs
-from a3d.runtime.frames import list_frames, read_folder_intrinsics
-from a3d.runtime.geometry import NYU_CROP_SIZE
-from a3d.runtime.model import DetectorModel
+from a3d.runtime.network.model import DetectorModel
 from a3d.runtime.pipeline import PipelineConfig, prepare
+from a3d.runtime.sources.folder import list_frames, read_folder_intrinsics
+from a3d.runtime.structures.geometry import NYU_CROP_SIZE
 from a3d.train.inference import TorchNetwork
 
 PROB_ATOL = 1e-4

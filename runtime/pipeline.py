@@ -2,14 +2,14 @@
 
 Three stages, so that the CPU front end of one frame can overlap the network call of another:
 
-1. ``prepare`` (numpy + OpenCV): read and validate the frame (a3d.runtime.frames), fill the depth
+1. ``prepare`` (numpy + OpenCV): read and validate the frame (a3d.runtime.sources.folder), fill the depth
    holes, take R_tilt from ``NAME.meta.json`` or estimate it from the raw depth, compute segment
    proposals (or read ``NAME.proposals.npz``), lift them to initial 3D centres (proposals without
    any depth are dropped), and build the network inputs: the trunk images at the model's
    ``input_scale`` and the proposal and context RoIs in the resized image's pixel coordinates;
 2. ``infer``: one ONNX Runtime call per frame (both trunks once, the head over all RoIs at once);
 3. ``finish``: per-class top-k and 2D NMS, class-specific 3D boxes and amodal 2D boxes
-   (a3d.runtime.postprocess), corners, and the frame's detections line.
+   (a3d.runtime.postprocess.select), corners, and the frame's detections line.
 
 Every stage adds its wall time (seconds) to the frame's ``timing``: read, depth_fill, gravity,
 proposals, lifting, network_input, network, postprocess, and total (their sum).
@@ -32,11 +32,15 @@ from typing import Any, Literal, Protocol
 
 import numpy as np
 
-from a3d.runtime.classes import NUM_OUTPUTS
-from a3d.runtime.depth import fill_depth
-from a3d.runtime.detections_io import FrameDetections
 from a3d.runtime.errors import InputError, ModelError
-from a3d.runtime.frames import (
+from a3d.runtime.frontend.depth import fill_depth
+from a3d.runtime.frontend.gravity import estimate_rtilt
+from a3d.runtime.frontend.lifting import lift
+from a3d.runtime.frontend.proposals import ProposalConfig, Proposals, proposal_config_from_dict, propose
+from a3d.runtime.io.detections_io import FrameDetections
+from a3d.runtime.network.network_input import network_inputs, scale_boxes
+from a3d.runtime.postprocess.select import decode_detections, select_detections
+from a3d.runtime.sources.folder import (
     INTRINSICS_FILE,
     Frame,
     FrameRef,
@@ -44,12 +48,8 @@ from a3d.runtime.frames import (
     read_frame,
     read_precomputed_proposals,
 )
-from a3d.runtime.geometry import Intrinsics, box_corners_camera, context_boxes
-from a3d.runtime.gravity import estimate_rtilt
-from a3d.runtime.lifting import lift
-from a3d.runtime.network_input import network_inputs, scale_boxes
-from a3d.runtime.postprocess import decode_detections, select_detections
-from a3d.runtime.proposals import ProposalConfig, Proposals, proposal_config_from_dict, propose
+from a3d.runtime.structures.classes import NUM_OUTPUTS
+from a3d.runtime.structures.geometry import Intrinsics, box_corners_camera, context_boxes
 
 ProposalSource = Literal["auto", "compute", "precomputed"]
 PROPOSAL_SOURCES: tuple[str, ...] = typing.get_args(ProposalSource)
@@ -57,7 +57,7 @@ STAGES = ("read", "depth_fill", "gravity", "proposals", "lifting", "network_inpu
 
 
 class Detector(Protocol):
-    """What the pipeline needs of a model: a3d.runtime.model.DetectorModel's ``run``."""
+    """What the pipeline needs of a model: a3d.runtime.network.model.DetectorModel's ``run``."""
 
     def run(
         self, color: np.ndarray, depth: np.ndarray, rois: np.ndarray, context_rois: np.ndarray
@@ -72,7 +72,7 @@ class PipelineConfig:
     the trunk image scale; ``context_scale`` the context box scale about the proposal's centre;
     ``depth_truncation_m`` the depth mapped to 255; ``top_k`` / ``nms_iou`` / ``min_score`` the
     post-processing; ``proposal_source``: "auto" uses ``NAME.proposals.npz`` where a frame has
-    one, "compute" always runs a3d.runtime.proposals, "precomputed" requires the file;
+    one, "compute" always runs a3d.runtime.frontend.proposals, "precomputed" requires the file;
     ``max_proposals`` caps computed and precomputed proposals alike (the first ones are kept).
     """
 
@@ -96,7 +96,7 @@ class PipelineConfig:
         max_proposals: int | None = None,
         min_score: float | None = None,
     ) -> PipelineConfig:
-        """The model's settings (a3d.runtime.model.ModelMetadata, checked by DetectorModel.load),
+        """The model's settings (a3d.runtime.network.model.ModelMetadata, checked by DetectorModel.load),
         with the command line's overrides."""
         limit = int(metadata.max_proposals if max_proposals is None else max_proposals)
         proposals = proposal_config_from_dict(metadata.proposal_config)

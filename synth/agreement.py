@@ -12,7 +12,7 @@ import math
 
 import numpy as np
 
-from a3d.runtime.geometry import backproject
+from a3d.runtime.structures.geometry import backproject
 from a3d.synth.scene import SynthFrame
 
 

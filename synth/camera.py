@@ -8,7 +8,7 @@ looking down) and a roll, all radians. Frames (all metres):
   y down (along gravity), z along the horizontal heading; ``p_tilt = R_y(-phi) (p_room - cam)``
   with the room height mapped to ``y = height - h``;
 * camera frame: ``p_cam = R_tilt.T @ p_tilt`` with ``R_tilt = R_x(pitch) R_z(roll)``
-  (``a3d.runtime.geometry.rtilt_from_pitch_roll``).
+  (``a3d.runtime.structures.geometry.rtilt_from_pitch_roll``).
 """
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from a3d.runtime.geometry import Intrinsics, rtilt_from_pitch_roll
+from a3d.runtime.structures.geometry import Intrinsics, rtilt_from_pitch_roll
 from a3d.synth.layout import Layout, point_rect_distance
 
 

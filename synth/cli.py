@@ -24,8 +24,8 @@ import numpy as np
 from tqdm import tqdm
 
 from a3d.runtime.errors import InputError
-from a3d.runtime.frames import write_frame, write_intrinsics
-from a3d.runtime.geometry import NYU_CROP_INTRINSICS, NYU_CROP_SIZE, Intrinsics
+from a3d.runtime.sources.folder import write_frame, write_intrinsics
+from a3d.runtime.structures.geometry import NYU_CROP_INTRINSICS, NYU_CROP_SIZE, Intrinsics
 from a3d.synth.scene import APPEARANCES, SceneConfig, generate_frame
 from a3d.synth.sensor import SENSORS
 from a3d.synth.stats import RECORDS_FILE, format_summary, frame_record, read_records, summarise

@@ -5,7 +5,7 @@ frame: ray (i, j) is ``origin + t d`` with ``d = rot @ K^-1 [u, v, 1]`` at ``u =
 ``v = v0 + stride i``; as d has unit view-z, ``t`` is the view's z-depth (the camera's depth map).
 
 Every primitive is tested only inside the grid rectangle its bounding cuboid projects to (edges
-cut at the near plane, ``a3d.runtime.geometry.box_edges_clipped``), as a slab test in the part's
+cut at the near plane, ``a3d.runtime.structures.geometry.box_edges_clipped``), as a slab test in the part's
 own frame: three intervals of t (x, y and z slabs, or the radial interval of the cylinder's
 quadric and the y slab) whose intersection is non-empty where the ray hits; the entry ``t`` is
 the depth. The objects of a scene are drawn one by one into a z-buffer; each object is also
@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from a3d.runtime.geometry import box_edges_clipped
+from a3d.runtime.structures.geometry import box_edges_clipped
 from a3d.synth.parts import CYL
 
 NEAR = 0.05  # metres; nothing closer to the view is drawn

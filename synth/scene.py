@@ -28,8 +28,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from a3d.runtime.frames import GroundTruth
-from a3d.runtime.geometry import (
+from a3d.runtime.sources.folder import GroundTruth
+from a3d.runtime.structures.geometry import (
     NYU_CROP_INTRINSICS,
     NYU_CROP_SIZE,
     Intrinsics,

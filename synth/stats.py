@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from a3d.runtime.classes import CLASSES
+from a3d.runtime.structures.classes import CLASSES
 from a3d.synth.scene import SynthFrame
 
 RECORDS_FILE = "synth_objects.jsonl"

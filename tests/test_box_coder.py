@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from a3d.runtime.box_coder import MAX_LOG_SCALE, decode_2d, decode_3d, encode_2d, encode_3d
 from a3d.runtime.errors import InputError
+from a3d.runtime.postprocess.box_coder import MAX_LOG_SCALE, decode_2d, decode_3d, encode_2d, encode_3d
 
 
 def test_encode_3d_is_the_spec_formula():

@@ -18,7 +18,7 @@ import numpy as np
 import psutil
 import pytest
 
-from a3d.runtime.classes import CLASS_COLORS_RGB, class_index
+from a3d.runtime.structures.classes import CLASS_COLORS_RGB, class_index
 from bench import browser_check as bc
 
 REPO = Path(__file__).resolve().parents[1]

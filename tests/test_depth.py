@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from a3d.runtime.depth import fill_depth, fill_depth_info
 from a3d.runtime.errors import InputError
+from a3d.runtime.frontend.depth import fill_depth, fill_depth_info
 
 
 def _ramp(h: int = 427, w: int = 561) -> np.ndarray:

@@ -15,11 +15,11 @@ import cv2
 import numpy as np
 import pytest
 
-from a3d.runtime.classes import class_index
 from a3d.runtime.cli.eval import main
-from a3d.runtime.detections_io import FrameDetections, parse_line, read_detections, write_detections
 from a3d.runtime.errors import InputError
-from a3d.runtime.geometry import box_corners_camera, rtilt_from_pitch_roll
+from a3d.runtime.io.detections_io import FrameDetections, parse_line, read_detections, write_detections
+from a3d.runtime.structures.classes import class_index
+from a3d.runtime.structures.geometry import box_corners_camera, rtilt_from_pitch_roll
 
 H, W = 24, 32
 EYE = np.eye(3).tolist()

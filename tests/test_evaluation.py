@@ -1,4 +1,4 @@
-"""The paper's evaluation protocol (a3d.runtime.evaluation) on hand-computed cases.
+"""The paper's evaluation protocol (a3d.runtime.evaluation.metric) on hand-computed cases.
 
 Fixture boxes are unit cubes at theta = 0 with R_tilt = I, shifted along x: two unit cubes whose
 centres differ by d (0 <= d <= 1) along x overlap in a (1 - d) x 1 x 1 slab, so their 3D IoU is
@@ -10,9 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from a3d.runtime.classes import CLASSES, NUM_CLASSES, class_index
-from a3d.runtime.detections_io import FrameDetections
-from a3d.runtime.evaluation import (
+from a3d.runtime.evaluation.metric import (
     EvalConfig,
     FrameTruth,
     evaluate,
@@ -20,7 +18,9 @@ from a3d.runtime.evaluation import (
     interpolated_ap_11,
     retilt_boxes,
 )
-from a3d.runtime.geometry import iou_3d, rtilt_from_pitch_roll
+from a3d.runtime.io.detections_io import FrameDetections
+from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES, class_index
+from a3d.runtime.structures.geometry import iou_3d, rtilt_from_pitch_roll
 
 CHAIR, TABLE, LAMP = class_index("chair"), class_index("table"), class_index("lamp")
 EYE = np.eye(3)

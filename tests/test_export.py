@@ -24,11 +24,11 @@ from a3d.export import cli
 from a3d.export.onnx_export import load_trained
 from a3d.export.svd import svd_compress
 from a3d.export.verify import folder_inputs
-from a3d.runtime.classes import CLASSES
-from a3d.runtime.frames import write_frame, write_intrinsics
-from a3d.runtime.geometry import Intrinsics
-from a3d.runtime.model import DetectorModel
+from a3d.runtime.network.model import DetectorModel
 from a3d.runtime.pipeline import PipelineConfig
+from a3d.runtime.sources.folder import write_frame, write_intrinsics
+from a3d.runtime.structures.classes import CLASSES
+from a3d.runtime.structures.geometry import Intrinsics
 from a3d.train.checkpoint import load_checkpoint, save_checkpoint
 from a3d.train.config import TrainConfig
 from a3d.train.dataset import TargetStats
@@ -259,8 +259,8 @@ def test_a3d_run_on_samples_equals_the_pure_torch_reference(run, tmp_path: Path)
     """The product path (a3d-export -> a3d-run, ONNX Runtime) and the eager checkpoint
     (a3d.train.inference.TorchDetector) give the same detections on the bundled samples."""
     from a3d.runtime.cli import run as run_cli
-    from a3d.runtime.detections_io import read_detections
-    from a3d.runtime.frames import list_frames, read_folder_intrinsics
+    from a3d.runtime.io.detections_io import read_detections
+    from a3d.runtime.sources.folder import list_frames, read_folder_intrinsics
     from a3d.train.inference import TorchDetector
 
     samples = Path(__file__).resolve().parents[1] / "samples"

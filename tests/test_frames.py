@@ -12,10 +12,11 @@ import cv2
 import numpy as np
 import pytest
 
-from a3d.runtime import frames, image_io
 from a3d.runtime.errors import InputError
-from a3d.runtime.frames import GroundTruth, PrecomputedProposals
-from a3d.runtime.geometry import Intrinsics, rtilt_from_pitch_roll
+from a3d.runtime.io import image_io
+from a3d.runtime.sources import folder as frames
+from a3d.runtime.sources.folder import GroundTruth, PrecomputedProposals
+from a3d.runtime.structures.geometry import Intrinsics, rtilt_from_pitch_roll
 
 H, W = 24, 32
 K = Intrinsics(fx=500.0, fy=510.0, cx=15.5, cy=11.25)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from a3d.runtime.errors import InputError
-from a3d.runtime.geometry import (
+from a3d.runtime.structures.geometry import (
     BOX_EDGES,
     NEAR_PLANE_M,
     NYU_CROP_INTRINSICS,
@@ -408,7 +408,7 @@ def test_nms_matches_a_plain_greedy_reference(thr):
 @pytest.mark.parametrize("thr", [0.0, 0.3, 0.7])
 def test_nms_large_group_loop_path_matches_the_matrix_path(thr, monkeypatch):
     """Groups above the matrix limit take the plain loop: same kept indices, same order."""
-    import a3d.runtime.geometry as geometry
+    import a3d.runtime.structures.geometry as geometry
 
     rng = np.random.default_rng(42)
     xy = rng.uniform(0, 300, (200, 2))

@@ -11,9 +11,10 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from a3d.runtime import box_coder, geometry
 from a3d.runtime.errors import InputError
-from a3d.runtime.geometry import (
+from a3d.runtime.postprocess import box_coder
+from a3d.runtime.structures import geometry
+from a3d.runtime.structures.geometry import (
     Intrinsics,
     box_corners_tilt,
     boxes_from_corners_tilt,

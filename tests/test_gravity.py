@@ -7,9 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from a3d.runtime.geometry import NYU_CROP_INTRINSICS as K
-from a3d.runtime.geometry import is_rotation, pitch_roll_from_rtilt, rtilt_from_pitch_roll
-from a3d.runtime.gravity import (
+from a3d.runtime.frontend.gravity import (
     STATUS_OK,
     STATUS_TOO_FEW_NORMALS,
     STATUS_WALLS_ONLY,
@@ -17,7 +15,9 @@ from a3d.runtime.gravity import (
     estimate_rtilt,
     rtilt_from_gravity,
 )
-from a3d.runtime.normals import NormalConfig, surface_normals
+from a3d.runtime.frontend.normals import NormalConfig, surface_normals
+from a3d.runtime.structures.geometry import NYU_CROP_INTRINSICS as K
+from a3d.runtime.structures.geometry import is_rotation, pitch_roll_from_rtilt, rtilt_from_pitch_roll
 
 ROOM = ((1, 1.3), (1, -1.4), (0, -2.0), (0, 2.5), (2, 4.0))  # floor, ceiling, side walls, back wall
 CORNER = ((0, -0.8), (2, 2.5))  # two walls, no floor

@@ -10,7 +10,7 @@ import pytest
 from scipy.optimize import linprog
 from scipy.spatial import ConvexHull, HalfspaceIntersection
 
-from a3d.runtime.geometry import iou_3d, rtilt_from_pitch_roll
+from a3d.runtime.structures.geometry import iou_3d, rtilt_from_pitch_roll
 
 TILTED = rtilt_from_pitch_roll(math.radians(-25.0), math.radians(4.0))
 

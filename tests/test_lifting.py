@@ -9,15 +9,15 @@ import cv2
 import numpy as np
 import pytest
 
-from a3d.runtime.geometry import NYU_CROP_INTRINSICS as K
-from a3d.runtime.lifting import LiftConfig, initial_boxes, lift, masks_to_superpixels
+from a3d.runtime.frontend.lifting import LiftConfig, initial_boxes, lift, masks_to_superpixels
+from a3d.runtime.structures.geometry import NYU_CROP_INTRINSICS as K
 
 BIN = LiftConfig().bin_width
 
 
 @dataclass
 class SuperpixelSet:
-    """A stand-in with the attributes lift reads from a3d.runtime.proposals.Proposals."""
+    """A stand-in with the attributes lift reads from a3d.runtime.frontend.proposals.Proposals."""
 
     superpixels: np.ndarray
     indptr: np.ndarray

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import scipy.io
 
-from a3d.runtime import frames
 from a3d.runtime.errors import InputError
+from a3d.runtime.sources import folder as frames
 from a3d.train.data import mcg
 
 H, W = 20, 30

@@ -7,7 +7,7 @@ from dataclasses import replace
 import pytest
 import torch
 
-from a3d.runtime.classes import NUM_OUTPUTS
+from a3d.runtime.structures.classes import NUM_OUTPUTS
 from a3d.train.model.config import PRESETS, NetConfig, preset
 from a3d.train.model.net import A3DNet
 from a3d.train.model.roi_pool import roi_align, roi_max_pool

@@ -1,4 +1,5 @@
-"""The model file as the runtime opens it (a3d.runtime.model): metadata round trip, integrity, refusals.
+"""The model file as the runtime opens it (a3d.runtime.network.model): metadata round trip,
+integrity, refusals.
 
 The model here is a small hand-built ONNX graph with the contract's inputs and outputs (known
 answers, no torch export); tests/test_export.py covers files written by a3d-export.
@@ -19,10 +20,16 @@ import pytest
 from onnx import TensorProto, helper, numpy_helper
 
 from a3d.export.onnx_export import save_model
-from a3d.runtime.classes import CLASSES
 from a3d.runtime.errors import ModelError
-from a3d.runtime.model import METADATA_KEY, SCHEMA_VERSION, DetectorModel, ModelMetadata, content_digest
-from a3d.runtime.preprocess import COLOR_MEAN_BGR, DEPTH_MEAN
+from a3d.runtime.network.model import (
+    METADATA_KEY,
+    SCHEMA_VERSION,
+    DetectorModel,
+    ModelMetadata,
+    content_digest,
+)
+from a3d.runtime.network.preprocess import COLOR_MEAN_BGR, DEPTH_MEAN
+from a3d.runtime.structures.classes import CLASSES
 
 RNG = np.random.default_rng(7)
 W_CLS = RNG.normal(size=(8, 20)).astype(np.float32)
@@ -136,7 +143,7 @@ def test_runtime_opens_the_file_without_onnx_or_torch(model_file: Path) -> None:
     script = textwrap.dedent(f"""
         import sys
         import numpy as np
-        from a3d.runtime.model import DetectorModel
+        from a3d.runtime.network.model import DetectorModel
         model = DetectorModel.load({str(model_file)!r}, threads=1)
         probs, _, _ = model.run(np.zeros((3, 4, 4)), np.zeros((3, 4, 4)), np.ones((2, 4)), np.ones((2, 4)))
         assert probs.shape == (2, 20)

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import scipy.io
 
-from a3d.runtime import frames
 from a3d.runtime.errors import InputError
-from a3d.runtime.geometry import (
+from a3d.runtime.sources import folder as frames
+from a3d.runtime.structures.geometry import (
     NYU_CROP_INTRINSICS,
     NYU_CROP_SIZE,
     project_boxes_to_2d,

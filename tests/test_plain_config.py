@@ -1,4 +1,4 @@
-"""Settings from plain JSON data (a3d.runtime.plain_config): known answers for every rule."""
+"""Settings from plain JSON data (a3d.runtime.io.plain_config): known answers for every rule."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from dataclasses import dataclass, field
 import pytest
 
 from a3d.runtime.errors import ModelError
-from a3d.runtime.plain_config import MAX_COUNT, dataclass_from_plain
-from a3d.runtime.proposals import ProposalConfig, proposal_config_from_dict
+from a3d.runtime.frontend.proposals import ProposalConfig, proposal_config_from_dict
+from a3d.runtime.io.plain_config import MAX_COUNT, dataclass_from_plain
 
 
 @dataclass(frozen=True)

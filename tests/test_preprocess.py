@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from a3d.runtime.preprocess import (
+from a3d.runtime.network.preprocess import (
     COLOR_MEAN_BGR,
     DEPTH_MEAN,
     DEPTH_TRUNCATION_M,

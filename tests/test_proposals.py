@@ -8,10 +8,17 @@ import cv2
 import numpy as np
 import pytest
 
-from a3d.runtime.geometry import Intrinsics, iou_2d
-from a3d.runtime.grouping import BoundaryScales, PairConfig, Strategy, build_graph, concat_ranges, group
-from a3d.runtime.proposals import ProposalConfig, Proposals, _drop_near_duplicates, propose
-from a3d.runtime.superpixels import SuperpixelConfig, depth_edges, oversegment
+from a3d.runtime.frontend.grouping import (
+    BoundaryScales,
+    PairConfig,
+    Strategy,
+    build_graph,
+    concat_ranges,
+    group,
+)
+from a3d.runtime.frontend.proposals import ProposalConfig, Proposals, _drop_near_duplicates, propose
+from a3d.runtime.frontend.superpixels import SuperpixelConfig, depth_edges, oversegment
+from a3d.runtime.structures.geometry import Intrinsics, iou_2d
 
 H, W = 120, 160
 K = Intrinsics(fx=150.0, fy=150.0, cx=79.5, cy=59.5)

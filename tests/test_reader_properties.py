@@ -25,11 +25,10 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from a3d.runtime import image_io
-from a3d.runtime.classes import NUM_CLASSES
-from a3d.runtime.detections_io import FrameDetections, format_line, parse_line
 from a3d.runtime.errors import InputError
-from a3d.runtime.frames import (
+from a3d.runtime.io import image_io
+from a3d.runtime.io.detections_io import FrameDetections, format_line, parse_line
+from a3d.runtime.sources.folder import (
     FrameRef,
     GroundTruth,
     PrecomputedProposals,
@@ -39,7 +38,8 @@ from a3d.runtime.frames import (
     write_frame,
     write_precomputed_proposals,
 )
-from a3d.runtime.geometry import Intrinsics, is_rotation, rtilt_from_pitch_roll
+from a3d.runtime.structures.classes import NUM_CLASSES
+from a3d.runtime.structures.geometry import Intrinsics, is_rotation, rtilt_from_pitch_roll
 
 SETTINGS = settings(
     max_examples=120,

@@ -18,7 +18,7 @@ import pytest
 from a3d.export.onnx_export import save_model
 from a3d.runtime import pipeline
 from a3d.runtime.cli import run as run_cli
-from a3d.runtime.model import METADATA_KEY, SCHEMA_VERSION, DetectorModel
+from a3d.runtime.network.model import METADATA_KEY, SCHEMA_VERSION, DetectorModel
 from tests.test_run import write_scene_folder
 
 

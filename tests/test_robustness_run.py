@@ -21,8 +21,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from a3d.runtime.frames import write_frame
-from a3d.runtime.geometry import rtilt_from_pitch_roll
+from a3d.runtime.sources.folder import write_frame
+from a3d.runtime.structures.geometry import rtilt_from_pitch_roll
 from tests.test_run import H, K, W, scene
 
 GOOD = ("good_1", "good_2", "good_3")  # good_2 without R_tilt: gravity estimated from its depth

@@ -14,11 +14,16 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from a3d.runtime.classes import CLASSES, NUM_CLASSES, NUM_OUTPUTS, class_index
 from a3d.runtime.cli import eval as eval_cli
-from a3d.runtime.detections_io import FrameDetections, read_detections, write_detections
-from a3d.runtime.evaluation import FrameTruth, evaluate
-from a3d.runtime.frames import (
+from a3d.runtime.evaluation.metric import FrameTruth, evaluate
+from a3d.runtime.frontend.proposals import ProposalConfig, proposal_config_from_dict
+from a3d.runtime.io.detections_io import FrameDetections, read_detections, write_detections
+from a3d.runtime.network.model import SCHEMA_VERSION, ModelMetadata
+from a3d.runtime.network.network_input import network_inputs, scale_boxes, with_batch_index
+from a3d.runtime.network.preprocess import COLOR_MEAN_BGR, DEPTH_MEAN, color_input, depth_input
+from a3d.runtime.pipeline import PipelineConfig, detect, detect_frames
+from a3d.runtime.postprocess.select import decode_detections, select_detections
+from a3d.runtime.sources.folder import (
     GroundTruth,
     PrecomputedProposals,
     list_frames,
@@ -27,13 +32,13 @@ from a3d.runtime.frames import (
     write_intrinsics,
     write_precomputed_proposals,
 )
-from a3d.runtime.geometry import Intrinsics, batched_nms_2d, box_corners_camera, rtilt_from_pitch_roll
-from a3d.runtime.model import SCHEMA_VERSION, ModelMetadata
-from a3d.runtime.network_input import network_inputs, scale_boxes, with_batch_index
-from a3d.runtime.pipeline import PipelineConfig, detect, detect_frames
-from a3d.runtime.postprocess import decode_detections, select_detections
-from a3d.runtime.preprocess import COLOR_MEAN_BGR, DEPTH_MEAN, color_input, depth_input
-from a3d.runtime.proposals import ProposalConfig, proposal_config_from_dict
+from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES, NUM_OUTPUTS, class_index
+from a3d.runtime.structures.geometry import (
+    Intrinsics,
+    batched_nms_2d,
+    box_corners_camera,
+    rtilt_from_pitch_roll,
+)
 
 H, W = 72, 96
 K = Intrinsics(fx=80.0, fy=80.0, cx=47.5, cy=35.5)

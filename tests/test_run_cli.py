@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 from a3d.runtime.cli import run as run_cli
-from a3d.runtime.detections_io import read_detections
-from a3d.runtime.frames import GroundTruth, list_frames, read_folder_intrinsics, write_frame
-from a3d.runtime.geometry import rtilt_from_pitch_roll
+from a3d.runtime.io.detections_io import read_detections
+from a3d.runtime.sources.folder import GroundTruth, list_frames, read_folder_intrinsics, write_frame
+from a3d.runtime.structures.geometry import rtilt_from_pitch_roll
 from tests.rrd_reader import as_array, read_columns
 from tests.test_run import (
     FakeModel,

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from a3d.runtime.detections_io import parse_line
+from a3d.runtime.io.detections_io import parse_line
 from tests.test_run import write_scene_folder
 
 FRAMES = 24

@@ -8,12 +8,12 @@ from pathlib import Path
 
 import numpy as np
 
-from a3d.runtime.classes import CLASSES
 from a3d.runtime.cli import eval as eval_cli
 from a3d.runtime.cli import run as run_cli
-from a3d.runtime.detections_io import read_detections
-from a3d.runtime.frames import list_frames
-from a3d.runtime.model import DetectorModel
+from a3d.runtime.io.detections_io import read_detections
+from a3d.runtime.network.model import DetectorModel
+from a3d.runtime.sources.folder import list_frames
+from a3d.runtime.structures.classes import CLASSES
 from tests.rrd_reader import as_array, read_columns
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -9,15 +9,20 @@ import cv2
 import numpy as np
 import pytest
 
-from a3d.runtime.classes import CLASSES
-from a3d.runtime.frames import (
+from a3d.runtime.sources.folder import (
     list_frames,
     read_folder_intrinsics,
     read_frame,
     read_ground_truth,
     read_instances,
 )
-from a3d.runtime.geometry import backproject, box_area_2d, box_corners_camera, rtilt_from_pitch_roll
+from a3d.runtime.structures.classes import CLASSES
+from a3d.runtime.structures.geometry import (
+    backproject,
+    box_area_2d,
+    box_corners_camera,
+    rtilt_from_pitch_roll,
+)
 from a3d.synth import SceneConfig, generate_frame
 from a3d.synth import furniture as fu
 from a3d.synth.agreement import (

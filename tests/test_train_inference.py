@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import torch
 
-from a3d.runtime.classes import NUM_OUTPUTS
-from a3d.runtime.detections_io import read_detections
-from a3d.runtime.frames import list_frames
+from a3d.runtime.io.detections_io import read_detections
 from a3d.runtime.pipeline import prepare
+from a3d.runtime.sources.folder import list_frames
+from a3d.runtime.structures.classes import NUM_OUTPUTS
 from a3d.train.config import apply_overrides, load_config
 from a3d.train.dataset import BatchDataset, TargetStats, compute_target_stats
 from a3d.train.inference import TorchDetector, TorchNetwork, write_folder_detections

@@ -13,8 +13,14 @@ from pathlib import Path
 
 import numpy as np
 
-from a3d.runtime.frames import GroundTruth, list_frames, read_ground_truth, write_frame, write_intrinsics
-from a3d.runtime.geometry import Intrinsics, project_boxes_to_2d
+from a3d.runtime.sources.folder import (
+    GroundTruth,
+    list_frames,
+    read_ground_truth,
+    write_frame,
+    write_intrinsics,
+)
+from a3d.runtime.structures.geometry import Intrinsics, project_boxes_to_2d
 
 SIZE = (48, 64)  # (H, W)
 K = Intrinsics(fx=48.0, fy=48.0, cx=31.7, cy=23.6)

@@ -8,13 +8,13 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
-from a3d.runtime import viewer
-from a3d.runtime.geometry import (
+from a3d.runtime.structures.geometry import (
     NYU_CROP_INTRINSICS,
     box_corners_camera,
     project_points,
     rtilt_from_pitch_roll,
 )
+from a3d.runtime.viewer import view as viewer
 from tests.rrd_reader import as_array, read_columns
 
 K = NYU_CROP_INTRINSICS

@@ -1,7 +1,7 @@
 """Training configuration: one typed dataclass tree, named presets, config files and overrides.
 
 A run is described by ``TrainConfig``: the network (``NetConfig`` of a3d.train.model), the
-proposal stage (``ProposalConfig`` of a3d.runtime.proposals), RoI sampling and augmentation,
+proposal stage (``ProposalConfig`` of a3d.runtime.frontend.proposals), RoI sampling and augmentation,
 the solver, logging/validation, and inference post-processing. It is built by
 
     preset (``vgg16`` or a CPU preset)  ->  config file (JSON or TOML)  ->  ``--set a.b=value``
@@ -23,8 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from a3d.runtime.frontend.proposals import ProposalConfig
 from a3d.runtime.pipeline import PipelineConfig
-from a3d.runtime.proposals import ProposalConfig
 from a3d.train.model import NetConfig
 
 
@@ -34,7 +34,7 @@ class DataConfig:
 
     ``input_scale`` resizes colour and depth (and every 2D box) before the network: 1.0 is the
     native frame size, as in the paper; CPU presets train at a reduced scale. Proposals, lifting
-    and all 3D geometry always work at native resolution (a3d.runtime.network_input).
+    and all 3D geometry always work at native resolution (a3d.runtime.network.network_input).
     """
 
     input_scale: float = 1.0

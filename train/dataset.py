@@ -3,10 +3,10 @@
 ``BatchDataset[iteration]`` is this rank's whole mini-batch of that iteration (the sampler's plan
 is a pure function of the seed and the iteration, see a3d.train.sampler), so the DataLoader
 iterates over iteration numbers and a resumed run simply starts at a later one. Per image:
-read the frame, fill the depth holes (a3d.runtime.depth), flip when the plan says so, compute
+read the frame, fill the depth holes (a3d.runtime.frontend.depth), flip when the plan says so, compute
 the regression targets of the sampled foreground RoIs and normalise them per class, build the
 network inputs and RoIs at the configured input scale exactly as the runtime does
-(a3d.runtime.network_input).
+(a3d.runtime.network.network_input).
 
 Flip (README "Pixels and 2D boxes"): image and depth columns reversed, 2D boxes through
 ``flip_boxes_2d`` (u -> W - 1 - u), 3D boxes through ``flip_boxes_3d`` (x -> -x, theta -> -theta),
@@ -26,12 +26,12 @@ import cv2
 import numpy as np
 import torch
 
-from a3d.runtime.box_coder import encode_2d, encode_3d
-from a3d.runtime.classes import NUM_OUTPUTS
-from a3d.runtime.depth import fill_depth
-from a3d.runtime.frames import read_frame
-from a3d.runtime.geometry import Intrinsics, context_boxes, flip_boxes_2d, flip_boxes_3d
-from a3d.runtime.network_input import network_inputs, scale_boxes, with_batch_index
+from a3d.runtime.frontend.depth import fill_depth
+from a3d.runtime.network.network_input import network_inputs, scale_boxes, with_batch_index
+from a3d.runtime.postprocess.box_coder import encode_2d, encode_3d
+from a3d.runtime.sources.folder import read_frame
+from a3d.runtime.structures.classes import NUM_OUTPUTS
+from a3d.runtime.structures.geometry import Intrinsics, context_boxes, flip_boxes_2d, flip_boxes_3d
 from a3d.train.roidb import FrameRois
 from a3d.train.sampler import plan_batch
 

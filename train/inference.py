@@ -21,12 +21,12 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from a3d.runtime.classes import NUM_OUTPUTS
 from a3d.runtime.cli.eval import load_truth
-from a3d.runtime.detections_io import FrameDetections, write_detections
-from a3d.runtime.evaluation import EvalConfig, EvalResult, evaluate
-from a3d.runtime.frames import FrameRef, list_frames, read_folder_intrinsics
+from a3d.runtime.evaluation.metric import EvalConfig, EvalResult, evaluate
+from a3d.runtime.io.detections_io import FrameDetections, write_detections
 from a3d.runtime.pipeline import PipelineConfig, detect, detect_frames
+from a3d.runtime.sources.folder import FrameRef, list_frames, read_folder_intrinsics
+from a3d.runtime.structures.classes import NUM_OUTPUTS
 from a3d.train.checkpoint import load_checkpoint
 from a3d.train.config import TrainConfig
 from a3d.train.dataset import TargetStats
@@ -105,7 +105,7 @@ class TorchDetector:
         return cls.build(model, config, stats, state["mean_sizes"].numpy(), device)
 
     def detect(self, ref: FrameRef, folder_intrinsics=None) -> FrameDetections:
-        """Detections of one frame (README detections format, a3d.runtime.detections_io)."""
+        """Detections of one frame (README detections format, a3d.runtime.io.detections_io)."""
         return detect(ref, self.network, self.pipeline, folder_intrinsics)
 
     def detect_all(self, refs: Iterable[FrameRef], folder_intrinsics=None) -> dict[str, FrameDetections]:
@@ -131,7 +131,8 @@ def write_folder_detections(
 
 
 def validate(detector: TorchDetector, folder: str | os.PathLike, max_frames: int = 0) -> EvalResult:
-    """The paper's mAP (a3d.runtime.evaluation, as a3d-eval scores) on the annotated frames of ``folder``."""
+    """The paper's mAP (a3d.runtime.evaluation.metric, as a3d-eval scores) on the annotated frames
+    of ``folder``."""
     truth, _ = load_truth(Path(folder))
     refs = [r for r in list_frames(folder) if r.name in truth]
     refs = refs[:max_frames] if max_frames > 0 else refs

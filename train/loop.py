@@ -33,9 +33,9 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from a3d.runtime.classes import CLASSES
-from a3d.runtime.detections_io import atomic_write_bytes
-from a3d.runtime.frames import read_folder_intrinsics
+from a3d.runtime.io.detections_io import atomic_write_bytes
+from a3d.runtime.sources.folder import read_folder_intrinsics
+from a3d.runtime.structures.classes import CLASSES
 from a3d.train.checkpoint import load_checkpoint, save_checkpoint
 from a3d.train.config import SolverConfig, TrainConfig
 from a3d.train.dataset import BatchDataset, TargetStats, batch_loader, compute_target_stats

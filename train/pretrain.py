@@ -31,12 +31,12 @@ import torch
 from torch import nn
 from tqdm import tqdm
 
-from a3d.runtime.classes import NUM_CLASSES
-from a3d.runtime.detections_io import atomic_write_bytes
 from a3d.runtime.errors import InputError
-from a3d.runtime.frames import list_frames, read_folder_intrinsics, read_frame, read_ground_truth
-from a3d.runtime.geometry import iou_2d
-from a3d.runtime.preprocess import COLOR_MEAN_BGR
+from a3d.runtime.io.detections_io import atomic_write_bytes
+from a3d.runtime.network.preprocess import COLOR_MEAN_BGR
+from a3d.runtime.sources.folder import list_frames, read_folder_intrinsics, read_frame, read_ground_truth
+from a3d.runtime.structures.classes import NUM_CLASSES
+from a3d.runtime.structures.geometry import iou_2d
 from a3d.train.checkpoint import atomic_torch_save
 from a3d.train.loop import param_groups
 from a3d.train.model.config import NetConfig

@@ -8,7 +8,7 @@ Per frame (SPEC.md "Proposals and 3D box initialisation", "Training"):
 - Labels by 2D IoU with the visible boxes: foreground (the best box's class) at IoU >= fg_iou,
   background for IoU in [bg_iou_low, fg_iou); other proposals are dropped.
 - Each RoI's segment (a ground truth's instance mask, a proposal's segment) is lifted to a 3D
-  centre by the runtime (``a3d.runtime.lifting``; proposals through the runtime's own front end,
+  centre by the runtime (``a3d.runtime.frontend.lifting``; proposals through the runtime's own front end,
   ``a3d.runtime.pipeline.prepare``, which drops proposals without any depth); a foreground
   RoI's initial 3D box is that centre with the mean size of its ground truth's class over the
   training set (theta 0). Its 3D target is the matched ground-truth box, its 2D target the
@@ -36,10 +36,12 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from a3d.runtime.classes import CLASSES, NUM_CLASSES
-from a3d.runtime.depth import fill_depth
 from a3d.runtime.errors import InputError
-from a3d.runtime.frames import (
+from a3d.runtime.frontend.depth import fill_depth
+from a3d.runtime.frontend.lifting import initial_boxes, lift
+from a3d.runtime.frontend.proposals import ProposalConfig
+from a3d.runtime.pipeline import PipelineConfig, prepare
+from a3d.runtime.sources.folder import (
     FrameRef,
     GroundTruth,
     list_frames,
@@ -47,10 +49,8 @@ from a3d.runtime.frames import (
     read_ground_truth,
     read_instances,
 )
-from a3d.runtime.geometry import Intrinsics, iou_2d
-from a3d.runtime.lifting import initial_boxes, lift
-from a3d.runtime.pipeline import PipelineConfig, prepare
-from a3d.runtime.proposals import ProposalConfig
+from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES
+from a3d.runtime.structures.geometry import Intrinsics, iou_2d
 
 CACHE_VERSION = 2
 MIN_VISIBLE_AREA = 1.0  # px^2: a ground truth with a smaller visible box has no RoI

@@ -4,7 +4,7 @@
 
 Prints a table (per class: #GT, #det, AP at each IoU threshold, in percent; then the mAP over
 all 19 classes and over the classes with ground truth) and, with ``--out``, writes DIR/eval.json
-and DIR/pr_curves.png atomically. The metric is ``a3d.runtime.evaluation`` (see its docstring).
+and DIR/pr_curves.png atomically. The metric is ``a3d.runtime.evaluation.metric`` (see its docstring).
 
 The test set is every frame of FOLDER that has ``NAME.gt.json``; a frame with ground truth and no
 detection line has all its objects missed. A detection line for a frame of FOLDER without
@@ -22,11 +22,18 @@ from pathlib import Path
 
 import cv2
 
-from a3d.runtime.detections_io import FrameDetections, atomic_write_bytes, read_detections
 from a3d.runtime.errors import InputError
-from a3d.runtime.evaluation import IOU_THRESHOLDS, NMS_IOU, EvalConfig, EvalResult, FrameTruth, evaluate
-from a3d.runtime.frames import list_frames, read_ground_truth, read_meta
-from a3d.runtime.pr_plot import draw_pr_curves
+from a3d.runtime.evaluation.metric import (
+    IOU_THRESHOLDS,
+    NMS_IOU,
+    EvalConfig,
+    EvalResult,
+    FrameTruth,
+    evaluate,
+)
+from a3d.runtime.evaluation.pr_plot import draw_pr_curves
+from a3d.runtime.io.detections_io import FrameDetections, atomic_write_bytes, read_detections
+from a3d.runtime.sources.folder import list_frames, read_ground_truth, read_meta
 
 PROG = "a3d-eval"
 

@@ -36,10 +36,11 @@ import cv2
 import rerun as rr
 from tqdm import tqdm
 
-from a3d.runtime import viewer
-from a3d.runtime.detections_io import format_line, parse_line
 from a3d.runtime.errors import InputError, ModelError
-from a3d.runtime.frames import (
+from a3d.runtime.io.detections_io import format_line, parse_line
+from a3d.runtime.network.model import DetectorModel
+from a3d.runtime.pipeline import PROPOSAL_SOURCES, FrameOutcome, PipelineConfig, detect_frames
+from a3d.runtime.sources.folder import (
     MODEL_FILE,
     FrameRef,
     GroundTruth,
@@ -48,9 +49,8 @@ from a3d.runtime.frames import (
     read_ground_truth,
     scan_folder,
 )
-from a3d.runtime.geometry import Intrinsics
-from a3d.runtime.model import DetectorModel
-from a3d.runtime.pipeline import PROPOSAL_SOURCES, FrameOutcome, PipelineConfig, detect_frames
+from a3d.runtime.structures.geometry import Intrinsics
+from a3d.runtime.viewer import view as viewer
 
 PROG = "a3d-run"
 DEFAULT_MODEL = MODEL_FILE

@@ -44,10 +44,10 @@ from typing import Any
 import numpy as np
 import scipy.io
 
-from a3d.runtime.classes import CLASSES
 from a3d.runtime.errors import InputError
-from a3d.runtime.frames import NPY_MILLIMETRE_MEDIAN, GroundTruth, read_color_bytes
-from a3d.runtime.geometry import (
+from a3d.runtime.sources.folder import NPY_MILLIMETRE_MEDIAN, GroundTruth, read_color_bytes
+from a3d.runtime.structures.classes import CLASSES
+from a3d.runtime.structures.geometry import (
     NYU_CROP_INTRINSICS,
     Intrinsics,
     boxes_from_corners_tilt,

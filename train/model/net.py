@@ -29,7 +29,7 @@ from functools import partial
 import torch
 from torch import nn
 
-from a3d.runtime.classes import NUM_OUTPUTS
+from a3d.runtime.structures.classes import NUM_OUTPUTS
 from a3d.train.model.config import NetConfig
 from a3d.train.model.roi_pool import roi_align, roi_max_pool
 from a3d.train.model.vgg import FEATURE_STRIDE, VGG16Trunk
@@ -41,7 +41,7 @@ BOX2D_SIZE = 4
 class A3DNet(nn.Module):
     """forward(color, depth, rois, context_rois) -> (class_logits, deltas3d, deltas2d).
 
-    color, depth: (B, 3, H, W) from a3d.runtime.preprocess (depth ignored without use_depth).
+    color, depth: (B, 3, H, W) from a3d.runtime.network.preprocess (depth ignored without use_depth).
     rois, context_rois: (R, 5) rows [batch_index, x1, y1, x2, y2] in the README's pixel
     coordinates (context_rois ignored without use_context).
     Returns class_logits (R, 20) (softmax index 0 = background), deltas3d (R, 20*7) and

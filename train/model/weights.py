@@ -8,7 +8,7 @@ Nothing is downloaded: without a file, A3DNet keeps its own clean init.
 
 What goes where (SPEC.md "Network": both trunks start from ImageNet VGG16):
 - Both trunks get the same conv weights. conv1_1 is converted to our input convention
-  (a3d.runtime.preprocess: BGR, 0..255 minus the Caffe mean) when the file is torchvision's
+  (a3d.runtime.network.preprocess: BGR, 0..255 minus the Caffe mean) when the file is torchvision's
   (RGB, /255, minus mean, / std): channels reversed and divided by 255 * std. The two
   conventions' means differ by under one grey level; that offset is ignored.
   ``input_convention="caffe"`` loads conv1_1 as is (Caffe VGG16 converted to this layout).

@@ -4,7 +4,7 @@ Protocol, exactly as scored here:
 
 1. Optional 2D NMS per frame and class on the detections' ``box2d`` (IoU 0.3 by default), as the
    release does before scoring. It is idempotent on ``a3d-run`` output, which already had it.
-2. 3D IoU in the tilt frame (``a3d.runtime.geometry.iou_3d``) between each detection and the
+2. 3D IoU in the tilt frame (``a3d.runtime.structures.geometry.iou_3d``) between each detection and the
    ground truth of its class in its frame. A detection whose line carries a different ``R_tilt``
    than the ground truth (an estimated gravity, say) is first re-expressed in the ground truth's
    tilt frame: its 8 camera-frame corners are rotated into that frame and a box is fitted to them
@@ -36,9 +36,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from a3d.runtime.classes import CLASSES, NUM_CLASSES
-from a3d.runtime.detections_io import FrameDetections
-from a3d.runtime.geometry import batched_nms_2d, box_corners_camera, boxes_from_corners_tilt, iou_3d
+from a3d.runtime.io.detections_io import FrameDetections
+from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES
+from a3d.runtime.structures.geometry import (
+    batched_nms_2d,
+    box_corners_camera,
+    boxes_from_corners_tilt,
+    iou_3d,
+)
 
 IOU_THRESHOLDS: tuple[float, ...] = (0.25, 0.5)  # primary first
 NMS_IOU = 0.3

@@ -11,7 +11,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from a3d.runtime.preprocess import color_input, depth_input
+from a3d.runtime.network.preprocess import color_input, depth_input
 
 
 def network_inputs(
@@ -20,7 +20,7 @@ def network_inputs(
     """Colour and depth trunk inputs (3, h, w) float32 at ``scale`` and the exact (sx, sy) box scaling.
 
     ``color_bgr`` (H, W, 3) uint8, ``depth_filled`` (H, W) float32 metres (hole-filled);
-    ``truncation`` metres map to 255 in the depth input (a3d.runtime.preprocess). The size is
+    ``truncation`` metres map to 255 in the depth input (a3d.runtime.network.preprocess). The size is
     ``round(W * scale) x round(H * scale)`` (at least 1), so (sx, sy) = (w / W, h / H) differ
     slightly from ``scale``. Down-scaling averages areas (no aliasing), up-scaling is bilinear.
     """

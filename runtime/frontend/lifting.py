@@ -23,7 +23,7 @@ from typing import Protocol
 import cv2
 import numpy as np
 
-from a3d.runtime.geometry import CameraLike, backproject
+from a3d.runtime.structures.geometry import CameraLike, backproject
 
 
 class SuperpixelProposals(Protocol):

@@ -3,7 +3,7 @@
 Per class: the ``top_k`` best-scoring proposals (the release keeps at most 100 per class and
 image), then greedy 2D NMS at ``nms_iou`` on the proposal boxes; no NMS in 3D, no pruning by
 size. Each kept detection gets its class-specific 3D box, decoded from the class's initial box
-(lifted centre, class mean size, theta 0) with a3d.runtime.box_coder.decode_3d and made canonical
+(lifted centre, class mean size, theta 0) with a3d.runtime.postprocess.box_coder.decode_3d and made canonical
 (l >= w, theta in [-pi/2, pi/2]), and its amodal 2D box, decoded from the proposal box with the
 2D regressor's deltas (box_coder.decode_2d) and clipped to the image like the ground truth's.
 
@@ -15,9 +15,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from a3d.runtime.box_coder import decode_2d, decode_3d
-from a3d.runtime.geometry import batched_nms_2d, canonical_boxes
-from a3d.runtime.lifting import initial_boxes
+from a3d.runtime.frontend.lifting import initial_boxes
+from a3d.runtime.postprocess.box_coder import decode_2d, decode_3d
+from a3d.runtime.structures.geometry import batched_nms_2d, canonical_boxes
 
 
 def select_detections(
@@ -27,7 +27,7 @@ def select_detections(
 
     ``scores`` (N, C) object-class scores (the softmax without its background column),
     ``boxes2d`` (N, 4) the proposal boxes. A candidate is dropped when its IoU with a kept,
-    better-scored candidate of its class is > ``nms_iou`` (a3d.runtime.geometry.nms_2d's rule);
+    better-scored candidate of its class is > ``nms_iou`` (a3d.runtime.structures.geometry.nms_2d's rule);
     ties in score go to the lower proposal index. Returns (rows (K,) proposal indices,
     class_idx (K,), scores (K,)) by descending score (ties: class order, then rank).
     """

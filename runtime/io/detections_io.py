@@ -29,10 +29,10 @@ from pathlib import Path
 
 import numpy as np
 
-from a3d.runtime.classes import CLASSES
 from a3d.runtime.errors import InputError
-from a3d.runtime.geometry import box_corners_camera, check_rotation
-from a3d.runtime.json_input import is_finite_number, parse_json
+from a3d.runtime.io.json_input import is_finite_number, parse_json
+from a3d.runtime.structures.classes import CLASSES
+from a3d.runtime.structures.geometry import box_corners_camera, check_rotation
 
 _CLASS_INDEX = {name: i for i, name in enumerate(CLASSES)}
 METRE_DECIMALS = 6  # box3d and corners are written to 1 micrometre

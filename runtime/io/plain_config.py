@@ -1,6 +1,6 @@
 """Typed settings rebuilt from plain JSON data, every value's type and range checked.
 
-A model file carries the proposal stage's settings (a3d.runtime.proposals.ProposalConfig) as
+A model file carries the proposal stage's settings (a3d.runtime.frontend.proposals.ProposalConfig) as
 nested JSON objects. A damaged or foreign file must be refused when it is opened, with the
 setting's name, not fail with a traceback deep inside the proposal stage on the first frame (a
 string where a count belongs) or run out of memory there (a count of 10^30).
@@ -21,7 +21,7 @@ from collections.abc import Mapping
 from typing import Any, TypeVar
 
 from a3d.runtime.errors import ModelError
-from a3d.runtime.json_input import is_finite_number
+from a3d.runtime.io.json_input import is_finite_number
 
 MAX_COUNT = 10_000_000  # beyond any sensible count; stops a huge integer before it allocates
 T = TypeVar("T")

@@ -3,9 +3,9 @@
 Pipeline, at 1/`scale` resolution (block means of the full-resolution images, so working pixel
 (i, j) is exactly the full-resolution block [scale*i, scale*i+scale) x [scale*j, scale*j+scale)):
 
-1. superpixels (a3d.runtime.superpixels): grid-seeded watershed on Lab colour, with depth
+1. superpixels (a3d.runtime.frontend.superpixels): grid-seeded watershed on Lab colour, with depth
    discontinuities painted in as barriers;
-2. hierarchical grouping (a3d.runtime.grouping): selective-search merging of the superpixels
+2. hierarchical grouping (a3d.runtime.frontend.grouping): selective-search merging of the superpixels
    under twelve similarity strategies (colour histograms, colour / depth / normal boundary
    strength, normals, size, fill); every region formed is a candidate, so is every superpixel;
 3. combinatorial grouping: disjoint pairs of well-ranked regions that are close in depth and
@@ -39,8 +39,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from a3d.runtime.geometry import Intrinsics
-from a3d.runtime.grouping import (
+from a3d.runtime.frontend.grouping import (
     BoundaryScales,
     PairConfig,
     Strategy,
@@ -50,9 +49,10 @@ from a3d.runtime.grouping import (
     group,
     outer_similarity,
 )
-from a3d.runtime.normals import NormalConfig, surface_normals
-from a3d.runtime.plain_config import MAX_COUNT, dataclass_from_plain
-from a3d.runtime.superpixels import SuperpixelConfig, depth_edges, oversegment
+from a3d.runtime.frontend.normals import NormalConfig, surface_normals
+from a3d.runtime.frontend.superpixels import SuperpixelConfig, depth_edges, oversegment
+from a3d.runtime.io.plain_config import MAX_COUNT, dataclass_from_plain
+from a3d.runtime.structures.geometry import Intrinsics
 
 DEFAULT_STRATEGIES: tuple[Strategy, ...] = (
     Strategy(color=1.0, size=1.0, fill=1.0),
@@ -151,7 +151,7 @@ def propose(
     """Segment proposals for one frame.
 
     `color` (H, W, 3) uint8 BGR; `depth_filled` (H, W) float32 metres, hole-filled
-    (a3d.runtime.depth.fill_depth; zeros are tolerated and treated as unknown depth);
+    (a3d.runtime.frontend.depth.fill_depth; zeros are tolerated and treated as unknown depth);
     `K` the frame's intrinsics.
     """
     _check_inputs(color, depth_filled, config)

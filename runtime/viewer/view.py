@@ -24,8 +24,14 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from a3d.runtime.classes import CLASS_COLORS_RGB, CLASSES
-from a3d.runtime.geometry import BOX_EDGES, Intrinsics, backproject_depth, box_edges_clipped, project_points
+from a3d.runtime.structures.classes import CLASS_COLORS_RGB, CLASSES
+from a3d.runtime.structures.geometry import (
+    BOX_EDGES,
+    Intrinsics,
+    backproject_depth,
+    box_edges_clipped,
+    project_points,
+)
 
 APPLICATION_ID = "a3d"
 GROUND_TRUTH_RGB = (255, 255, 255)  # ground truth in one neutral colour, apart from the class colours

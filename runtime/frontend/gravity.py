@@ -7,7 +7,7 @@ of the current direction (N_par) and within d degrees of its perpendicular plane
 takes as the new direction the unit vector g minimising
     sum_perp (g . n)^2 - sum_par (g . n)^2 = g^T (N_perp^T N_perp - N_par^T N_par) g,
 the eigenvector of the smallest eigenvalue; d = 45 degrees for 5 rounds, then 15 for 5.
-The local normals come from a3d.runtime.normals (derivatives of a box-smoothed point map on a
+The local normals come from a3d.runtime.frontend.normals (derivatives of a box-smoothed point map on a
 4-pixel grid, exact on planes) rather than Gupta's per-pixel least-squares plane fits: the same
 estimate on planar patches at a fraction of the cost.
 
@@ -26,8 +26,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from a3d.runtime.geometry import CameraLike, rtilt_from_pitch_roll
-from a3d.runtime.normals import NormalConfig, normal_grid
+from a3d.runtime.frontend.normals import NormalConfig, normal_grid
+from a3d.runtime.structures.geometry import CameraLike, rtilt_from_pitch_roll
 
 STATUS_OK = "ok"
 STATUS_WALLS_ONLY = "walls_only"

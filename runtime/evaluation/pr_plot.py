@@ -14,7 +14,7 @@ from collections.abc import Callable, Sequence
 import cv2
 import numpy as np
 
-from a3d.runtime.evaluation import ClassResult, EvalResult
+from a3d.runtime.evaluation.metric import ClassResult, EvalResult
 
 COLUMNS = 5
 CELL_W, CELL_H = 300, 250

@@ -38,11 +38,11 @@ from typing import Any
 import numpy as np
 import onnxruntime as ort
 
-from a3d.runtime.classes import CLASSES, NUM_CLASSES, NUM_OUTPUTS
 from a3d.runtime.errors import ModelError
-from a3d.runtime.json_input import is_finite_number, parse_json
-from a3d.runtime.preprocess import COLOR_MEAN_BGR, DEPTH_MEAN
-from a3d.runtime.proposals import proposal_config_from_dict
+from a3d.runtime.frontend.proposals import proposal_config_from_dict
+from a3d.runtime.io.json_input import is_finite_number, parse_json
+from a3d.runtime.network.preprocess import COLOR_MEAN_BGR, DEPTH_MEAN
+from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES, NUM_OUTPUTS
 
 SCHEMA_VERSION = 1
 METADATA_KEY = "a3d"
@@ -60,11 +60,11 @@ class ModelMetadata:
 
     classes: the 19 names, softmax index i + 1 = classes[i]. mean_sizes: (19, 3) [l, w, h] metres,
     the initial 3D box size per class. color_mean_bgr, depth_mean, depth_truncation_m: the
-    network inputs' preprocessing (a3d.runtime.preprocess). input_scale: the frame is resized by
+    network inputs' preprocessing (a3d.runtime.network.preprocess). input_scale: the frame is resized by
     this factor before the network (boxes with network_input.scale_boxes); context_scale: context
     box = proposal box scaled about its centre. score_threshold, nms_iou, top_k: post-processing
     (SPEC.md "Inference and post-processing"); max_proposals: proposals per frame.
-    proposal_config: the a3d.runtime.proposals.ProposalConfig the model was trained with, as a
+    proposal_config: the a3d.runtime.frontend.proposals.ProposalConfig the model was trained with, as a
     plain dict. content_sha256: the integrity digest (module docstring). provenance: free-form
     (package version, training config, checkpoint hash, export options, verification numbers).
     """

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from a3d.runtime.geometry import CameraLike, backproject
+from a3d.runtime.structures.geometry import CameraLike, backproject
 
 
 @dataclass(frozen=True)

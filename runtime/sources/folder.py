@@ -8,7 +8,7 @@ Units: colour is uint8 BGR (H, W, 3); depth in memory is float32 metres, 0 = mis
 is uint16 millimetres: writing rounds to the nearest millimetre, reading gives
 ``float32(mm) / 1000`` (so write(read(x)) is exact, and a round trip changes depth by at most
 0.5 mm). A depth ``.npy`` is float32 metres, stored exactly. Boxes use the README's pixel
-convention and the 7-vector ``[x, y, z, l, w, h, theta]`` of ``a3d.runtime.geometry``.
+convention and the 7-vector ``[x, y, z, l, w, h, theta]`` of ``a3d.runtime.structures.geometry``.
 
 Reading validates everything and raises ``InputError("PATH: problem")`` (one line) for: an
 unreadable, empty, truncated or undecodable image; an image above ``MAX_IMAGE_SIDE`` /
@@ -42,11 +42,9 @@ from typing import Any, BinaryIO
 import cv2
 import numpy as np
 
-from a3d.runtime.classes import CLASSES
-from a3d.runtime.detections_io import atomic_write_bytes
 from a3d.runtime.errors import InputError
-from a3d.runtime.geometry import Intrinsics, check_rotation
-from a3d.runtime.image_io import (
+from a3d.runtime.io.detections_io import atomic_write_bytes
+from a3d.runtime.io.image_io import (
     MAX_IMAGE_PIXELS,
     ImageHeader,
     check_complete,
@@ -55,7 +53,9 @@ from a3d.runtime.image_io import (
     read_bytes,
     read_image_header,
 )
-from a3d.runtime.json_input import parse_json
+from a3d.runtime.io.json_input import parse_json
+from a3d.runtime.structures.classes import CLASSES
+from a3d.runtime.structures.geometry import Intrinsics, check_rotation
 
 logger = logging.getLogger(__name__)
 

@@ -1,0 +1,1 @@
+"""The CPU front end: depth hole filling, gravity, segment proposals, lifting."""

@@ -1,0 +1,1 @@
+"""The network: the model file, its input tensors, ONNX Runtime inference."""

@@ -1,0 +1,1 @@
+"""Post-processing: per-class selection, NMS and box decoding."""

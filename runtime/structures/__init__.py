@@ -1,0 +1,1 @@
+"""Pure numpy structures and geometry: classes, boxes, cameras, detections."""

@@ -1,0 +1,1 @@
+"""The rerun view: one entity tree on a frame timeline, a default blueprint."""
