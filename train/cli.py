@@ -19,16 +19,17 @@ import logging
 import sys
 from pathlib import Path
 
-from a3d.runtime.errors import InputError, ModelError
+from a3d.runtime.cli.common import build_parser as command_parser
+from a3d.runtime.cli.common import command
 from a3d.train.checkpoint import load_checkpoint
 from a3d.train.config import PRESETS, TrainConfig, apply_overrides, load_config
 from a3d.train.loop import CHECKPOINT_NAME, train
 
+PROG = "a3d-train"
+
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="a3d-train", description="Train the amodal 3D detector (Deng & Latecki 2017) on RGB-D frames."
-    )
+    parser = command_parser(PROG, "Train the amodal 3D detector (Deng & Latecki 2017) on RGB-D frames.")
     parser.add_argument("data", type=Path, help="folder of training frames with NAME.gt.json")
     parser.add_argument("--out", type=Path, required=True, help="run folder (checkpoint, metrics, plots)")
     add_config_arguments(parser, "solver.lr=0.001")
@@ -63,16 +64,13 @@ def resolve_config(args: argparse.Namespace) -> TrainConfig:
     return config
 
 
+@command(PROG, errors=(ValueError, FileNotFoundError))
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="a3d-train: %(message)s")
-    try:
-        config = resolve_config(args)
-        result = train(args.data, args.out, config, device=args.device, resume=args.resume, val_data=args.val)
-    except (InputError, ModelError, ValueError, FileNotFoundError) as e:
-        print(f"a3d-train: error: {e}", file=sys.stderr)
-        return 2
-    summary = f"a3d-train: {result.iteration} iterations in {result.run_dir}"
+    logging.basicConfig(level=logging.INFO, format=f"{PROG}: %(message)s")
+    config = resolve_config(args)
+    result = train(args.data, args.out, config, device=args.device, resume=args.resume, val_data=args.val)
+    summary = f"{PROG}: {result.iteration} iterations in {result.run_dir}"
     if result.last_loss is not None:
         summary += f", last loss {result.last_loss:.4f}"
     if result.val_map is not None:

@@ -36,7 +36,9 @@ import cv2
 import rerun as rr
 from tqdm import tqdm
 
-from a3d.runtime.errors import InputError, ModelError
+from a3d.runtime.cli.common import build_parser as command_parser
+from a3d.runtime.cli.common import command
+from a3d.runtime.errors import InputError
 from a3d.runtime.io.detections_io import format_line, parse_line
 from a3d.runtime.network.model import DetectorModel
 from a3d.runtime.pipeline import PROPOSAL_SOURCES, FrameOutcome, PipelineConfig, detect_frames
@@ -59,18 +61,18 @@ DEFAULT_OUTPUT = "detections.jsonl"
 load_model = DetectorModel.load  # the model loader (tests substitute a fake model here)
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
+def build_parser() -> argparse.ArgumentParser:
+    p = command_parser(PROG, __doc__.split("\n\n")[0])
     p.add_argument("folder", type=Path, help="frame folder (README 'Frame format')")
     p.add_argument("--model", type=Path, help=f"model file (default: FOLDER/{DEFAULT_MODEL})")
-    p.add_argument("--output", default=DEFAULT_OUTPUT, help="JSON lines file, '-': stdout (%(default)s)")
-    p.add_argument("--threads", type=int, default=2, help="CPU threads, OpenCV and ONNX Runtime (default: 2)")
+    p.add_argument("--output", default=DEFAULT_OUTPUT, help="JSON lines file, '-': stdout")
+    p.add_argument("--threads", type=int, default=2, help="CPU threads, OpenCV and ONNX Runtime")
     p.add_argument(
         "--proposals",
         choices=PROPOSAL_SOURCES,
         default="auto",
         help="auto: NAME.proposals.npz where present, else computed; compute: always computed; "
-        "precomputed: NAME.proposals.npz required (default: auto)",
+        "precomputed: NAME.proposals.npz required",
     )
     p.add_argument("--max-proposals", type=int, metavar="N", help="proposals per frame (default: model)")
     p.add_argument("--score-threshold", type=float, metavar="S", help="drop scores below S (default: model)")
@@ -80,7 +82,7 @@ def _parser() -> argparse.ArgumentParser:
         type=float,
         default=0.3,
         metavar="S",
-        help="rerun view: draw detections scoring >= S (all are written to the output; default: %(default)s)",
+        help="rerun view: draw detections scoring >= S (all are written to the output)",
     )
     p.add_argument(
         "--overlap",
@@ -94,7 +96,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def _arguments(argv: list[str] | None) -> argparse.Namespace:
     """Parsed and checked flags (argparse exits with status 2 on a usage error)."""
-    parser = _parser()
+    parser = build_parser()
     args = parser.parse_args(argv)
     if args.threads < 1:
         parser.error("--threads must be at least 1")
@@ -154,16 +156,13 @@ def _incomplete_frames(skipped: list[SkippedFile]) -> list[str]:
     return [f"{item.path}: {item.reason}" for item in first.values()]
 
 
+@command(PROG)
 def main(argv: list[str] | None = None) -> int:
     args = _arguments(argv)
-    try:
-        job = _job(args)
-        recording = _open_recording(args)
-        view = viewer.ViewOptions(min_score=args.view_min_score)
-        output = _open_output(args.output, append=args.resume)
-    except (InputError, ModelError) as e:
-        print(f"{PROG}: error: {e}", file=sys.stderr)
-        return 2
+    job = _job(args)  # InputError / ModelError: exit 2 before any frame (command)
+    recording = _open_recording(args)
+    view = viewer.ViewOptions(min_score=args.view_min_score)
+    output = _open_output(args.output, append=args.resume)
     failures = list(job.incomplete)
     for problem in failures:
         print(f"{PROG}: {problem}", file=sys.stderr)
