@@ -41,7 +41,7 @@ def a3d_version() -> str:
 
 class HelpFormatter(argparse.RawDescriptionHelpFormatter):
     """Keeps the description's line breaks and appends "(default: X)" to every option that has a
-    default and does not state one already; options without a default (None, False, an empty list) say nothing."""
+    default and does not state one already; options without one (None, False, []) say nothing."""
 
     def _get_help_string(self, action: argparse.Action) -> str:
         text = action.help or ""
