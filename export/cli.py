@@ -108,8 +108,9 @@ def main(argv: list[str] | None = None) -> int:
     except VerificationError as e:
         print(f"{PROG}: verification failed: {e}", file=sys.stderr)
         return EXIT_FAILED
-    print(f"{PROG}: wrote {path}; run it with:", file=sys.stderr)
-    print(f"a3d-run FRAMES --model {shlex.quote(str(path.resolve()))} --output detections.jsonl")
+    print(f"{PROG}: wrote {path}; run it with (add --save run.rrd to record the view, or drop --headless "
+          "to watch it live on a display):", file=sys.stderr)  # fmt: skip
+    print(f"a3d-run FRAMES --model {shlex.quote(str(path.resolve()))} --output detections.jsonl --headless")
     return 0
 
 

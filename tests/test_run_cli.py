@@ -69,6 +69,12 @@ def test_usage_errors_exit_2_before_any_frame(tmp_path: Path, capsys: pytest.Cap
     assert run([str(folder), "--threads", "0", "--headless"]) == 2
     assert run([str(folder), "--proposals", "mcg", "--headless"]) == 2
     assert run([str(tmp_path / "nowhere"), "--model", str(folder / "model.onnx"), "--headless"]) == 2
+    capsys.readouterr()
+    assert run([str(tmp_path / "nowhere"), "--headless"]) == 2  # the folder is named, not the model
+    assert (
+        capsys.readouterr().err.strip().splitlines()[-1]
+        == f"a3d-run: error: {tmp_path / 'nowhere'}: no such folder"
+    )
     assert not out.exists()
 
 

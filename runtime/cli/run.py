@@ -106,6 +106,8 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
         parser.error("--score-threshold must be in [0, 1]")
     if args.output == "-" and (args.resume or args.stdout):
         parser.error("--output - cannot be combined with --resume or --stdout")
+    if not args.folder.is_dir():
+        parser.error(f"{args.folder}: no such folder")
     if args.model is None:
         args.model = args.folder / DEFAULT_MODEL
         if not args.model.is_file():
