@@ -20,7 +20,7 @@ import torch
 
 from a3d.runtime.cli.common import build_parser as command_parser
 from a3d.runtime.cli.common import command
-from a3d.train.cli import add_config_arguments
+from a3d.train.cli import add_config_arguments, config_source
 from a3d.train.config import load_config
 from a3d.train.loop import resolve_device
 from a3d.train.pretrain import PretrainConfig, pretrain
@@ -50,7 +50,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.iters < 1 or args.batch < 1 or not 0 <= args.val_share < 1:
         parser.error("--iters and --batch must be positive and --val-share in [0, 1)")
-    net = load_config(args.config, args.overrides).net
+    net = load_config(config_source(args, PROG), args.overrides).net
     if args.threads > 0:
         torch.set_num_threads(args.threads)
     schedule = PretrainConfig(iterations=args.iters, batch=args.batch, lr=args.lr, crop=args.crop,

@@ -86,8 +86,8 @@ def command(
             except usage_errors as e:
                 print(f"{prog}: error: {e}", file=sys.stderr)
                 return EXIT_USAGE
-            except KeyboardInterrupt:
-                print(f"\n{prog}: interrupted", file=sys.stderr)
+            except KeyboardInterrupt as e:  # its message, if any, says what was kept
+                print(f"\n{prog}: interrupted" + (f"; {e}" if str(e) else ""), file=sys.stderr)
                 return EXIT_INTERRUPTED
 
         return run
