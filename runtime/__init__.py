@@ -1,1 +1,1 @@
-"""a3d runtime: numpy + OpenCV + ONNX Runtime + rerun only. Never imports torch."""
+"""a3d runtime: numpy + OpenCV + ONNX Runtime, and rerun for the view (optional). Never imports torch."""

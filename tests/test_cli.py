@@ -39,7 +39,9 @@ def test_parser_help_is_plain_complete_and_shows_defaults(name: str, module: str
         if not action.option_strings or isinstance(action, (argparse._HelpAction, argparse._VersionAction)):
             continue
         assert action.help and action.help.strip(), f"{name} {action.option_strings[0]} has no help"
-        if action.default not in (None, False, argparse.SUPPRESS):
+        if not (
+            action.default is None or action.default is False or action.default in ([], argparse.SUPPRESS)
+        ):
             shown = formatter._expand_help(action)
             assert "default" in shown, f"{name} {action.option_strings[0]}: default not shown"
 

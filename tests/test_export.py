@@ -31,7 +31,7 @@ from a3d.runtime.pipeline import PipelineConfig
 from a3d.runtime.sources.folder import write_frame, write_intrinsics
 from a3d.runtime.structures.classes import CLASSES
 from a3d.runtime.structures.geometry import Intrinsics
-from a3d.runtime.viewer.view import viewer_requested
+from a3d.runtime.viewer.options import viewer_requested
 from a3d.train.checkpoint import load_checkpoint, save_checkpoint
 from a3d.train.config import TrainConfig
 from a3d.train.dataset import TargetStats

@@ -221,7 +221,7 @@ def test_saved_recording_holds_the_written_boxes(tmp_path: Path, fake_model: Fak
 
 def test_headless_without_a_sink_records_nothing(tmp_path: Path, fake_model: FakeModel, monkeypatch) -> None:
     folder = write_scene_folder(tmp_path / "frames", ["a"])
-    monkeypatch.setattr(run_cli.viewer, "open_recording", lambda args: pytest.fail("recording opened"))
+    monkeypatch.setattr(run_cli.viewer, "load_view", lambda: pytest.fail("rerun view loaded"))
     assert run([str(folder), "--model", "m.onnx", "--output", str(tmp_path / "d.jsonl"), "--headless"]) == 0
 
 

@@ -31,9 +31,9 @@ import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
-import rerun as rr
 from tqdm import tqdm
 
 from a3d.runtime.cli.common import build_parser as command_parser
@@ -52,7 +52,10 @@ from a3d.runtime.sources.folder import (
     scan_folder,
 )
 from a3d.runtime.structures.geometry import Intrinsics
-from a3d.runtime.viewer import view as viewer
+from a3d.runtime.viewer import options as viewer
+
+if TYPE_CHECKING:
+    import rerun as rr
 
 PROG = "a3d-run"
 DEFAULT_MODEL = MODEL_FILE
@@ -197,8 +200,7 @@ def main(argv: list[str] | None = None) -> int:
         if recording is not None:
             recording.flush()
     if recording is not None:
-        rr.script_teardown(args)  # --serve: keeps serving until Ctrl-C
-        rr.disconnect(recording)
+        viewer.load_view().close_recording(args, recording)  # --serve: keeps serving until Ctrl-C
     resumed = f", {len(job.frames) - len(job.todo)} already there" if args.resume else ""
     where = "stdout" if args.output == "-" else args.output
     print(f"{PROG}: {written} frames written to {where}{resumed}, {len(failures)} failed", file=sys.stderr)
@@ -278,9 +280,10 @@ def _open_recording(args: argparse.Namespace) -> rr.RecordingStream | None:
     """The rerun recording the flags ask for, with the static entities logged; None for none."""
     if not viewer.viewer_requested(args):
         return None
+    view = viewer.load_view()  # rerun is imported here, only when a view or recording is asked for
     try:
-        recording = viewer.open_recording(args)
-        viewer.log_static(recording)
+        recording = view.open_recording(args)
+        view.log_static(recording)
     except (OSError, RuntimeError, ValueError) as e:
         raise InputError(f"rerun: cannot open the recording ({e})") from None
     return recording
@@ -297,7 +300,7 @@ def _log(
     frame, det = outcome.prepared.frame, outcome.detections
     gt = _ground_truth(frame.ref)
     try:
-        viewer.log_frame(
+        viewer.load_view().log_frame(
             recording,
             index,
             color=frame.color,
