@@ -152,13 +152,13 @@ def _cpu_small() -> TrainConfig:
 
 def _cpu_tiny() -> TrainConfig:
     """cpu-small's network on a schedule for the first hour: 1500 iterations (lr x0.1 at the same
-    0.76 of the run), checkpoints every 250, validation only at the end; about 10 minutes on 2
-    CPU cores from a few hundred a3d-synth frames (docs/first-hour.md)."""
+    0.76 of the run), checkpoints every 250, validation on 50 frames at the end only; about 10
+    minutes on 2 CPU cores (docs/first-hour.md)."""
     return apply_values(
         _cpu_small(),
         {
             "solver": {"iterations": 1500, "lr_steps": [1140]},
-            "log": {"checkpoint_every": 250, "val_every": 0},
+            "log": {"checkpoint_every": 250, "val_every": 0, "val_frames": 50},
         },
         "preset cpu-tiny",
     )
