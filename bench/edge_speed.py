@@ -239,13 +239,12 @@ def network_inputs(model: Path, frames: Path, max_proposals: int) -> list[Prepar
     """What a3d-run feeds ``model`` for each frame of ``frames`` (a3d.runtime.pipeline.prepare;
     a3d.export.verify.folder_inputs does the same but brings torch into the process)."""
     from a3d.runtime.network.model import DetectorModel
-    from a3d.runtime.pipeline import PipelineConfig, prepare
-    from a3d.runtime.sources.folder import list_frames, read_folder_intrinsics
+    from a3d.runtime.pipeline import PipelineConfig, load_and_prepare
+    from a3d.runtime.sources.folder import FolderSource
 
     metadata = DetectorModel.load(model, threads=1).metadata
     config = PipelineConfig.from_metadata(metadata, max_proposals=max_proposals)
-    intrinsics = read_folder_intrinsics(frames)
-    return [prepare(ref, intrinsics, config) for ref in list_frames(frames)]
+    return [load_and_prepare(loader, config) for loader in FolderSource(frames)]
 
 
 @dataclass

@@ -47,7 +47,6 @@ from a3d.runtime.frontend.normals import surface_normals
 from a3d.runtime.frontend.proposals import propose
 from a3d.runtime.io.detections_io import FrameDetections
 from a3d.runtime.sources.folder import (
-    GroundTruth,
     list_frames,
     read_folder_intrinsics,
     read_frame,
@@ -55,6 +54,7 @@ from a3d.runtime.sources.folder import (
     read_instances,
 )
 from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES
+from a3d.runtime.structures.frame import GroundTruth
 from a3d.runtime.structures.geometry import Intrinsics, iou_2d, iou_3d
 
 FULLY_VISIBLE = 0.95

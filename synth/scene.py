@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from a3d.runtime.sources.folder import GroundTruth
+from a3d.runtime.structures.frame import GroundTruth
 from a3d.runtime.structures.geometry import (
     NYU_CROP_INTRINSICS,
     NYU_CROP_SIZE,

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 import a3d.train.roidb as roidb_module
-from a3d.runtime.sources.folder import GroundTruth, list_frames, read_ground_truth
+from a3d.runtime.sources.folder import list_frames, read_ground_truth
 from a3d.runtime.structures.classes import NUM_CLASSES, class_index
+from a3d.runtime.structures.frame import GroundTruth
 from a3d.train.config import apply_overrides, load_config
 from a3d.train.roidb import build_roidb, class_mean_sizes, label_rois
 from tests.test_train_scenes import TINY, write_scenes

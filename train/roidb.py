@@ -43,13 +43,14 @@ from a3d.runtime.frontend.proposals import ProposalConfig
 from a3d.runtime.pipeline import PipelineConfig, prepare
 from a3d.runtime.sources.folder import (
     FrameRef,
-    GroundTruth,
     list_frames,
     read_folder_intrinsics,
+    read_frame,
     read_ground_truth,
     read_instances,
 )
 from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES
+from a3d.runtime.structures.frame import GroundTruth
 from a3d.runtime.structures.geometry import Intrinsics, iou_2d
 
 CACHE_VERSION = 2
@@ -89,7 +90,7 @@ def compute_front_end(
     lifting), plus the lifted ground-truth segments."""
     pipeline = PipelineConfig(mean_sizes=np.ones((NUM_CLASSES, 3)), proposals=config,
                               max_proposals=config.max_proposals)  # fmt: skip
-    prepared = prepare(ref, intrinsics, pipeline)
+    prepared = prepare(read_frame(ref, intrinsics, with_proposals=True), pipeline)
     frame = prepared.frame
     if len(gt.class_ids):
         masks = ground_truth_masks(ref, gt, frame.image_size)
@@ -239,8 +240,13 @@ def build_roidb(
     return RoiDB(records, np.asarray(mean_sizes, np.float64), skipped)
 
 
-def _front_ends(annotated: list[tuple[FrameRef, GroundTruth]], intrinsics: Intrinsics | None, config,
-                cache_dir: str | os.PathLike, progress: bool):
+def _front_ends(
+    annotated: list[tuple[FrameRef, GroundTruth]],
+    intrinsics: Intrinsics | None,
+    config,
+    cache_dir: str | os.PathLike,
+    progress: bool,
+):
     """cached_front_end of every frame, in order; uncached frames in ``data.front_end_workers`` processes."""
     compute = partial(cached_front_end, intrinsics=intrinsics, proposal_config=config.proposals,
                       cache_dir=cache_dir)  # fmt: skip
@@ -271,7 +277,10 @@ def cache_key(ref: FrameRef, proposal_config) -> str:
 
 
 def cached_front_end(
-    ref: FrameRef, gt: GroundTruth, intrinsics: Intrinsics | None, proposal_config: ProposalConfig,
+    ref: FrameRef,
+    gt: GroundTruth,
+    intrinsics: Intrinsics | None,
+    proposal_config: ProposalConfig,
     cache_dir: str | os.PathLike,
 ) -> FrontEnd:
     """Proposals and lifted centres of one frame (and of its ground-truth segments), cached on disk."""

@@ -40,16 +40,8 @@ from a3d.runtime.errors import InputError, ModelError
 from a3d.runtime.io.detections_io import format_line, parse_line
 from a3d.runtime.network.model import DetectorModel
 from a3d.runtime.pipeline import PROPOSAL_SOURCES, FrameOutcome, PipelineConfig, detect_frames
-from a3d.runtime.sources.folder import (
-    MODEL_FILE,
-    FrameRef,
-    GroundTruth,
-    SkippedFile,
-    read_folder_intrinsics,
-    read_ground_truth,
-    scan_folder,
-)
-from a3d.runtime.structures.geometry import Intrinsics
+from a3d.runtime.sources.base import FrameLoader
+from a3d.runtime.sources.folder import MODEL_FILE, FolderSource
 from a3d.runtime.viewer import view as viewer
 
 PROG = "a3d-run"
@@ -115,21 +107,19 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
 class _Job:
     """What a run needs, all checked before the first frame: the frames, the model, the settings."""
 
-    frames: list[FrameRef]  # every complete frame of the folder, sorted (rerun timeline index)
-    todo: list[FrameRef]  # the frames to process (without those --resume found in the output)
-    incomplete: list[str]  # "PATH: reason" of files that belong to an incomplete frame
-    intrinsics: Intrinsics | None
+    source: FolderSource
+    todo: list[FrameLoader]  # the frames to process (without those --resume found in the output)
     model: DetectorModel
     config: PipelineConfig
 
 
 def _job(args: argparse.Namespace) -> _Job:
     """Scan the folder, load the model and read the output to resume (InputError / ModelError)."""
-    listing = scan_folder(args.folder)
-    incomplete = _incomplete_frames(listing.skipped)
-    if not listing.frames and not incomplete:
+    source = FolderSource(
+        args.folder, with_proposals=args.proposals != "compute", with_truth=viewer.viewer_requested(args)
+    )
+    if not source.refs and not source.incomplete:
         raise InputError(f"{args.folder}: no frames (NAME.color.png + NAME.depth.png)")
-    intrinsics = read_folder_intrinsics(args.folder)
     # With --overlap one thread prepares frames, so the network gets one fewer (no oversubscription).
     model = load_model(args.model, threads=max(1, args.threads - 1) if args.overlap else args.threads)
     config = PipelineConfig.from_metadata(
@@ -139,19 +129,8 @@ def _job(args: argparse.Namespace) -> _Job:
         min_score=args.score_threshold,
     )
     done = completed_frames(Path(args.output)) if args.resume else set()
-    todo = [ref for ref in listing.frames if ref.name not in done]
-    return _Job(listing.frames, todo, incomplete, intrinsics, model, config)
-
-
-def _incomplete_frames(skipped: list[SkippedFile]) -> list[str]:
-    """One "PATH: reason" per frame that cannot be read, naming its first skipped file (a colour or
-    depth file of an unsupported type comes first); files of no frame (the model, notes, folders,
-    the output itself) are no problem."""
-    first: dict[str, SkippedFile] = {}
-    for item in skipped:
-        if item.frame:
-            first.setdefault(item.frame, item)
-    return [f"{item.path}: {item.reason}" for item in first.values()]
+    todo = [loader for loader in source if loader.name not in done]
+    return _Job(source, todo, model, config)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -164,22 +143,20 @@ def main(argv: list[str] | None = None) -> int:
     except (InputError, ModelError) as e:
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 2
-    failures = list(job.incomplete)
+    failures = list(job.source.incomplete)
     for problem in failures:
         print(f"{PROG}: {problem}", file=sys.stderr)
-    index = {ref.name: i for i, ref in enumerate(job.frames)}
+    index = {ref.name: i for i, ref in enumerate(job.source.refs)}
     written = 0
     bar = tqdm(total=len(job.todo), desc=PROG, unit="frame", file=sys.stderr, disable=None)
     try:
         with _threads(1 if args.overlap else args.threads), _warnings_to_stderr():
-            for outcome in detect_frames(
-                job.todo, job.model, job.config, job.intrinsics, overlap=args.overlap
-            ):
+            for outcome in detect_frames(job.todo, job.model, job.config, overlap=args.overlap):
                 problem = outcome.problem
                 if outcome.detections is not None:
                     output.write(format_line(outcome.detections))
                     written += 1
-                    problem = _log(recording, index[outcome.ref.name], outcome, view)
+                    problem = _log(recording, index[outcome.name], outcome, view)
                 if problem:
                     failures.append(problem)
                     tqdm.write(f"{PROG}: {problem}", file=sys.stderr)
@@ -198,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
     if recording is not None:
         rr.script_teardown(args)  # --serve: keeps serving until Ctrl-C
         rr.disconnect(recording)
-    resumed = f", {len(job.frames) - len(job.todo)} already there" if args.resume else ""
+    resumed = f", {len(job.source) - len(job.todo)} already there" if args.resume else ""
     where = "stdout" if args.output == "-" else args.output
     print(f"{PROG}: {written} frames written to {where}{resumed}, {len(failures)} failed", file=sys.stderr)
     return 1 if failures else 0
@@ -294,7 +271,7 @@ def _log(
         return ""
     assert outcome.prepared is not None and outcome.detections is not None
     frame, det = outcome.prepared.frame, outcome.detections
-    gt = _ground_truth(frame.ref)
+    gt = frame.truth
     try:
         viewer.log_frame(
             recording,
@@ -313,17 +290,8 @@ def _log(
             options=options,
         )
     except Exception as e:  # the line is written; a viewer problem must not stop the run
-        return f"{frame.ref.color_path}: rerun: cannot log the frame ({type(e).__name__}: {e})"
+        return f"{frame.origin}: rerun: cannot log the frame ({type(e).__name__}: {e})"
     return ""
-
-
-def _ground_truth(ref: FrameRef) -> GroundTruth | None:
-    """The frame's ground truth for the view; a bad gt.json only costs the view its boxes."""
-    try:
-        return read_ground_truth(ref)
-    except InputError as e:
-        tqdm.write(f"{PROG}: warning: {e} (ground truth not shown)", file=sys.stderr)
-        return None
 
 
 @contextlib.contextmanager

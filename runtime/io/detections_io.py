@@ -59,6 +59,10 @@ class FrameDetections:
     def classes(self) -> list[str]:
         return [CLASSES[i] for i in self.class_ids]
 
+    def to_json(self) -> str:
+        """The frame's detections line, exactly as a3d-run writes it (no trailing newline)."""
+        return format_line(self)
+
 
 def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
     """Write a file so that readers see the old content or the new one, never a partial file.

@@ -45,8 +45,9 @@ import numpy as np
 import scipy.io
 
 from a3d.runtime.errors import InputError
-from a3d.runtime.sources.folder import NPY_MILLIMETRE_MEDIAN, GroundTruth, read_color_bytes
+from a3d.runtime.sources.folder import NPY_MILLIMETRE_MEDIAN, read_color_bytes
 from a3d.runtime.structures.classes import CLASSES
+from a3d.runtime.structures.frame import GroundTruth
 from a3d.runtime.structures.geometry import (
     NYU_CROP_INTRINSICS,
     Intrinsics,
