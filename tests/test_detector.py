@@ -108,5 +108,5 @@ def test_uint16_depth_takes_its_scale(detector: Detector) -> None:
     a = detector.detect(RGB, units, K4, depth_scale=0.0002)
     b = detector.detect(RGB, np.full((24, 32), 2.0, np.float32), K4)
     assert _without_files(json.loads(a.to_json())) == _without_files(json.loads(b.to_json()))
-    with pytest.raises(ArrayError, match="^depth_scale: "):
+    with pytest.raises(ArrayError, match=r"^depth_scale: "):
         detector.detect(RGB, units, K4, depth_scale=-1.0)
