@@ -1,10 +1,12 @@
-"""a3d-run: detect the objects in every frame of a folder; one JSON line per frame, live rerun view.
+"""a3d-run: detect the objects in every frame of a source; one JSON line per frame, live rerun view.
 
     a3d-run FOLDER [--model model.onnx] [--output detections.jsonl] [--threads 2]
             [--proposals auto|compute|precomputed] [--max-proposals N] [--score-threshold S]
             [--resume] [--overlap] [--headless] [--connect] [--url URL] [--serve] [--save FILE.rrd] [--stdout]
 
-FOLDER is a frame folder (README "Frame format"); the model defaults to FOLDER/model.onnx. The
+SOURCE is a frame source (a3d.runtime.sources.registry: an a3d frame folder, README "Frame
+format", and the other kinds registered there; --source-format forces one); for a folder the
+model defaults to FOLDER/model.onnx. The
 model is loaded and checked before any frame is read. Each frame goes through
 a3d.runtime.pipeline and its line (README "Detections format") is appended to the output as one
 write, then flushed and fsynced, so an interrupted run leaves only complete lines (at most a
@@ -41,7 +43,8 @@ from a3d.runtime.io.detections_io import format_line, parse_line
 from a3d.runtime.network.model import DetectorModel
 from a3d.runtime.pipeline import PROPOSAL_SOURCES, FrameOutcome, PipelineConfig, detect_frames
 from a3d.runtime.sources.base import FrameLoader
-from a3d.runtime.sources.folder import MODEL_FILE, FolderSource
+from a3d.runtime.sources.folder import MODEL_FILE
+from a3d.runtime.sources.registry import FrameSource, SourceOptions, kinds, open_source
 from a3d.runtime.viewer import view as viewer
 
 PROG = "a3d-run"
@@ -53,7 +56,10 @@ load_model = DetectorModel.load  # the model loader (tests substitute a fake mod
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
-    p.add_argument("folder", type=Path, help="frame folder (README 'Frame format')")
+    p.add_argument("source", type=Path, help="frame source: an a3d frame folder, or another registered kind")
+    p.add_argument(
+        "--source-format", choices=kinds(), help="the kind of SOURCE (default: recognised from it)"
+    )
     p.add_argument("--model", type=Path, help=f"model file (default: FOLDER/{DEFAULT_MODEL})")
     p.add_argument("--output", default=DEFAULT_OUTPUT, help="JSON lines file, '-': stdout (%(default)s)")
     p.add_argument("--threads", type=int, default=2, help="CPU threads, OpenCV and ONNX Runtime (default: 2)")
@@ -97,7 +103,7 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
     if args.output == "-" and (args.resume or args.stdout):
         parser.error("--output - cannot be combined with --resume or --stdout")
     if args.model is None:
-        args.model = args.folder / DEFAULT_MODEL
+        args.model = args.source / DEFAULT_MODEL
         if not args.model.is_file():
             parser.error(f"no model given and {args.model} does not exist; pass --model FILE")
     return args
@@ -107,19 +113,18 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
 class _Job:
     """What a run needs, all checked before the first frame: the frames, the model, the settings."""
 
-    source: FolderSource
-    todo: list[FrameLoader]  # the frames to process (without those --resume found in the output)
+    source: FrameSource
+    done: set[str]  # the frames --resume found in the output
     model: DetectorModel
     config: PipelineConfig
 
 
 def _job(args: argparse.Namespace) -> _Job:
-    """Scan the folder, load the model and read the output to resume (InputError / ModelError)."""
-    source = FolderSource(
-        args.folder, with_proposals=args.proposals != "compute", with_truth=viewer.viewer_requested(args)
+    """Open the source, load the model and read the output to resume (InputError / ModelError)."""
+    options = SourceOptions(
+        with_proposals=args.proposals != "compute", with_truth=viewer.viewer_requested(args)
     )
-    if not source.refs and not source.incomplete:
-        raise InputError(f"{args.folder}: no frames (NAME.color.png + NAME.depth.png)")
+    source = open_source(args.source, options, args.source_format)
     # With --overlap one thread prepares frames, so the network gets one fewer (no oversubscription).
     model = load_model(args.model, threads=max(1, args.threads - 1) if args.overlap else args.threads)
     config = PipelineConfig.from_metadata(
@@ -129,8 +134,16 @@ def _job(args: argparse.Namespace) -> _Job:
         min_score=args.score_threshold,
     )
     done = completed_frames(Path(args.output)) if args.resume else set()
-    todo = [loader for loader in source if loader.name not in done]
-    return _Job(source, todo, model, config)
+    return _Job(source, done, model, config)
+
+
+def _frames_to_do(source: FrameSource, done: set[str], index: dict[str, int]) -> Iterator[FrameLoader]:
+    """The source's frames, lazily, less those already done; ``index`` learns each frame's
+    position as it goes (so a live source is never drained ahead of the run)."""
+    for position, loader in enumerate(source):
+        index[loader.name] = position
+        if loader.name not in done:
+            yield loader
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -146,12 +159,14 @@ def main(argv: list[str] | None = None) -> int:
     failures = list(job.source.incomplete)
     for problem in failures:
         print(f"{PROG}: {problem}", file=sys.stderr)
-    index = {ref.name: i for i, ref in enumerate(job.source.refs)}
     written = 0
-    bar = tqdm(total=len(job.todo), desc=PROG, unit="frame", file=sys.stderr, disable=None)
+    index: dict[str, int] = {}  # frame name -> its position in the source (the rerun timeline)
+    todo = _frames_to_do(job.source, job.done, index)
+    total = len(job.source) - len(job.done) if hasattr(job.source, "__len__") else None
+    bar = tqdm(total=total, desc=PROG, unit="frame", file=sys.stderr, disable=None)
     try:
         with _threads(1 if args.overlap else args.threads), _warnings_to_stderr():
-            for outcome in detect_frames(job.todo, job.model, job.config, overlap=args.overlap):
+            for outcome in detect_frames(todo, job.model, job.config, overlap=args.overlap):
                 problem = outcome.problem
                 if outcome.detections is not None:
                     output.write(format_line(outcome.detections))
@@ -175,7 +190,7 @@ def main(argv: list[str] | None = None) -> int:
     if recording is not None:
         rr.script_teardown(args)  # --serve: keeps serving until Ctrl-C
         rr.disconnect(recording)
-    resumed = f", {len(job.source) - len(job.todo)} already there" if args.resume else ""
+    resumed = f", {len(job.done)} already there" if args.resume else ""
     where = "stdout" if args.output == "-" else args.output
     print(f"{PROG}: {written} frames written to {where}{resumed}, {len(failures)} failed", file=sys.stderr)
     return 1 if failures else 0
