@@ -9,7 +9,7 @@ frames, with
     preset (a3d.train.model.config): the trunk maps are fused by a 1x1 conv to 512 channels
     before pooling, so fc6 sees 2 x 512 x 7 x 7 inputs instead of the plain layout's
     4 x 512 x 7 x 7 (whose fc6 alone is 100352 x 4096 weights, 1.6 GB in fp32); it is the
-    layout PLATFORM.md measured. The checkpoint is written with a3d.train.checkpoint and
+    layout docs/platform.md measured. The checkpoint is written with a3d.train.checkpoint and
     exported with a3d-export twice: fp32 (no SVD), and ``--svd RANK --int8`` calibrated on the
     first ``--calib-frames`` frames;
 (b) the bundled small model (``--small-model``, default samples/model.onnx when it exists).
@@ -40,7 +40,7 @@ thread count). Times move between machines and with the load, so the targets are
 The checkpoint and the exports are kept in ``--work`` and reused by later runs (``--rebuild``
 makes them again); building them takes about 10 minutes on 2 busy cores and up to 8.4 GB of
 memory (the int8 export). The first line says whether the CPU has VNNI: without it ONNX Runtime's
-int8 trunks gain 1.9-2.7x over fp32 (measured on an AVX2-only VM) instead of PLATFORM.md's 3.8x.
+int8 trunks gain 1.9-2.7x over fp32 (measured on an AVX2-only VM) instead of docs/platform.md's 3.8x.
 """
 
 from __future__ import annotations
@@ -419,7 +419,7 @@ def load_average() -> str:
 
 def cpu_description() -> str:
     """The CPU model and whether it has the int8 dot-product instructions ONNX Runtime's int8 path
-    uses (VNNI); without them int8 gains far less over fp32 (PLATFORM.md measured with them)."""
+    uses (VNNI); without them int8 gains far less over fp32 (docs/platform.md measured with them)."""
     try:
         text = Path("/proc/cpuinfo").read_text()
     except OSError:

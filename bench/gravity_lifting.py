@@ -3,7 +3,7 @@
 Frames come from a folder in the frame format (e.g. a3d-synth's test split) or are rendered on
 the fly by a3d.synth.generate_frame from held-out seeds (`--synth FIRST COUNT`), which also
 gives each object's exact visible fraction. Per frame: hole filling, surface normals, gravity
-(R_tilt) estimation, lifting of the ground-truth instance masks to initial 3D boxes (SPEC.md
+(R_tilt) estimation, lifting of the ground-truth instance masks to initial 3D boxes (docs/conventions.md
 "Proposals and 3D box initialisation"), and the lifting of the frame's real proposals
 (a3d.runtime.frontend.proposals) for timing.
 

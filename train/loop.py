@@ -1,6 +1,6 @@
 """The SGD training loop: data, model, optimisation, metrics, checkpoints, validation, resume.
 
-SPEC.md "Training": SGD with momentum 0.9, weight decay 0.0005 (on weights; biases and
+docs/conventions.md "Training": SGD with momentum 0.9, weight decay 0.0005 (on weights; biases and
 BatchNorm parameters are not decayed, as in the Caffe VGG16 models), base lr 0.005, the lr
 times ``gamma`` at each of ``lr_steps`` (Caffe "multistep"); 2 images x 128 RoIs, 25% foreground.
 

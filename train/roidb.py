@@ -1,6 +1,6 @@
 """The RoI database: per training frame, the labelled RoIs and the 3D boxes they regress from and to.
 
-Per frame (SPEC.md "Proposals and 3D box initialisation", "Training"):
+Per frame (docs/conventions.md "Proposals and initial 3D boxes", "Training"):
 
 - RoIs are the ground truth's visible boxes (``box2d_visible``, the paper's ``gt2d_sel``), added
   as in Fast R-CNN, followed by the runtime's class-agnostic segment proposals (or the frame's

@@ -1,4 +1,5 @@
-"""The paper's 3D detection metric (SPEC.md "Evaluation"): greedy matching, 11-point AP, mAP.
+"""The paper's 3D detection metric (docs/conventions.md "Evaluation"): greedy matching, 11-point AP,
+mAP.
 
 Protocol, exactly as scored here:
 
@@ -15,7 +16,7 @@ Protocol, exactly as scored here:
    ground truth with the largest IoU in its frame; if that IoU >= the threshold and that ground
    truth is still unmatched, it is a true positive and marks it, otherwise a false positive
    (duplicates of a matched object, and detections of a class with no ground truth in the frame,
-   are false positives). The paper writes "greater than 0.25"; SPEC.md and the release use >=.
+   are false positives). The paper writes "greater than 0.25"; docs/conventions.md and the release use >=.
 4. AP per class: the 11-point interpolated average over recall t = 0, 0.1, ..., 1 of the largest
    precision at recall >= t (0 where the curve never reaches t). The points are ``k / 10``, not
    ``0.1 * k`` or ``arange(0, 1.1, 0.1)``: 0.1 * 3 = 0.30000000000000004 would wrongly skip a

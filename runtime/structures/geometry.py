@@ -1,6 +1,6 @@
 """Camera, 3D-box and 2D-box geometry of a3d: pure numpy (float64), no torch, no scipy.
 
-Conventions (SPEC.md "Coordinates" and "3D box parametrisation", README "Conventions"):
+Conventions (docs/conventions.md "Camera and tilt frames" and "3D boxes"):
 
 * Camera frame: x right, y down, z forward, metres. Pixel ``(u, v)`` (column, row) has its
   centre at ``(u, v)``; a pixel with depth ``z`` back-projects to ``x = (u - cx) z / fx``,
@@ -548,7 +548,7 @@ def iou_3d(a: np.ndarray, b: np.ndarray, R_tilt: np.ndarray) -> np.ndarray:
     """3D IoU matrix (N, M) of boxes rotated about gravity, both sets in one camera frame.
 
     Intersection = area of the footprints' intersection in the tilt-frame (x, z) plane times the
-    overlap of the tilt-frame y ranges (SPEC.md "Evaluation"); union = sum of volumes minus it.
+    overlap of the tilt-frame y ranges (docs/conventions.md "Evaluation"); union = sum of volumes minus it.
     Pairs whose y ranges or circumscribed footprint circles do not overlap are skipped before any
     polygon work. Each remaining footprint of ``a`` is cut by that of ``b`` in ``b``'s own frame
     (an axis-aligned rectangle there). Zero-volume boxes have IoU 0.
