@@ -490,9 +490,7 @@ def _keep_in_group_loop(boxes: np.ndarray, thr: float, plus_one: bool) -> np.nda
     return keep
 
 
-def nms_2d(
-    boxes: np.ndarray, scores: np.ndarray, iou_threshold: float, plus_one: bool = False
-) -> np.ndarray:
+def nms_2d(boxes: np.ndarray, scores: np.ndarray, iou_threshold: float, plus_one: bool = False) -> np.ndarray:
     """Greedy NMS: indices kept, by descending score (ties: lower index first).
 
     A box is dropped when its continuous IoU with a kept, higher-scored box is > iou_threshold
