@@ -43,7 +43,7 @@ Pure data and small functions: the metric (``a3d.runtime.evaluation.metric``) ap
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import Enum
 
 from a3d.runtime.structures.classes import CLASSES
@@ -159,17 +159,13 @@ PAPER = Protocol(
     strict_iou=False,
     frame_order=FrameOrder.NAME,
 )
-AUTHORS = Protocol(
+AUTHORS = replace(  # the paper's protocol as the release's MATLAB computes it
+    PAPER,
     name="authors",
     source="github.com/phoenixnn/Amodal3Det matlab/eval: eval_3d.m, d_eval_det_3d.m, apply_nms.m, nms.m",
-    classes=CLASSES,
-    ap_rule=APRule.ELEVEN_POINT,
     recall_points=MATLAB_COLON_TENTHS,
     running_sum=True,
-    ap_float32=False,
-    nms_iou=0.3,
     nms_plus_one=True,
-    strict_iou=False,
     frame_order=FrameOrder.NUMBER,
 )
 SUNRGBD = Protocol(
