@@ -135,20 +135,22 @@ class EvalResult:
     ignored_gt: int = 0  # ground-truth objects of classes outside the protocol's list
     ignored_det: int = 0  # detections (after NMS) of classes outside the protocol's list
 
-    def _mean(self, aps: list[float]) -> float:
-        if not aps:
-            return 0.0
-        if self.config.protocol.ap_float32:  # mmdetection3d: np.mean of its float32 APs
-            return float(np.mean(np.asarray(aps, dtype=np.float32)))
-        return float(sum(aps) / len(aps))  # in class order, as MATLAB's mean(APs)
-
     def map_all(self, threshold: float) -> float:
-        """Mean AP over the protocol's classes; classes without ground truth count as 0 (the paper's mAP)."""
-        return self._mean([c.ap[threshold] for c in self.classes])
+        """Mean AP over the protocol's classes; classes without ground truth count as 0 (the paper's mAP).
+
+        Summed in class order, as MATLAB's ``mean(APs)``; mmdetection3d's ``np.mean`` of its float32
+        APs for ``sunrgbd``.
+        """
+        aps = [c.ap[threshold] for c in self.classes]
+        if self.config.protocol.ap_float32:
+            return float(np.mean(np.asarray(aps, dtype=np.float32)))
+        return float(sum(aps) / len(aps))
 
     def map_present(self, threshold: float) -> float:
         """Mean AP over the classes with ground truth in the set; 0.0 if there are none."""
-        return self._mean([c.ap[threshold] for c in self.classes if c.present])
+        present = [c.ap[threshold] for c in self.classes if c.present]
+        dtype = np.float32 if self.config.protocol.ap_float32 else np.float64
+        return float(np.mean(np.asarray(present, dtype=dtype))) if present else 0.0
 
     @property
     def absent_classes(self) -> list[str]:
