@@ -1,6 +1,6 @@
 """Train a CPU configuration on a3d-synth data and score it on the held-out split with a3d-eval.
 
-    .venv/bin/python bench/train_synth.py --out out/bench_train_synth [--frames 300] [--config cpu-small]
+    .venv/bin/python -m bench.train_synth --out out/bench_train_synth [--frames 300] [--config cpu-small]
         [--iters N] [--set KEY=VALUE ...] [--val-frames 20] [--resume]
 
 Steps (each timed, wall clock): a3d-synth OUT/data --frames N --split test=T (skipped when

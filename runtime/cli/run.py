@@ -28,7 +28,8 @@ import contextlib
 import logging
 import os
 import sys
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -154,7 +155,18 @@ def _incomplete_frames(skipped: list[SkippedFile]) -> list[str]:
     return [f"{item.path}: {item.reason}" for item in first.values()]
 
 
-def main(argv: list[str] | None = None) -> int:
+@dataclass(frozen=True)
+class FrameReport:
+    """What a run did with one frame, handed to ``main``'s ``on_frame`` once the frame is written and
+    logged: for callers that time a3d-run's own loop (bench/edge_speed.py) without patching it.
+    ``output_seconds``: formatting + writing the line; ``log_seconds``: the synchronous rerun logging."""
+
+    outcome: FrameOutcome
+    output_seconds: float
+    log_seconds: float
+
+
+def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] | None = None) -> int:
     args = _arguments(argv)
     try:
         job = _job(args)
@@ -176,10 +188,15 @@ def main(argv: list[str] | None = None) -> int:
                 job.todo, job.model, job.config, job.intrinsics, overlap=args.overlap
             ):
                 problem = outcome.problem
+                start = written_at = logged_at = time.perf_counter()
                 if outcome.detections is not None:
                     output.write(format_line(outcome.detections))
                     written += 1
+                    written_at = time.perf_counter()
                     problem = _log(recording, index[outcome.ref.name], outcome, view)
+                    logged_at = time.perf_counter()
+                if on_frame is not None:
+                    on_frame(FrameReport(outcome, written_at - start, logged_at - written_at))
                 if problem:
                     failures.append(problem)
                     tqdm.write(f"{PROG}: {problem}", file=sys.stderr)
