@@ -134,9 +134,11 @@ def main() -> int:
     summary.update(detect_and_score(checkpoint, data / "test", args.out, device=args.device or "cpu"))
     (args.out / "summary.json").write_text(json.dumps(summary, indent=1))
     print(json.dumps({k: v for k, v in summary.items() if k != "ap25"}, indent=1))
-    print(f"mAP@0.25 over 19 classes: {100 * summary['map25_all']:.1f}   "
-          f"(present classes: {100 * summary['map25_present']:.1f}); "
-          f"train {summary['train_seconds'] / 60:.1f} min")
+    print(
+        f"mAP@0.25 over 19 classes: {100 * summary['map25_all']:.1f}   "
+        f"(present classes: {100 * summary['map25_present']:.1f}); "
+        f"train {summary['train_seconds'] / 60:.1f} min"
+    )
     return 0
 
 
