@@ -5,8 +5,8 @@ Training step: forward + backward (softmax loss + smooth-L1 on random targets) o
 one image, trunk and head timed separately, for each RoI count. Random weights and boxes. The
 fp32 GEMM rate printed before and after tells how busy the (shared) machine was.
 
-    .venv/bin/python bench/model_speed.py --presets vgg16 --iterations 2 --forward-rois 300
-    .venv/bin/python bench/model_speed.py --presets cpu-half cpu-quarter cpu-eighth
+    .venv/bin/python -m bench.model_speed --presets vgg16 --iterations 2 --forward-rois 300
+    .venv/bin/python -m bench.model_speed --presets cpu-half cpu-quarter cpu-eighth
 """
 
 from __future__ import annotations

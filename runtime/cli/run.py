@@ -30,7 +30,8 @@ import contextlib
 import logging
 import os
 import sys
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -146,7 +147,18 @@ def _frames_to_do(source: FrameSource, done: set[str], index: dict[str, int]) ->
             yield loader
 
 
-def main(argv: list[str] | None = None) -> int:
+@dataclass(frozen=True)
+class FrameReport:
+    """What a run did with one frame, handed to ``main``'s ``on_frame`` once the frame is written and
+    logged: for callers that time a3d-run's own loop (bench/edge_speed.py) without patching it.
+    ``output_seconds``: formatting + writing the line; ``log_seconds``: the synchronous rerun logging."""
+
+    outcome: FrameOutcome
+    output_seconds: float
+    log_seconds: float
+
+
+def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] | None = None) -> int:
     args = _arguments(argv)
     try:
         job = _job(args)
@@ -168,10 +180,15 @@ def main(argv: list[str] | None = None) -> int:
         with _threads(1 if args.overlap else args.threads), _warnings_to_stderr():
             for outcome in detect_frames(todo, job.model, job.config, overlap=args.overlap):
                 problem = outcome.problem
+                start = written_at = logged_at = time.perf_counter()
                 if outcome.detections is not None:
                     output.write(format_line(outcome.detections))
                     written += 1
+                    written_at = time.perf_counter()
                     problem = _log(recording, index[outcome.name], outcome, view)
+                    logged_at = time.perf_counter()
+                if on_frame is not None:
+                    on_frame(FrameReport(outcome, written_at - start, logged_at - written_at))
                 if problem:
                     failures.append(problem)
                     tqdm.write(f"{PROG}: {problem}", file=sys.stderr)
