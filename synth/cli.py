@@ -1,4 +1,4 @@
-"""``a3d-synth``: write a synthetic RGB-D training and test set, or summarise one.
+"""a3d-synth: write a synthetic RGB-D training and test set, or summarise one.
 
     a3d-synth OUT --frames N --seed S [--split test=0.3] [--workers K] [--size HxW] [--sensor kinect-v1]
         [--appearance typical]
@@ -23,7 +23,8 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from a3d.runtime.errors import InputError
+from a3d.runtime.cli.common import build_parser as command_parser
+from a3d.runtime.cli.common import command
 from a3d.runtime.sources.folder import write_frame, write_intrinsics
 from a3d.runtime.structures.geometry import NYU_CROP_INTRINSICS, NYU_CROP_SIZE, Intrinsics
 from a3d.synth.scene import APPEARANCES, SceneConfig, generate_frame
@@ -129,57 +130,67 @@ def generate(
     return records
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="a3d-synth", description=__doc__.split("\n\n")[0])
+PROG = "a3d-synth"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = command_parser(PROG, __doc__.split("\n\n")[0])
     parser.add_argument(
         "out", nargs="?", type=Path, help="output folder (gets train/, test/ and the statistics)"
     )
-    parser.add_argument("--frames", type=int, default=100, help="number of frames (default 100)")
-    parser.add_argument("--seed", type=int, default=0, help="run seed (default 0)")
+    parser.add_argument("--frames", type=int, default=100, help="number of frames")
+    parser.add_argument("--seed", type=int, default=0, help="run seed")
     parser.add_argument(
         "--split",
         type=_parse_split,
         default=0.3,
         metavar="test=SHARE",
-        help="share of frames in the test split (default test=0.3)",
+        help="share of frames in the test split (default: test=0.3)",
     )
-    parser.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
+    parser.add_argument("--workers", type=int, default=1, help="worker processes")
     parser.add_argument(
         "--size",
         type=_parse_size,
         default=NYU_CROP_SIZE,
         metavar="HxW",
-        help="image size; the NYUv2 crop intrinsics are scaled to it (default 427x561)",
+        help="image size; the NYUv2 crop intrinsics are scaled to it (default: 427x561)",
     )
     parser.add_argument(
         "--min-visible-px",
         type=int,
         default=SceneConfig.min_visible_px,
-        help="objects with fewer visible pixels are not annotated (default %(default)s)",
+        help="objects with fewer visible pixels are not annotated",
     )
     parser.add_argument(
         "--sensor",
         choices=tuple(SENSORS),
         default="a3d",
-        help="depth error model (a3d.synth.sensor): a3d (default) or kinect-v1's full error",
+        help="depth error model (a3d.synth.sensor): a3d, or kinect-v1's full error",
     )
     parser.add_argument(
         "--appearance",
         choices=APPEARANCES,
         default="independent",
-        help="materials drawn whatever the class (default), or class-typical (a3d.synth.appearance)",
+        help="materials drawn whatever the class (independent), or class-typical (a3d.synth.appearance)",
     )
-    parser.add_argument("--depth-format", choices=("png", "npy"), default="png")
+    parser.add_argument(
+        "--depth-format",
+        choices=("png", "npy"),
+        default="png",
+        help="png: uint16 millimetres; npy: float32 metres (README 'Frame format')",
+    )
     parser.add_argument(
         "--stats", type=Path, metavar="FOLDER", help="print the statistics of a generated set and exit"
     )
+    return parser
+
+
+@command(PROG, errors=(OSError, ValueError))
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
     args = parser.parse_args(argv)
     if args.stats is not None:
-        try:
-            print(format_summary(summarise(read_records(args.stats))))
-        except (FileNotFoundError, ValueError) as e:
-            print(f"a3d-synth: {e}", file=sys.stderr)
-            return 2
+        print(format_summary(summarise(read_records(args.stats))))  # OSError, ValueError: exit 2
         return 0
     if args.out is None:
         parser.error("give an output folder, or --stats FOLDER")
@@ -193,13 +204,7 @@ def main(argv: list[str] | None = None) -> int:
         depth_sensor=SENSORS[args.sensor],
         appearance=args.appearance,
     )
-    try:
-        records = generate(
-            args.out, args.frames, args.seed, args.split, args.workers, config, args.depth_format
-        )
-    except (InputError, OSError) as e:
-        print(f"a3d-synth: {e}", file=sys.stderr)
-        return 1
+    records = generate(args.out, args.frames, args.seed, args.split, args.workers, config, args.depth_format)
     print(format_summary(summarise(records)))
     return 0
 

@@ -20,6 +20,7 @@ saved in the checkpoint and undone at inference (``TargetStats.denormalise_*``).
 
 from __future__ import annotations
 
+import signal
 from dataclasses import dataclass, fields
 
 import cv2
@@ -234,6 +235,9 @@ def batch_loader(dataset: BatchDataset, start: int, workers: int, pin_memory: bo
 
 
 def _single_threaded(_worker_id: int) -> None:
-    """Workers leave the cores to the training process: one thread each for OpenCV and torch."""
+    """Workers leave the cores to the training process: one thread each for OpenCV and torch.
+    They ignore Ctrl-C (which a terminal sends to the whole process group): the training process
+    finishes its iteration and saves a checkpoint, and needs its workers until then."""
     cv2.setNumThreads(1)
     torch.set_num_threads(1)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)

@@ -27,6 +27,8 @@ from pathlib import Path
 
 import cv2
 
+from a3d.runtime.cli.common import build_parser as command_parser
+from a3d.runtime.cli.common import command
 from a3d.runtime.errors import InputError
 from a3d.runtime.evaluation.metric import (
     IOU_THRESHOLDS,
@@ -46,8 +48,8 @@ from a3d.runtime.structures.classes import CLASSES
 PROG = "a3d-eval"
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
+def build_parser() -> argparse.ArgumentParser:
+    p = command_parser(PROG, __doc__.split("\n\n")[0])
     p.add_argument("folder", type=Path, help="frame folder with NAME.gt.json and NAME.meta.json (README)")
     p.add_argument("--detections", type=Path, required=True, help="detections JSON-lines file (a3d-run)")
     p.add_argument("--out", type=Path, help="also write OUT/eval.json and OUT/pr_curves.png")
@@ -79,7 +81,7 @@ def _parser() -> argparse.ArgumentParser:
         nargs="+",
         default=list(IOU_THRESHOLDS),
         metavar="T",
-        help="3D IoU thresholds, the first is the primary one (default: 0.25 0.5)",
+        help="3D IoU thresholds, the first is the primary one",
     )
     return p
 
@@ -238,21 +240,18 @@ def _write_outputs(result: EvalResult, out: Path, inputs: dict) -> None:
     atomic_write_bytes(out / "pr_curves.png", png.tobytes())
 
 
+@command(PROG)
 def main(argv: list[str] | None = None) -> int:
-    parser = _parser()
+    parser = build_parser()
     args = parser.parse_args(argv)
     nms_given = args.nms is not None and args.nms != PROTOCOL_NMS
     if any(not 0.0 < t <= 1.0 for t in args.iou) or (nms_given and not 0.0 < args.nms <= 1.0):
         parser.error("IoU thresholds (--iou, --nms) must be in (0, 1]")
     if len(set(args.iou)) != len(args.iou):
         parser.error("--iou thresholds must be distinct")
-    try:
-        truth, unannotated = load_truth(args.folder)
-        lines = read_detections(args.detections)
-        detections, skipped = select_detections(lines, truth, unannotated, args.detections, args.folder)
-    except InputError as e:
-        print(f"{PROG}: error: {e}", file=sys.stderr)
-        return 2
+    truth, unannotated = load_truth(args.folder)  # InputError: exit 2 (command)
+    lines = read_detections(args.detections)
+    detections, skipped = select_detections(lines, truth, unannotated, args.detections, args.folder)
     if skipped:
         print(
             f"{PROG}: warning: {args.detections}: {len(skipped)} line(s) for frames without ground truth "
@@ -286,8 +285,7 @@ def main(argv: list[str] | None = None) -> int:
             for result, out in zip(results, outs, strict=True):
                 _write_outputs(result, out, inputs)
         except OSError as e:
-            print(f"{PROG}: error: {args.out}: cannot write ({e.strerror or e})", file=sys.stderr)
-            return 2
+            raise InputError(f"{args.out}: cannot write ({e.strerror or e})") from None
         for out in outs:
             print(f"wrote {out / 'eval.json'} and {out / 'pr_curves.png'}")
     return 0
