@@ -26,7 +26,6 @@ import hashlib
 import json
 import multiprocessing
 import os
-import tempfile
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
@@ -40,6 +39,7 @@ from a3d.runtime.errors import InputError
 from a3d.runtime.frontend.depth import fill_depth
 from a3d.runtime.frontend.lifting import initial_boxes, lift
 from a3d.runtime.frontend.proposals import ProposalConfig
+from a3d.runtime.io.atomic import atomic_write
 from a3d.runtime.pipeline import PipelineConfig, prepare
 from a3d.runtime.sources.folder import (
     FrameRef,
@@ -239,8 +239,13 @@ def build_roidb(
     return RoiDB(records, np.asarray(mean_sizes, np.float64), skipped)
 
 
-def _front_ends(annotated: list[tuple[FrameRef, GroundTruth]], intrinsics: Intrinsics | None, config,
-                cache_dir: str | os.PathLike, progress: bool):
+def _front_ends(
+    annotated: list[tuple[FrameRef, GroundTruth]],
+    intrinsics: Intrinsics | None,
+    config,
+    cache_dir: str | os.PathLike,
+    progress: bool,
+):
     """cached_front_end of every frame, in order; uncached frames in ``data.front_end_workers`` processes."""
     compute = partial(cached_front_end, intrinsics=intrinsics, proposal_config=config.proposals,
                       cache_dir=cache_dir)  # fmt: skip
@@ -271,7 +276,10 @@ def cache_key(ref: FrameRef, proposal_config) -> str:
 
 
 def cached_front_end(
-    ref: FrameRef, gt: GroundTruth, intrinsics: Intrinsics | None, proposal_config: ProposalConfig,
+    ref: FrameRef,
+    gt: GroundTruth,
+    intrinsics: Intrinsics | None,
+    proposal_config: ProposalConfig,
     cache_dir: str | os.PathLike,
 ) -> FrontEnd:
     """Proposals and lifted centres of one frame (and of its ground-truth segments), cached on disk."""
@@ -285,20 +293,9 @@ def cached_front_end(
         except (OSError, ValueError, KeyError, TypeError):
             pass  # unreadable (a file from another version): recompute
     front = compute_front_end(ref, gt, intrinsics, proposal_config)
-    _atomic_savez(path, front)
+    arrays = {k: np.asarray(v) for k, v in asdict(front).items()}
+    atomic_write(path, lambda f: np.savez(f, **arrays))
     return front
-
-
-def _atomic_savez(path: Path, front: FrontEnd) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".npz", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **{k: np.asarray(v) for k, v in asdict(front).items()})
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def describe(db: RoiDB) -> dict:
