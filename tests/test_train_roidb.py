@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import shutil
 import sys
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -10,17 +12,21 @@ import pytest
 from a3d.runtime.frontend.depth import fill_depth
 from a3d.runtime.frontend.frame_proposals import frame_proposals
 from a3d.runtime.frontend.lifting import lift
+from a3d.runtime.frontend.proposals import propose
+from a3d.runtime.pipeline import PipelineConfig, prepare
 from a3d.runtime.sources.folder import (
     GroundTruth,
+    PrecomputedProposals,
     list_frames,
     read_folder_intrinsics,
     read_frame,
     read_ground_truth,
+    write_precomputed_proposals,
 )
 from a3d.runtime.structures.classes import NUM_CLASSES, class_index
 from a3d.train.config import apply_overrides, load_config
 from a3d.train.loop import train
-from a3d.train.roidb import build_roidb, class_mean_sizes, label_rois
+from a3d.train.roidb import build_roidb, class_mean_sizes, compute_front_end, label_rois
 from tests.test_train_scenes import TINY, write_scenes
 
 
@@ -154,3 +160,36 @@ def test_front_end_worker_processes_give_the_serial_result(scenes, tmp_path):
     for a, b in zip(serial.records, parallel.records, strict=True):
         np.testing.assert_array_equal(a.boxes, b.boxes)
         np.testing.assert_array_equal(a.init_boxes, b.init_boxes)
+
+
+@pytest.mark.parametrize("form", ["computed", "packed masks", "superpixels"])
+def test_the_training_front_end_equals_the_runtime_pipeline(scenes, tmp_path, form):
+    """Training lifts the proposals a3d-run lifts: computed ones, or the first max_proposals of a
+    NAME.proposals.npz in either segment form."""
+    folder = tmp_path / "frames"
+    shutil.copytree(scenes, folder)
+    config = apply_overrides(load_config("vgg16"), [*TINY, "proposals.max_proposals=5"]).proposals
+    intrinsics = read_folder_intrinsics(folder)
+    ref = list_frames(folder)[0]
+    if form != "computed":
+        frame = read_frame(ref, intrinsics)
+        computed = propose(
+            frame.color, fill_depth(frame.depth), frame.intrinsics, replace(config, max_proposals=9)
+        )
+        assert len(computed.boxes) > 5
+        masks = np.stack([computed.mask(i) for i in range(len(computed))])
+        pre = PrecomputedProposals.from_masks(computed.boxes, masks)
+        if form == "superpixels":
+            pre = PrecomputedProposals(
+                boxes=pre.boxes, image_size=pre.image_size, superpixels=computed.superpixels.astype(np.int32),
+                indptr=computed.indptr, indices=computed.indices.astype(np.int32),
+            )  # fmt: skip
+        write_precomputed_proposals(folder / f"{ref.name}.proposals.npz", pre)
+        ref = list_frames(folder)[0]
+    front, filled = compute_front_end(ref, read_ground_truth(ref), intrinsics, config)
+    pipeline = PipelineConfig(np.ones((NUM_CLASSES, 3)), proposals=config, max_proposals=config.max_proposals)
+    prepared = prepare(ref, intrinsics, pipeline)
+    assert 0 < len(front.proposal_boxes) <= 5
+    np.testing.assert_array_equal(front.proposal_boxes, prepared.boxes)
+    np.testing.assert_array_equal(front.proposal_centers, prepared.centers)
+    np.testing.assert_array_equal(filled, fill_depth(prepared.frame.depth))
