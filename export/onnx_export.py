@@ -25,7 +25,7 @@ import onnx
 import torch
 from torch import nn
 
-from a3d.runtime.io.detections_io import atomic_write_bytes
+from a3d.runtime.io.atomic import atomic_write_bytes
 from a3d.runtime.network.model import INPUT_NAMES, METADATA_KEY, OUTPUT_NAMES, ModelMetadata, content_digest
 from a3d.runtime.structures.classes import NUM_OUTPUTS
 from a3d.train.checkpoint import load_checkpoint

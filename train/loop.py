@@ -36,7 +36,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from a3d.runtime.io.detections_io import atomic_write_bytes
+from a3d.runtime.io.atomic import atomic_write_bytes
 from a3d.runtime.sources.folder import read_folder_intrinsics
 from a3d.runtime.structures.classes import CLASSES
 from a3d.train.checkpoint import load_checkpoint, save_checkpoint

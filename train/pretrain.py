@@ -32,7 +32,7 @@ from torch import nn
 from tqdm import tqdm
 
 from a3d.runtime.errors import InputError
-from a3d.runtime.io.detections_io import atomic_write_bytes
+from a3d.runtime.io.atomic import atomic_write_bytes
 from a3d.runtime.network.preprocess import COLOR_MEAN_BGR
 from a3d.runtime.sources.folder import list_frames, read_folder_intrinsics, read_frame, read_ground_truth
 from a3d.runtime.structures.classes import NUM_CLASSES

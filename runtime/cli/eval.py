@@ -41,8 +41,9 @@ from a3d.runtime.evaluation.metric import (
 )
 from a3d.runtime.evaluation.pr_plot import draw_pr_curves
 from a3d.runtime.evaluation.protocols import PAPER, PROTOCOLS
-from a3d.runtime.io.detections_io import FrameDetections, atomic_write_bytes, read_detections
-from a3d.runtime.sources.folder import list_frames, read_ground_truth, read_meta
+from a3d.runtime.evaluation.truth import load_truth
+from a3d.runtime.io.atomic import atomic_write_bytes
+from a3d.runtime.io.detections_io import FrameDetections, read_detections
 from a3d.runtime.structures.classes import CLASSES
 
 PROG = "a3d-eval"
@@ -84,22 +85,6 @@ def build_parser() -> argparse.ArgumentParser:
         help="3D IoU thresholds, the first is the primary one",
     )
     return p
-
-
-def load_truth(folder: Path) -> tuple[dict[str, FrameTruth], list[str]]:
-    """Ground truth of the annotated frames, and the names of the frames without ground truth."""
-    truth: dict[str, FrameTruth] = {}
-    unannotated: list[str] = []
-    for ref in list_frames(folder):
-        gt = read_ground_truth(ref)
-        if gt is None:
-            unannotated.append(ref.name)
-            continue
-        # read_ground_truth has checked that a frame with ground truth gives R_tilt.
-        truth[ref.name] = FrameTruth(gt.class_ids, gt.boxes3d, read_meta(ref).R_tilt)
-    if not truth:
-        raise InputError(f"{folder}: no frame has ground truth (NAME.gt.json)")
-    return truth, unannotated
 
 
 def select_detections(

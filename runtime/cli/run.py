@@ -63,7 +63,7 @@ load_model = DetectorModel.load  # the model loader (tests substitute a fake mod
 def build_parser() -> argparse.ArgumentParser:
     p = command_parser(PROG, __doc__.split("\n\n")[0])
     p.add_argument("source", type=Path, help="frame source: an a3d frame folder or another registered kind")
-    p.add_argument("--source-format", choices=kinds(), help="the kind of SOURCE (default: recognised from it)")
+    p.add_argument("--source-format", choices=kinds(), help="the kind of SOURCE (default: recognised)")
     p.add_argument("--model", type=Path, help=f"model file (default: FOLDER/{DEFAULT_MODEL})")
     p.add_argument("--output", default=DEFAULT_OUTPUT, help="JSON lines file, '-': stdout")
     p.add_argument("--threads", type=int, default=2, help="CPU threads, OpenCV and ONNX Runtime")

@@ -587,3 +587,10 @@ def iou_3d(a: np.ndarray, b: np.ndarray, R_tilt: np.ndarray) -> np.ndarray:
         inter = _rect_intersection_area(poly, half) * dy[i, j]
         out[i, j] = np.clip(inter / (vol_a[i] + vol_b[j] - inter), 0.0, 1.0)
     return out
+
+
+def boxes_from_pixel_bounds(bounds: np.ndarray) -> np.ndarray:
+    """Inclusive pixel bounds ``[u_min, v_min, u_max, v_max]`` (..., 4) of pixel sets -> their 2D
+    boxes (..., 4) float64 in the README convention: pixel (u, v) spans [u - 0.5, u + 0.5], so a
+    box runs along the set's outer pixel edges."""
+    return np.asarray(bounds, np.float64) + np.array([-0.5, -0.5, 0.5, 0.5])

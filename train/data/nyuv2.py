@@ -52,6 +52,7 @@ from a3d.runtime.structures.geometry import (
     NYU_CROP_INTRINSICS,
     Intrinsics,
     boxes_from_corners_tilt,
+    boxes_from_pixel_bounds,
     check_rotation,
     project_boxes_to_2d,
 )
@@ -87,7 +88,7 @@ def normalize_class_name(name: str) -> str | None:
 
 def matlab_boxes_to_pixels(boxes: np.ndarray) -> np.ndarray:
     """``[xmin ymin xmax ymax]`` 1-based inclusive pixel indices -> README ``[x1, y1, x2, y2]``."""
-    return np.asarray(boxes, dtype=np.float64) - np.array([1.5, 1.5, 0.5, 0.5])
+    return boxes_from_pixel_bounds(np.asarray(boxes, dtype=np.float64) - 1.0)
 
 
 def read_split(root: str | Path, split: str) -> list[int]:
