@@ -54,7 +54,7 @@ _STEREO = DepthSensor(
     sigma0=0.001,
     sigma2=0.004,
     edge_drop=0.6,
-    textureless_drop=0.9,
+    textureless_drop=0.7,
 )
 
 DEVICES: dict[str, Device] = {

@@ -7,8 +7,9 @@ camera (``a3d.synth.sensor.sense_colour``). Real frames are harsher:
   and window panes that glow, so that the auto exposure meters against a blown-out window;
 * metering errors of up to a stop either way, and white balance left partly uncorrected (warm
   under tungsten, blue in shade) with a green-magenta tint;
-* optical defocus and hand-shake streaks, then shot and read noise at a random gain (ISO), with
-  colour (demosaicing) noise, a contrast and saturation curve, sometimes over-sharpening;
+* optical defocus and hand-shake streaks (sized for frames 640 pixels across), then shot and
+  read noise at a random gain (ISO), with colour (demosaicing) noise, a contrast and saturation
+  curve, sometimes over-sharpening;
 * JPEG compression at quality 55-95.
 """
 
@@ -61,9 +62,10 @@ def sense_colour_real(rng: np.random.Generator, radiance: np.ndarray) -> np.ndar
     wb = np.exp(np.array([warm, tint, -warm]))
     img = radiance * (exposure * wb / wb.mean()).astype(f32)
     img *= (1 - float(rng.uniform(0.15, 0.45)) * vignette(H, W))[..., None]
-    img = cv2.GaussianBlur(img, (0, 0), float(rng.uniform(0.4, 1.4)))  # defocus and optics
-    if rng.random() < 0.4:
-        img = cv2.filter2D(img, -1, motion_kernel(rng, 3, 14))
+    px = W / 640  # blur sizes are given for frames 640 pixels across
+    img = cv2.GaussianBlur(img, (0, 0), px * float(rng.uniform(0.3, 1.0)))  # defocus and optics
+    if rng.random() < 0.3:
+        img = cv2.filter2D(img, -1, motion_kernel(rng, max(2, round(3 * px)), max(3, round(10 * px))))
     iso = f32(math.exp(rng.uniform(0.0, math.log(8.0))))
     shot, read = f32(0.0015) * iso, f32(0.0015) * iso
     img = np.maximum(img, 0) + gaussian(rng, img.shape) * np.sqrt(np.maximum(img, 0) * shot + read * read)

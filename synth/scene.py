@@ -188,7 +188,12 @@ def generate_frame(seed: int, config: SceneConfig = SceneConfig()) -> SynthFrame
         records,
         kind,
         pose,
-        sum(p.item.cls is None and v >= config.min_visible_px for p, v in zip(placed, visible, strict=True)),
+        int(
+            sum(
+                p.item.cls is None and v >= config.min_visible_px
+                for p, v in zip(placed, visible, strict=True)
+            )
+        ),
         config.device,
     )
 
