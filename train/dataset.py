@@ -32,6 +32,7 @@ from a3d.runtime.postprocess.box_coder import encode_2d, encode_3d
 from a3d.runtime.sources.folder import read_frame
 from a3d.runtime.structures.classes import NUM_OUTPUTS
 from a3d.runtime.structures.geometry import Intrinsics, context_boxes, flip_boxes_2d, flip_boxes_3d
+from a3d.train.augment import augment_frame, augment_rng
 from a3d.train.roidb import FrameRois
 from a3d.train.sampler import plan_batch
 
@@ -179,7 +180,10 @@ class BatchDataset(torch.utils.data.Dataset):
         for b, plan in enumerate(plans):
             record = self.records[plan.image]
             frame = read_frame(record.ref, self.intrinsics)
-            color, depth = frame.color, fill_depth(frame.depth)
+            color, depth = frame.color, frame.depth
+            if d.augment:  # a3d.train.augment: other light and sensors, same geometry
+                color, depth = augment_frame(augment_rng(self.seed, int(iteration), b), color, depth)
+            depth = fill_depth(depth)
             boxes = record.boxes[plan.rois].astype(np.float64)
             if plan.flip:
                 color, depth = color[:, ::-1], depth[:, ::-1]
