@@ -94,6 +94,7 @@ class Furniture:
     parts: list[Part]
     surfaces: list[Surface] = field(default_factory=list)
     collides: bool = True
+    glow: int = -1  # the part that emits light with real light (a window pane), -1 none
     lo: np.ndarray = field(init=False)
     hi: np.ndarray = field(init=False)
 

@@ -40,6 +40,7 @@ class DataConfig:
     input_scale: float = 1.0
     context_scale: float = 1.5  # context box = RoI scaled about its centre (docs/conventions.md), clipped
     flip: bool = True
+    augment: bool = False  # colour and depth augmentation per training image (a3d.train.augment)
     images_per_batch: int = 2
     rois_per_image: int = 128
     fg_fraction: float = 0.25

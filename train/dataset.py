@@ -32,6 +32,7 @@ from a3d.runtime.postprocess.box_coder import encode_2d, encode_3d
 from a3d.runtime.sources.folder import read_frame
 from a3d.runtime.structures.classes import NUM_OUTPUTS
 from a3d.runtime.structures.geometry import Intrinsics, flip_boxes_2d, flip_boxes_3d
+from a3d.train.augment import augment_frame, augment_rng
 from a3d.train.roidb import FrameRois
 from a3d.train.sampler import plan_batch
 
@@ -180,6 +181,10 @@ class BatchDataset(torch.utils.data.Dataset):
             record = self.records[plan.image]
             color = read_frame(record.ref, self.intrinsics).color
             depth = np.load(record.filled_depth_path)
+            if d.augment:  # a3d.train.augment: other light and sensors, same geometry
+                raw = read_frame(record.ref, self.intrinsics).depth
+                color, raw = augment_frame(augment_rng(self.seed, int(iteration), b), color, raw)
+                depth = fill_depth(raw)
             boxes = record.boxes[plan.rois].astype(np.float64)
             if plan.flip:
                 color, depth = color[:, ::-1], depth[:, ::-1]
