@@ -27,6 +27,7 @@ import cv2
 import numpy as np
 import torch
 
+from a3d.runtime.frontend.depth import fill_depth
 from a3d.runtime.network.network_input import frame_network_inputs, with_batch_index
 from a3d.runtime.postprocess.box_coder import encode_2d, encode_3d
 from a3d.runtime.sources.folder import read_frame
@@ -179,12 +180,13 @@ class BatchDataset(torch.utils.data.Dataset):
         colors, depths, rois, contexts, labels, t3ds, t2ds, w3ds = ([] for _ in range(8))
         for b, plan in enumerate(plans):
             record = self.records[plan.image]
-            color = read_frame(record.ref, self.intrinsics).color
-            depth = np.load(record.filled_depth_path)
-            if d.augment:  # a3d.train.augment: other light and sensors, same geometry
-                raw = read_frame(record.ref, self.intrinsics).depth
-                color, raw = augment_frame(augment_rng(self.seed, int(iteration), b), color, raw)
+            frame = read_frame(record.ref, self.intrinsics)
+            if d.augment:  # a3d.train.augment: other light and sensors, same geometry (refilled)
+                rng = augment_rng(self.seed, int(iteration), b)
+                color, raw = augment_frame(rng, frame.color, frame.depth)
                 depth = fill_depth(raw)
+            else:
+                color, depth = frame.color, np.load(record.filled_depth_path)
             boxes = record.boxes[plan.rois].astype(np.float64)
             if plan.flip:
                 color, depth = color[:, ::-1], depth[:, ::-1]
