@@ -264,16 +264,17 @@ def test_a3d_run_on_samples_equals_the_pure_torch_reference(run, tmp_path: Path)
     """The product path (a3d-export -> a3d-run, ONNX Runtime) and the eager checkpoint
     (a3d.train.inference.TorchDetector) give the same detections on the bundled samples."""
     from a3d.runtime.io.detections_io import read_detections
-    from a3d.runtime.sources.folder import list_frames, read_folder_intrinsics
+    from a3d.runtime.sources.folder import FolderSource
     from a3d.train.inference import TorchDetector
 
     samples = Path(__file__).resolve().parents[1] / "samples"
     out = tmp_path / "det.jsonl"
     assert run_cli.main([str(samples), "--model", str(run.float), "--output", str(out), "--headless"]) == 0
     onnx_side = {d.frame: d for d in read_detections(out)}
-    refs = list_frames(samples)[:3]
+    source = FolderSource(samples)
+    refs = source.refs[:3]
     reference = TorchDetector.from_checkpoint(run.checkpoint)
-    torch_side = reference.detect_all(refs, read_folder_intrinsics(samples))
+    torch_side = {ref.name: reference.detect(source.read(ref)) for ref in refs}
     total = 0
     for ref in refs:
         a, b = onnx_side[ref.name], torch_side[ref.name]

@@ -15,7 +15,8 @@ import pytest
 
 from a3d.runtime.cli import run as run_cli
 from a3d.runtime.io.detections_io import read_detections
-from a3d.runtime.sources.folder import GroundTruth, list_frames, read_folder_intrinsics, write_frame
+from a3d.runtime.sources.folder import FolderSource, write_frame
+from a3d.runtime.structures.frame import GroundTruth
 from a3d.runtime.structures.geometry import rtilt_from_pitch_roll
 from tests.rrd_reader import as_array, read_columns
 from tests.test_run import (
@@ -251,9 +252,9 @@ def test_exported_model_end_to_end(tmp_path: Path) -> None:
 
     eager = TorchNetwork(net, stats)
     config = PipelineConfig.from_metadata(fake_metadata())
-    intrinsics = read_folder_intrinsics(folder)
-    for det, ref in zip(got, list_frames(folder), strict=True):
-        reference = detect(ref, eager, config, intrinsics)
+    source = FolderSource(folder)
+    for det, ref in zip(got, source.refs, strict=True):
+        reference = detect(source.read(ref), eager, config)
         assert len(det.scores) > 0
         # The best score per class is continuous in the network outputs (no ties to flip).
         for c in np.unique(reference.class_ids):

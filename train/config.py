@@ -30,7 +30,7 @@ from a3d.train.model import NetConfig
 
 @dataclass
 class DataConfig:
-    """RoI database, mini-batch sampling (SPEC.md "Training") and input preparation.
+    """RoI database, mini-batch sampling (docs/conventions.md "Training") and input preparation.
 
     ``input_scale`` resizes colour and depth (and every 2D box) before the network: 1.0 is the
     native frame size, as in the paper; CPU presets train at a reduced scale. Proposals, lifting
@@ -38,8 +38,9 @@ class DataConfig:
     """
 
     input_scale: float = 1.0
-    context_scale: float = 1.5  # context box = RoI scaled about its centre (SPEC.md), clipped
+    context_scale: float = 1.5  # context box = RoI scaled about its centre (docs/conventions.md), clipped
     flip: bool = True
+    augment: bool = False  # colour and depth augmentation per training image (a3d.train.augment)
     images_per_batch: int = 2
     rois_per_image: int = 128
     fg_fraction: float = 0.25
@@ -53,7 +54,7 @@ class DataConfig:
 
 @dataclass
 class SolverConfig:
-    """SGD with momentum and Caffe "step" decay (SPEC.md "Training")."""
+    """SGD with momentum and Caffe "step" decay (docs/conventions.md "Training")."""
 
     iterations: int = 40000
     lr: float = 0.005
@@ -81,7 +82,7 @@ class LogConfig:
 
 @dataclass
 class InferenceConfig:
-    """Post-processing (SPEC.md "Inference and post-processing")."""
+    """Post-processing (docs/conventions.md "Inference and post-processing")."""
 
     top_k: int = 100  # detections kept per class and image before NMS
     nms_iou: float = 0.3  # 2D NMS on the proposal boxes, per class

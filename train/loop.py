@@ -1,6 +1,6 @@
 """The SGD training loop: data, model, optimisation, metrics, checkpoints, validation, resume.
 
-SPEC.md "Training": SGD with momentum 0.9, weight decay 0.0005 (on weights; biases and
+docs/conventions.md "Training": SGD with momentum 0.9, weight decay 0.0005 (on weights; biases and
 BatchNorm parameters are not decayed, as in the Caffe VGG16 models), base lr 0.005, the lr
 times ``gamma`` at each of ``lr_steps`` (Caffe "multistep"); 2 images x 128 RoIs, 25% foreground.
 
@@ -35,7 +35,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from a3d.runtime.io.detections_io import atomic_write_bytes
+from a3d.runtime.io.atomic import atomic_write_bytes
 from a3d.runtime.sources.folder import read_folder_intrinsics
 from a3d.runtime.structures.classes import CLASSES
 from a3d.train.checkpoint import load_checkpoint, save_checkpoint

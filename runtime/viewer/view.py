@@ -103,7 +103,8 @@ def log_static(rec: rr.RecordingStream) -> None:
 
 
 def _yaw_rotations(theta: np.ndarray) -> list[rr.RotationAxisAngle]:
-    # Corners are rotated about +y by theta with the right-handed R_y (SPEC.md): the same axis-angle.
+    # Corners are rotated about +y by theta with the right-handed R_y (docs/conventions.md "3D boxes"):
+    # the same axis-angle.
     return [rr.RotationAxisAngle(axis=[0.0, 1.0, 0.0], radians=float(t)) for t in theta]
 
 

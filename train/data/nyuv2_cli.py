@@ -25,7 +25,8 @@ from tqdm import tqdm
 from a3d.runtime.cli.common import build_parser as command_parser
 from a3d.runtime.cli.common import command
 from a3d.runtime.errors import InputError
-from a3d.runtime.sources.folder import write_frame, write_intrinsics, write_precomputed_proposals
+from a3d.runtime.sources.folder import write_frame, write_intrinsics
+from a3d.runtime.sources.proposals_file import write_precomputed_proposals
 from a3d.runtime.structures.geometry import NYU_CROP_INTRINSICS
 from a3d.train.data.mcg import AUTHORS_MAX_PROPOSALS, AUTHORS_MIN_BOX_AREA, read_mcg_candidates
 from a3d.train.data.nyuv2 import SPLIT_SIZES, read_image, read_split
