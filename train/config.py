@@ -153,8 +153,8 @@ def _cpu_small() -> TrainConfig:
 
 def _cpu_tiny() -> TrainConfig:
     """cpu-small's network on a schedule for the first hour: 1500 iterations (lr x0.1 at the same
-    0.76 of the run), checkpoints every 250, validation on 50 frames at the end only; about 10
-    minutes on 2 CPU cores (docs/first-hour.md)."""
+    0.76 of the run), checkpoints every 250, validation on 50 frames at the end only; about 11
+    minutes on 2 idle CPU cores (cpu-small's 2.3 iterations per second; docs/first-hour.md)."""
     return apply_values(
         _cpu_small(),
         {
