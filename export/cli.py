@@ -36,7 +36,6 @@ from a3d.export.onnx_export import (
     ExportError,
     RuntimeGraph,
     export_graph,
-    load_trained,
     save_model,
 )
 from a3d.export.quantize import CALIB_ROIS, quantize_int8
@@ -54,6 +53,7 @@ from a3d.export.verify import (
 from a3d.runtime.errors import InputError, ModelError
 from a3d.runtime.network.model import DetectorModel, ModelMetadata
 from a3d.runtime.pipeline import PipelineConfig
+from a3d.train.checkpoint import load_trained
 from a3d.train.inference import TorchNetwork
 
 PROG = "a3d-export"

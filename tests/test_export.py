@@ -21,7 +21,6 @@ import pytest
 import torch
 
 from a3d.export import cli
-from a3d.export.onnx_export import load_trained
 from a3d.export.svd import svd_compress
 from a3d.export.verify import folder_inputs
 from a3d.runtime.network.model import DetectorModel
@@ -29,7 +28,7 @@ from a3d.runtime.pipeline import PipelineConfig
 from a3d.runtime.sources.folder import write_frame, write_intrinsics
 from a3d.runtime.structures.classes import CLASSES
 from a3d.runtime.structures.geometry import Intrinsics
-from a3d.train.checkpoint import load_checkpoint, save_checkpoint
+from a3d.train.checkpoint import load_checkpoint, load_trained, save_checkpoint
 from a3d.train.config import TrainConfig
 from a3d.train.dataset import TargetStats
 from a3d.train.inference import TorchNetwork
