@@ -17,7 +17,7 @@ def tiny_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
     from a3d.export.onnx_export import RuntimeGraph, export_graph, save_model
     from a3d.train.dataset import TargetStats
     from a3d.train.model import A3DNet, NetConfig
-    from tests.test_run import fake_metadata
+    from tests.helpers.runtime_frames import fake_metadata
 
     torch.manual_seed(0)
     net = A3DNet(NetConfig(width=0.125, fc6=32, fc7=32, dropout=0.0)).eval()

@@ -11,10 +11,9 @@ import importlib.util
 import sys
 from pathlib import Path
 
-import numpy as np
 import pytest
 
-from tests.test_export import _frames as write_test_frames
+from tests.helpers.synth_frames import write_synth_frames
 
 pytestmark = pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")
 BENCH = Path(__file__).resolve().parents[1] / "bench" / "edge_speed.py"
@@ -36,14 +35,13 @@ def edge_speed():
 
 
 def test_breakdown_accounts_for_the_whole_frame(edge_speed, tmp_path: Path) -> None:
-    frames = tmp_path / "frames"
-    write_test_frames(frames, 4, np.random.default_rng(0))
+    frames = write_synth_frames(tmp_path / "synth", 4)
     checkpoint = edge_speed.random_checkpoint(tmp_path / "run" / "checkpoint.pt", "cpu-eighth", TINY)
     model = tmp_path / "tiny.onnx"
     edge_speed.export_model(checkpoint, model, frames, threads=1)
     subset = edge_speed.frame_subset(frames, tmp_path / "subset", 3)
-    assert sorted(p.name for p in subset.glob("*.color.png")) == ["0000.color.png", "0001.color.png",
-                                                                  "0002.color.png"]  # fmt: skip
+    names = sorted(p.name for p in subset.glob("*.color.png"))
+    assert names == [f"synth_00000{i}.color.png" for i in range(3)]
 
     rrd = tmp_path / "run.rrd"
     run = edge_speed.measure_run(model, subset, max_proposals=40, threads=1, rrd=rrd)

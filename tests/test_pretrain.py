@@ -14,7 +14,7 @@ from a3d.train.model.net import A3DNet
 from a3d.train.model.weights import load_vgg16_imagenet
 from a3d.train.pretrain import BACKGROUND_MAX_IOU, CropClassifier, frame_crops, torchvision_state
 from a3d.train.pretrain_cli import main
-from tests.test_train_scenes import write_scenes
+from tests.helpers.train_scenes import write_scenes
 
 TINY = NetConfig(width=0.0625, fc6=32, fc7=16, trunk_norm=True, dropout=0.0)
 

@@ -19,7 +19,7 @@ from a3d.export.onnx_export import save_model
 from a3d.runtime import pipeline
 from a3d.runtime.cli import run as run_cli
 from a3d.runtime.network.model import METADATA_KEY, SCHEMA_VERSION, DetectorModel
-from tests.test_run import write_scene_folder
+from tests.helpers.runtime_frames import write_scene_folder
 
 
 def _truncated(data: bytes, tmp_path: Path) -> bytes:

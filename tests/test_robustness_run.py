@@ -23,7 +23,7 @@ import numpy as np
 
 from a3d.runtime.sources.folder import write_frame
 from a3d.runtime.structures.geometry import rtilt_from_pitch_roll
-from tests.test_run import H, K, W, scene
+from tests.helpers.runtime_frames import H, K, W, scene
 
 GOOD = ("good_1", "good_2", "good_3")  # good_2 without R_tilt: gravity estimated from its depth
 R_TILT = rtilt_from_pitch_roll(np.radians(-9.0), np.radians(1.0))

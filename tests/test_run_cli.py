@@ -17,8 +17,7 @@ from a3d.runtime.cli import run as run_cli
 from a3d.runtime.io.detections_io import read_detections
 from a3d.runtime.sources.folder import GroundTruth, list_frames, read_folder_intrinsics, write_frame
 from a3d.runtime.structures.geometry import rtilt_from_pitch_roll
-from tests.rrd_reader import as_array, read_columns
-from tests.test_run import (
+from tests.helpers.runtime_frames import (
     FakeModel,
     H,
     K,
@@ -28,6 +27,7 @@ from tests.test_run import (
     scene,
     write_scene_folder,
 )
+from tests.rrd_reader import as_array, read_columns
 
 
 def run(argv: list[str]) -> int:

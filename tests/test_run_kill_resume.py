@@ -20,7 +20,7 @@ from pathlib import Path
 import pytest
 
 from a3d.runtime.io.detections_io import parse_line
-from tests.test_run import write_scene_folder
+from tests.helpers.runtime_frames import write_scene_folder
 
 FRAMES = 24
 

@@ -7,7 +7,7 @@ import sys
 
 from a3d.train.checkpoint import load_checkpoint
 from a3d.train.loop import read_metrics
-from tests.test_train_scenes import TINY, write_scenes
+from tests.helpers.train_scenes import TINY, write_scenes
 
 
 def test_two_gloo_processes_stay_in_sync(tmp_path):

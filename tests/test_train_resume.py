@@ -13,7 +13,7 @@ import torch
 from a3d.train.checkpoint import load_checkpoint
 from a3d.train.cli import main
 from a3d.train.loop import read_metrics
-from tests.test_train_scenes import TINY, write_scenes
+from tests.helpers.train_scenes import TINY, write_scenes
 
 ITERATIONS = 12
 
