@@ -15,7 +15,11 @@ import pytest
 
 from tests.helpers.synth_frames import write_synth_frames
 
-pytestmark = pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")
+# slow: an ONNX export and timed a3d-run processes
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning"),
+]
 BENCH = Path(__file__).resolve().parents[1] / "bench" / "edge_speed.py"
 TINY = {
     "net": {"width": 0.125, "fuse_channels": 16, "fc6": 32, "fc7": 32},

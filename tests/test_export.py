@@ -33,7 +33,11 @@ from a3d.train.inference import TorchNetwork
 from a3d.train.model import A3DNet
 from tests.helpers.synth_frames import write_synth_frames
 
-pytestmark = pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")
+# slow: two ONNX exports (dynamo) and an int8 calibration
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning"),
+]
 SVD_RANK = 8
 CONFIG = {
     "net": {"width": 0.125, "fuse_channels": 32, "fc6": 64, "fc7": 48, "trunk_norm": True},

@@ -24,6 +24,8 @@ from tests.helpers.runtime_frames import write_scene_folder
 
 FRAMES = 24
 
+pytestmark = pytest.mark.slow  # kills a3d-run processes and resumes them
+
 
 def _command(folder: Path, model: Path, output: Path, *extra: str) -> list[str]:
     return [

@@ -8,6 +8,7 @@ import subprocess
 import sys
 import time
 
+import pytest
 import torch
 
 from a3d.train.checkpoint import load_checkpoint
@@ -33,6 +34,7 @@ def _last_iter(run) -> int:
     return max((r["iter"] for r in read_metrics(run / "metrics.jsonl") if r["kind"] == "train"), default=0)
 
 
+@pytest.mark.slow  # three training processes, one killed
 def test_kill_and_resume_is_bit_identical(tmp_path):
     frames = write_scenes(tmp_path / "frames", 3, seed=6)
     cache = tmp_path / "cache"
