@@ -86,4 +86,4 @@ def test_resume_and_overwrite_errors_are_one_line(tmp_path, capsys):
     error = capsys.readouterr().err.strip()
     assert "corrupted, truncated or not a checkpoint" in error and len(error.splitlines()) == 1
     assert main([str(frames), "--out", str(tmp_path / "x"), "--set", "solver.lr=fast"]) == 2
-    assert "solver.lr: expected a number" in capsys.readouterr().err
+    assert "solver.lr must be a finite number" in capsys.readouterr().err
