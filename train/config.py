@@ -36,15 +36,15 @@ class DataConfig:
     and all 3D geometry always work at native resolution (a3d.runtime.network.network_input).
     """
 
-    input_scale: float = 1.0
-    context_scale: float = 1.5  # context box = RoI scaled about its centre (SPEC.md), clipped
+    input_scale: float = PipelineConfig.input_scale
+    context_scale: float = PipelineConfig.context_scale  # context box = RoI scaled about its centre, clipped
     flip: bool = True
     images_per_batch: int = 2
     rois_per_image: int = 128
     fg_fraction: float = 0.25
     fg_iou: float = 0.5  # foreground: 2D IoU >= fg_iou with a visible (gt2d_sel) box
     bg_iou_low: float = 0.1  # background: IoU in [bg_iou_low, fg_iou)
-    depth_truncation_m: float = 10.0  # metres mapped to 255 in the depth trunk's input
+    depth_truncation_m: float = PipelineConfig.depth_truncation_m  # metres mapped to 255 (depth input)
     workers: int = 1  # DataLoader worker processes (0: load in the training process)
     cache_dir: str = ""  # per-frame proposal cache; "" = RUN_DIR/cache
     front_end_workers: int = 0  # processes computing uncached proposals for the RoI database; 0 = all cores
@@ -80,11 +80,11 @@ class LogConfig:
 
 @dataclass
 class InferenceConfig:
-    """Post-processing (SPEC.md "Inference and post-processing")."""
+    """Post-processing (SPEC.md "Inference and post-processing"); the defaults are the runtime's."""
 
-    top_k: int = 100  # detections kept per class and image before NMS
-    nms_iou: float = 0.3  # 2D NMS on the proposal boxes, per class
-    min_score: float = 0.0  # detections below this score are dropped (0: none, as the release)
+    top_k: int = PipelineConfig.top_k  # detections kept per class and image before NMS
+    nms_iou: float = PipelineConfig.nms_iou  # 2D NMS on the proposal boxes, per class
+    min_score: float = PipelineConfig.min_score  # detections below this score are dropped (0: none)
     regress_3d: bool = True  # False: zero 3D deltas, i.e. the initial boxes (the "-3dreg" ablation)
 
 
