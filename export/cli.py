@@ -132,9 +132,7 @@ def export(args: argparse.Namespace) -> Path:
             kept = 100 * info["energy_kept"]
             _log(f"svd {name} {info['shape']} rank {info['rank']}: {info['parameters']} -> "
                  f"{info['parameters_svd']} weights, {kept:.2f}% of the energy kept")  # fmt: skip
-    metadata = build_metadata(
-        trained.state, trained.config, args.checkpoint, score_threshold=args.score_threshold
-    )
+    metadata = build_metadata(trained.state, trained.config, args.checkpoint, min_score=args.score_threshold)
     pipeline = PipelineConfig.from_metadata(metadata)  # the front end a3d-run will use with this model
     regress_3d = trained.config.inference.regress_3d
     torch_net = TorchNetwork(reference, trained.stats, regress_3d)

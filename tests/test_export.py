@@ -115,8 +115,8 @@ def test_metadata_comes_from_the_checkpoint(run) -> None:
     config = TrainConfig.from_json(state["config"])
     np.testing.assert_array_equal(meta.mean_sizes, state["mean_sizes"].numpy())
     assert meta.classes == CLASSES and meta.input_scale == 0.75 and meta.context_scale == 1.5
-    assert (meta.top_k, meta.nms_iou, meta.score_threshold) == (50, 0.4, 0.02)
-    assert meta.max_proposals == 150 and meta.depth_truncation_m == 10.0
+    assert (meta.top_k, meta.nms_iou, meta.min_score) == (50, 0.4, 0.02)
+    assert meta.proposals.max_proposals == 150 and meta.depth_truncation_m == 10.0
     # The runtime rebuilds the very proposal configuration the network was trained with.
     assert PipelineConfig.from_metadata(meta).proposals == config.proposals
     prov = meta.provenance

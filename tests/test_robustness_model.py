@@ -71,11 +71,11 @@ def _newer(meta: dict) -> str:
 
 
 def _proposal_setting(path: str, value: object) -> Callable[[dict], str]:
-    """Set proposal_config.PATH (dotted) to value in the metadata."""
+    """Set proposals.PATH (dotted) to value in the metadata."""
 
     def edit(meta: dict) -> str:
         *parents, leaf = path.split(".")
-        node = meta["proposal_config"]
+        node = meta["proposals"]
         for key in parents:
             node = node.setdefault(key, {})
         node[leaf] = value
@@ -101,15 +101,15 @@ CASES = {
     ),
     "proposal_setting_type": (
         _edited_metadata(_proposal_setting("superpixels.n_segments", "many")),
-        "a3d metadata proposal_config.superpixels.n_segments must be an integer in [1, 10000000], got 'many'",
+        "a3d metadata proposals.superpixels.n_segments must be an integer in [1, 10000000], got 'many'",
     ),
     "proposal_count_huge": (
         _edited_metadata(_proposal_setting("max_proposals", 10**30)),
-        "a3d metadata proposal_config.max_proposals must be an integer in [1, 10000000]",
+        "a3d metadata proposals.max_proposals must be an integer in [1, 10000000]",
     ),
     "proposal_weights_short": (
         _edited_metadata(_proposal_setting("edge_weights", [1.0, 2.0])),
-        "a3d metadata proposal_config.edge_weights must be a list of 3 values",
+        "a3d metadata proposals.edge_weights must be a list of 3 values",
     ),
 }
 

@@ -7,7 +7,6 @@ pin the estimated-gravity case (``write_scene_folder(..., estimated_gravity=...)
 
 from __future__ import annotations
 
-import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -37,11 +36,10 @@ def fake_metadata(**changes) -> ModelMetadata:
         depth_truncation_m=10.0,
         input_scale=0.5,
         context_scale=1.5,
-        score_threshold=0.0,
+        min_score=0.0,
         nms_iou=0.3,
         top_k=100,
-        max_proposals=60,
-        proposal_config=dataclasses.asdict(ProposalConfig(max_proposals=60)),
+        proposals=ProposalConfig(max_proposals=60),
         content_sha256="0" * 64,
     )
     return ModelMetadata(**{**values, **changes})
