@@ -67,6 +67,7 @@ def test_background_crops_stay_off_the_objects():
     assert BACKGROUND_MAX_IOU < 0.5
 
 
+@pytest.mark.slow  # a pretraining run
 def test_cli_learns_the_crops_and_writes_the_torchvision_layout(tmp_path, capsys):
     assert synth_main([str(tmp_path / "synth"), "--frames", "3", "--seed", "5", "--split", "test=0"]) == 0
     out = tmp_path / "w" / "synth.pt"

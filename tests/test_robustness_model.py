@@ -114,6 +114,7 @@ CASES = {
 }
 
 
+@pytest.mark.slow  # the exported tiny model (conftest)
 @pytest.mark.parametrize("case", list(CASES))
 def test_unusable_model_is_refused_before_any_frame(
     case: str,
@@ -138,6 +139,7 @@ def test_unusable_model_is_refused_before_any_frame(
     assert err.count("\n") == 1 and err.startswith(f"a3d-run: error: {path}: ") and says in err, err
 
 
+@pytest.mark.slow  # the exported tiny model (conftest)
 def test_the_undamaged_model_runs(tmp_path: Path, tiny_model: Path, capsys: pytest.CaptureFixture) -> None:
     """The control for the cases above: the same command with the intact file writes both frames."""
     folder = write_scene_folder(tmp_path / "frames", ["a", "b"])

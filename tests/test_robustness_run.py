@@ -20,6 +20,7 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pytest
 
 from a3d.runtime.sources.folder import write_frame
 from a3d.runtime.structures.geometry import rtilt_from_pitch_roll
@@ -141,6 +142,7 @@ BAD: dict[str, tuple[Callable[[Path], None], str, str]] = {
 }
 
 
+@pytest.mark.slow  # the exported tiny model (conftest) and a3d-run processes
 def test_bad_frames_are_reported_once_and_the_good_ones_match_a_clean_run(
     tmp_path: Path, tiny_model: Path
 ) -> None:
