@@ -74,7 +74,7 @@ def test_usage_errors_exit_2_before_any_frame(tmp_path: Path, capsys: pytest.Cap
     assert run([str(tmp_path / "nowhere"), "--headless"]) == 2  # the folder is named, not the model
     assert (
         capsys.readouterr().err.strip().splitlines()[-1]
-        == f"a3d-run: error: {tmp_path / 'nowhere'}: no such folder"
+        == f"a3d-run: error: {tmp_path / 'nowhere'}: no such file or folder"
     )
     assert not out.exists()
 
