@@ -160,7 +160,7 @@ def test_canonical_boxes_swaps_length_and_width_with_a_quarter_turn():
 
 
 def _reference_corners_tilt(box: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """SPEC.md corners, one by one, in the order of the authors' calc_corners_tilt.m."""
+    """docs/conventions.md corners, one by one, in the order of the authors' calc_corners_tilt.m."""
     x, y, z, l, w, h, t = box
     rot = np.array([[math.cos(t), 0, math.sin(t)], [0, 1, 0], [-math.sin(t), 0, math.cos(t)]])
     signs = [(1, 1, 1), (-1, 1, 1), (-1, 1, -1), (1, 1, -1)]

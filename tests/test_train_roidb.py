@@ -14,16 +14,10 @@ from a3d.runtime.frontend.frame_proposals import frame_proposals
 from a3d.runtime.frontend.lifting import lift
 from a3d.runtime.frontend.proposals import propose
 from a3d.runtime.pipeline import PipelineConfig, prepare
-from a3d.runtime.sources.folder import (
-    GroundTruth,
-    PrecomputedProposals,
-    list_frames,
-    read_folder_intrinsics,
-    read_frame,
-    read_ground_truth,
-    write_precomputed_proposals,
-)
+from a3d.runtime.sources.folder import list_frames, read_folder_intrinsics, read_frame, read_ground_truth
+from a3d.runtime.sources.proposals_file import PrecomputedProposals, write_precomputed_proposals
 from a3d.runtime.structures.classes import NUM_CLASSES, class_index
+from a3d.runtime.structures.frame import GroundTruth
 from a3d.train.config import apply_overrides, load_config
 from a3d.train.loop import train
 from a3d.train.roidb import build_roidb, class_mean_sizes, compute_front_end, label_rois
@@ -188,7 +182,7 @@ def test_the_training_front_end_equals_the_runtime_pipeline(scenes, tmp_path, fo
         ref = list_frames(folder)[0]
     front, filled = compute_front_end(ref, read_ground_truth(ref), intrinsics, config)
     pipeline = PipelineConfig(np.ones((NUM_CLASSES, 3)), proposals=config, max_proposals=config.max_proposals)
-    prepared = prepare(ref, intrinsics, pipeline)
+    prepared = prepare(read_frame(ref, intrinsics, with_proposals=True), pipeline)
     assert 0 < len(front.proposal_boxes) <= 5
     np.testing.assert_array_equal(front.proposal_boxes, prepared.boxes)
     np.testing.assert_array_equal(front.proposal_centers, prepared.centers)

@@ -20,17 +20,20 @@ saved in the checkpoint and undone at inference (``TargetStats.denormalise_*``).
 
 from __future__ import annotations
 
+import signal
 from dataclasses import dataclass, fields
 
 import cv2
 import numpy as np
 import torch
 
+from a3d.runtime.frontend.depth import fill_depth
 from a3d.runtime.network.network_input import frame_network_inputs, with_batch_index
 from a3d.runtime.postprocess.box_coder import encode_2d, encode_3d
 from a3d.runtime.sources.folder import read_frame
 from a3d.runtime.structures.classes import NUM_OUTPUTS
 from a3d.runtime.structures.geometry import Intrinsics, flip_boxes_2d, flip_boxes_3d
+from a3d.train.augment import augment_frame, augment_rng
 from a3d.train.roidb import FrameRois
 from a3d.train.sampler import plan_batch
 
@@ -177,8 +180,13 @@ class BatchDataset(torch.utils.data.Dataset):
         colors, depths, rois, contexts, labels, t3ds, t2ds, w3ds = ([] for _ in range(8))
         for b, plan in enumerate(plans):
             record = self.records[plan.image]
-            color = read_frame(record.ref, self.intrinsics).color
-            depth = np.load(record.filled_depth_path)
+            frame = read_frame(record.ref, self.intrinsics)
+            if d.augment:  # a3d.train.augment: other light and sensors, same geometry (refilled)
+                rng = augment_rng(self.seed, int(iteration), b)
+                color, raw = augment_frame(rng, frame.color, frame.depth)
+                depth = fill_depth(raw)
+            else:
+                color, depth = frame.color, np.load(record.filled_depth_path)
             boxes = record.boxes[plan.rois].astype(np.float64)
             if plan.flip:
                 color, depth = color[:, ::-1], depth[:, ::-1]
@@ -232,6 +240,9 @@ def batch_loader(dataset: BatchDataset, start: int, workers: int, pin_memory: bo
 
 
 def _single_threaded(_worker_id: int) -> None:
-    """Workers leave the cores to the training process: one thread each for OpenCV and torch."""
+    """Workers leave the cores to the training process: one thread each for OpenCV and torch.
+    They ignore Ctrl-C (which a terminal sends to the whole process group): the training process
+    finishes its iteration and saves a checkpoint, and needs its workers until then."""
     cv2.setNumThreads(1)
     torch.set_num_threads(1)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)

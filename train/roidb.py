@@ -1,6 +1,6 @@
 """The RoI database: per training frame, the labelled RoIs and the 3D boxes they regress from and to.
 
-Per frame (SPEC.md "Proposals and 3D box initialisation", "Training"):
+Per frame (docs/conventions.md "Proposals and initial 3D boxes", "Training"):
 
 - RoIs are the ground truth's visible boxes (``box2d_visible``, the paper's ``gt2d_sel``), added
   as in Fast R-CNN, followed by the runtime's class-agnostic segment proposals (or the frame's
@@ -46,15 +46,14 @@ from a3d.runtime.frontend.proposals import ProposalConfig
 from a3d.runtime.io.atomic import atomic_write
 from a3d.runtime.sources.folder import (
     FrameRef,
-    GroundTruth,
     list_frames,
     read_folder_intrinsics,
     read_frame,
     read_ground_truth,
     read_instances,
-    read_precomputed_proposals,
 )
 from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES
+from a3d.runtime.structures.frame import GroundTruth
 from a3d.runtime.structures.geometry import Intrinsics, iou_2d
 
 CACHE_VERSION = 3
@@ -93,11 +92,9 @@ def compute_front_end(
 ) -> tuple[FrontEnd, np.ndarray]:
     """The runtime's front end on one frame, as a3d-run runs it (hole filling, its proposals or
     NAME.proposals.npz, lifting), plus the lifted ground-truth segments; and the filled depth."""
-    frame = read_frame(ref, intrinsics)
+    frame = read_frame(ref, intrinsics, with_proposals=True)
     filled = fill_depth(frame.depth)
-    path = ref.proposals_path
-    precomputed = None if path is None else read_precomputed_proposals(path, frame.image_size)
-    segments, boxes = frame_proposals(frame.color, filled, frame.intrinsics, config, precomputed)
+    segments, boxes = frame_proposals(frame.color, filled, frame.intrinsics, config, frame.proposals)
     centers = np.zeros((0, 3))
     if len(boxes):
         lifted = lift(segments, frame.depth, filled, frame.intrinsics)

@@ -15,7 +15,7 @@ from a3d.runtime.frontend.proposals import ProposalConfig, Proposals, propose
 from a3d.runtime.structures.geometry import Intrinsics
 
 if TYPE_CHECKING:
-    from a3d.runtime.sources.folder import PrecomputedProposals
+    from a3d.runtime.sources.proposals_file import PrecomputedProposals
 
 
 def frame_proposals(

@@ -59,6 +59,10 @@ class FrameDetections:
     def classes(self) -> list[str]:
         return [CLASSES[i] for i in self.class_ids]
 
+    def to_json(self) -> str:
+        """The frame's detections line, exactly as a3d-run writes it (no trailing newline)."""
+        return format_line(self)
+
 
 def format_line(det: FrameDetections) -> str:
     """The JSON line of one frame (no trailing newline).

@@ -64,7 +64,7 @@ class ModelMetadata:
     network inputs' preprocessing (a3d.runtime.network.preprocess). input_scale: the frame is resized by
     this factor before the network (boxes with network_input.scale_boxes); context_scale: context
     box = proposal box scaled about its centre. min_score, nms_iou, top_k: post-processing
-    (SPEC.md "Inference and post-processing"). proposals: the proposal stage's settings the model
+    (docs/conventions.md "Inference and post-processing"). proposals: the proposal stage's settings the model
     was trained with, ``max_proposals`` (proposals per frame) among them, stored through the
     settings codec (a3d.runtime.io.plain_config). content_sha256: the integrity digest (module
     docstring). provenance: free-form (package version, training config, checkpoint hash, export

@@ -1,10 +1,12 @@
-"""The 19 NYUv2 object classes of Deng & Latecki (SPEC.md "Task").
+"""The 19 NYUv2 object classes of Deng & Latecki (docs/conventions.md "Task").
 
 Index 0 of the network's 20-way softmax is background; class ``CLASSES[i]`` is
 softmax index ``i + 1``.
 """
 
 from __future__ import annotations
+
+import numpy as np
 
 CLASSES: tuple[str, ...] = (
     "bathtub",
@@ -32,6 +34,16 @@ NUM_OUTPUTS = NUM_CLASSES + 1  # softmax width, background first
 BACKGROUND = 0
 
 _INDEX = {name: i for i, name in enumerate(CLASSES)}
+
+
+def to_softmax(class_ids: np.ndarray | int) -> np.ndarray:
+    """Softmax indices (background 0) of 0-based CLASSES indices: the one place the offset is added."""
+    return np.asarray(class_ids) + 1
+
+
+def from_softmax(labels: np.ndarray | int) -> np.ndarray:
+    """0-based CLASSES indices of softmax indices > 0 (background has none)."""
+    return np.asarray(labels) - 1
 
 
 def class_index(name: str) -> int:

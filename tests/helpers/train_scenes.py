@@ -16,11 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from a3d.runtime.sources.folder import (
-    GroundTruth,
-    write_frame,
-    write_intrinsics,
-)
+from a3d.runtime.sources.folder import write_frame, write_intrinsics
+from a3d.runtime.structures.frame import GroundTruth
 from a3d.runtime.structures.geometry import Intrinsics, boxes_from_pixel_bounds, project_boxes_to_2d
 
 SIZE = (48, 64)  # (H, W)

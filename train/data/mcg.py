@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from a3d.runtime.errors import InputError
-from a3d.runtime.sources.folder import PrecomputedProposals
+from a3d.runtime.sources.proposals_file import PrecomputedProposals
 from a3d.runtime.structures.geometry import boxes_from_pixel_bounds
 from a3d.train.data.nyuv2 import load_mat, matlab_boxes_to_pixels
 
