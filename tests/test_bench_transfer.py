@@ -45,6 +45,7 @@ def _empty_names(folder: Path) -> set[str]:
     return {r.name for r in list_frames(folder) if len(read_ground_truth(r)) == 0}
 
 
+@pytest.mark.slow  # trains and runs the transfer benchmark end to end
 def test_transfer_table_and_false_positives_end_to_end(benches, tmp_path: Path, monkeypatch) -> None:
     transfer = benches["transfer"]
     monkeypatch.setitem(transfer.WORLDS, "clutter", ["--clutter", "20", "--empty-share", "0.5"])
