@@ -1,8 +1,9 @@
 """One synthetic RGB-D frame with amodal ground truth: ``generate_frame(seed, config)``.
 
-Pipeline: furnish a random room (``rooms``), choose a handheld camera pose that sees many
-objects (``camera``), ray-cast the exact depth and the visible part of every pixel
-(``raycast``), shade it (``shading``), then apply the Kinect-like sensor models (``sensor``).
+Pipeline: furnish a random room (``rooms``, plus objects of no class with ``world``), choose a
+handheld camera pose that sees many objects (``camera``), ray-cast the exact depth and the
+visible part of every pixel (``raycast``), shade it (``shading``, plus daylight with ``photo``),
+then apply the sensor models (``sensor``, ``depth_families``, ``photo``).
 
 Ground truth, per object of one of the 19 classes with at least ``min_visible_px`` visible
 pixels (smaller ones are rendered but not annotated, and are 0 in the instance map):
