@@ -14,6 +14,7 @@ import pytest
 from a3d.runtime.io.detections_io import read_detections
 from a3d.runtime.sources.folder import list_frames, read_ground_truth
 from a3d.synth.cli import main as synth_main
+from a3d.train.config import apply_overrides, load_config
 from tests.test_train_scenes import TINY
 
 pytestmark = pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")
@@ -102,3 +103,34 @@ def test_false_positives_runs_a3d_run_on_the_empty_frames(benches, tmp_path: Pat
     assert report["detections"] == sum(int((d.scores >= 0.5).sum()) for d in dets)
     assert sum(report["by_class"].values()) == report["detections"]
     assert fp.main([str(folder), "--detections", str(tmp_path / "missing.jsonl")]) == 1
+
+
+def test_background_rois_at_bound_zero_keep_the_empty_rooms(tmp_path: Path) -> None:
+    """At the default bound (0.1) a room without labelled objects offers no RoI and is skipped;
+    at 0 it is kept with background RoIs only, and every frame offers at least as many."""
+    module = _load("background_rois")
+    try:
+        args = [
+            "--frames",
+            "4",
+            "--seed",
+            "3",
+            "--empty-share",
+            "0.5",
+            "--clutter",
+            "20",
+            "--split",
+            "test=0",
+        ]
+        assert synth_main([str(tmp_path / "set"), *args, "--size", "96x128"]) == 0
+        folder = tmp_path / "set" / "train"
+        empty = _empty_names(folder)
+        assert len(empty) == 2
+        config = apply_overrides(load_config("cpu-small"), list(TINY))
+        report = module.background_counts(folder, config, [0.1, 0.0], tmp_path / "cache")
+        low, zero = report["0.1"], report["0.0"]
+        assert low["frames_skipped"] >= len(empty) and zero["frames_kept"] == low["frames_kept"] + len(empty)
+        assert zero["background_rois"] > low["background_rois"]
+        assert zero["foreground_rois"] == low["foreground_rois"]
+    finally:
+        sys.modules.pop("background_rois", None)
