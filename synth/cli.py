@@ -276,8 +276,11 @@ def main(argv: list[str] | None = None) -> int:
     world = {k: v if getattr(args, k) is None else getattr(args, k) for k, v in WORLDS[args.world].items()}
     if world["clutter"] < 0 or not 0.0 <= world["empty_share"] <= 1.0 or not 0.05 <= args.camera_scale <= 4:
         parser.error("--clutter must be >= 0, --empty-share in [0, 1] and --camera-scale in [0.05, 4]")
-    if world["camera_mix"] and args.size is not None:
-        parser.error("--size and a camera mix exclude each other (use --camera-scale, or --camera-mix '')")
+    if world["camera_mix"] and (args.size is not None or args.sensor != "a3d"):
+        parser.error(
+            "--size and --sensor exclude a camera mix: each preset has its own size and depth model"
+            " (use --camera-scale, or --camera-mix '')"
+        )
     size = args.size or NYU_CROP_SIZE
     config = replace(
         SceneConfig(),

@@ -192,6 +192,7 @@ def test_cli_rejects_bad_world_options(tmp_path, capsys) -> None:
         ["--clutter", "-1"],
         ["--empty-share", "2"],
         ["--world", "real", "--size", "96x128"],
+        ["--camera-mix", "kinect-v2", "--sensor", "kinect-v1"],
     ):
         with pytest.raises(SystemExit):
             main([str(tmp_path / "x"), "--frames", "1", *bad])
