@@ -1,6 +1,6 @@
 """How many training RoIs a set offers as background, at two lower IoU bounds for background.
 
-    .venv/bin/python bench/background_rois.py out/real40/train [--config cpu-small] [--low 0.1 0.0]
+    .venv/bin/python -m bench.background_rois out/real40/train [--config cpu-small] [--low 0.1 0.0]
 
 Fast R-CNN's sampling (``data.bg_iou_low``, 0.1 by default) takes as background only proposals
 that overlap some labelled object by 2D IoU >= 0.1: a proposal on clutter away from every

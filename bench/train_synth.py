@@ -1,6 +1,6 @@
 """Train a CPU configuration on a3d-synth data and score it on the held-out split with a3d-eval.
 
-    .venv/bin/python bench/train_synth.py --out out/bench_train_synth [--frames 300] [--config cpu-small]
+    .venv/bin/python -m bench.train_synth --out out/bench_train_synth [--frames 300] [--config cpu-small]
         [--iters N] [--set KEY=VALUE ...] [--val-frames 20] [--resume]
 
 Steps (each timed, wall clock): a3d-synth OUT/data --frames N --split test=T (skipped when
@@ -137,9 +137,11 @@ def main() -> int:
     summary.update(detect_and_score(checkpoint, data / "test", args.out, device=args.device or "cpu"))
     (args.out / "summary.json").write_text(json.dumps(summary, indent=1))
     print(json.dumps({k: v for k, v in summary.items() if k != "ap25"}, indent=1))
-    print(f"mAP@0.25 over 19 classes: {100 * summary['map25_all']:.1f}   "
-          f"(present classes: {100 * summary['map25_present']:.1f}); "
-          f"train {summary['train_seconds'] / 60:.1f} min")
+    print(
+        f"mAP@0.25 over 19 classes: {100 * summary['map25_all']:.1f}   "
+        f"(present classes: {100 * summary['map25_present']:.1f}); "
+        f"train {summary['train_seconds'] / 60:.1f} min"
+    )
     return 0
 
 

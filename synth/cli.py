@@ -1,4 +1,4 @@
-"""``a3d-synth``: write a synthetic RGB-D training and test set, or summarise one.
+"""a3d-synth: write a synthetic RGB-D training and test set, or summarise one.
 
     a3d-synth OUT --frames N --seed S [--split test=0.3] [--workers K] [--size HxW] [--sensor kinect-v1]
         [--appearance typical] [--world real] [--clutter N] [--camera-mix all|NAME,...] [--camera-scale S]
@@ -30,7 +30,8 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from a3d.runtime.errors import InputError
+from a3d.runtime.cli.common import build_parser as command_parser
+from a3d.runtime.cli.common import command
 from a3d.runtime.sources.folder import write_frame, write_intrinsics
 from a3d.runtime.structures.geometry import NYU_CROP_INTRINSICS, NYU_CROP_SIZE, Intrinsics
 from a3d.synth.devices import DEVICES
@@ -196,52 +197,63 @@ def generate(
     return records
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="a3d-synth", description=__doc__.split("\n\n")[0])
+PROG = "a3d-synth"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = command_parser(PROG, __doc__.split("\n\n")[0])
     parser.add_argument(
         "out", nargs="?", type=Path, help="output folder (gets train/, test/ and the statistics)"
     )
-    parser.add_argument("--frames", type=int, default=100, help="number of frames (default 100)")
-    parser.add_argument("--seed", type=int, default=0, help="run seed (default 0)")
+    parser.add_argument("--frames", type=int, default=100, help="number of frames")
+    parser.add_argument("--seed", type=int, default=0, help="run seed")
     parser.add_argument(
         "--split",
         type=_parse_split,
         default=0.3,
         metavar="test=SHARE",
-        help="share of frames in the test split (default test=0.3)",
+        help="share of frames in the test split (default: test=0.3)",
     )
-    parser.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
+    parser.add_argument("--workers", type=int, default=1, help="worker processes")
     parser.add_argument(
         "--size",
         type=_parse_size,
         metavar="HxW",
-        help="image size; the NYUv2 crop intrinsics are scaled to it (default 427x561)",
+        help="image size; the NYUv2 crop intrinsics are scaled to it (default: 427x561)",
     )
     parser.add_argument(
         "--min-visible-px",
         type=int,
         default=SceneConfig.min_visible_px,
-        help="objects with fewer visible pixels are not annotated (default %(default)s)",
+        help="objects with fewer visible pixels are not annotated",
     )
     parser.add_argument(
         "--sensor",
         choices=tuple(SENSORS),
         default="a3d",
-        help="depth error model (a3d.synth.sensor): a3d (default) or kinect-v1's full error",
+        help="depth error model (a3d.synth.sensor): a3d, or kinect-v1's full error",
     )
     parser.add_argument(
         "--appearance",
         choices=APPEARANCES,
         default="independent",
-        help="materials drawn whatever the class (default), or class-typical (a3d.synth.appearance)",
+        help="materials drawn whatever the class (independent), or class-typical (a3d.synth.appearance)",
+    )
+    parser.add_argument(
+        "--depth-format",
+        choices=("png", "npy"),
+        default="png",
+        help="png: uint16 millimetres; npy: float32 metres (README 'Frame format')",
     )
     parser.add_argument(
         "--world",
         choices=tuple(WORLDS),
         default="a3d",
-        help="a3d (default: the classes only) or real: clutter, camera mix, real light, empty rooms",
+        help="a3d (the classes only) or real: clutter, camera mix, real light, empty rooms",
     )
-    parser.add_argument("--clutter", type=int, help="objects of no class added per room (world default)")
+    parser.add_argument(
+        "--clutter", type=int, help="objects of no class added per room (default: the world's)"
+    )
     parser.add_argument(
         "--camera-mix",
         type=_parse_mix,
@@ -252,22 +264,23 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--real-light",
         action=argparse.BooleanOptionalAction,
-        help="daylight, glowing windows and a consumer camera's colour pipeline (world default)",
+        help="daylight, glowing windows and a consumer camera's colour pipeline (default: the world's)",
     )
     parser.add_argument(
-        "--empty-share", type=float, help="share of rooms without class objects (world default)"
+        "--empty-share", type=float, help="share of rooms without class objects (default: the world's)"
     )
-    parser.add_argument("--depth-format", choices=("png", "npy"), default="png")
     parser.add_argument(
         "--stats", type=Path, metavar="FOLDER", help="print the statistics of a generated set and exit"
     )
+    return parser
+
+
+@command(PROG, errors=(OSError, ValueError))
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
     args = parser.parse_args(argv)
     if args.stats is not None:
-        try:
-            print(format_summary(summarise(read_records(args.stats))))
-        except (FileNotFoundError, ValueError) as e:
-            print(f"a3d-synth: {e}", file=sys.stderr)
-            return 2
+        print(format_summary(summarise(read_records(args.stats))))  # OSError, ValueError: exit 2
         return 0
     if args.out is None:
         parser.error("give an output folder, or --stats FOLDER")
@@ -292,22 +305,18 @@ def main(argv: list[str] | None = None) -> int:
         clutter=world["clutter"],
         real_light=world["real_light"],
     )
-    try:
-        records = generate(
-            args.out,
-            args.frames,
-            args.seed,
-            args.split,
-            args.workers,
-            config,
-            args.depth_format,
-            camera_mix=world["camera_mix"],
-            camera_scale=args.camera_scale,
-            empty_share=world["empty_share"],
-        )
-    except (InputError, OSError) as e:
-        print(f"a3d-synth: {e}", file=sys.stderr)
-        return 1
+    records = generate(
+        args.out,
+        args.frames,
+        args.seed,
+        args.split,
+        args.workers,
+        config,
+        args.depth_format,
+        camera_mix=world["camera_mix"],
+        camera_scale=args.camera_scale,
+        empty_share=world["empty_share"],
+    )
     print(format_summary(summarise(records)))
     return 0
 

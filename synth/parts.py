@@ -3,7 +3,8 @@
 Object frame (metres): ``x`` lateral, ``z`` towards the object's front, ``h`` height up from the
 surface the object stands on; the origin is the middle of its base. Every primitive is upright
 (its axis along gravity) and may be turned about the vertical through its centre by ``yaw``
-(SPEC yaw convention: a local vector ``(x, z)`` becomes ``(cos t x + sin t z, -sin t x + cos t z)``).
+(the yaw convention of docs/conventions.md "3D boxes": a local vector ``(x, z)`` becomes
+``(cos t x + sin t z, -sin t x + cos t z)``).
 
 Two kinds: ``BOX`` (a cuboid, half sizes ``(hx, hh, hz)``) and ``CYL`` (a vertical elliptic
 cylinder, radii ``hx`` and ``hz``, half height ``hh``). Both are solids: what a camera sees of an

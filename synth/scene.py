@@ -29,11 +29,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from a3d.runtime.sources.folder import GroundTruth
+from a3d.runtime.structures.frame import GroundTruth
 from a3d.runtime.structures.geometry import (
     NYU_CROP_INTRINSICS,
     NYU_CROP_SIZE,
     Intrinsics,
+    boxes_from_pixel_bounds,
     canonical_boxes,
     project_boxes_to_2d,
 )
@@ -336,7 +337,7 @@ def _ground_truth(
         size = hi - lo
         boxes.append([*(pose.R_tilt.T @ c_tilt), size[0], size[2], size[1], p.yaw - pose.heading])
         rows, cols = np.nonzero(obj_map == i)
-        vis_boxes.append([cols.min() - 0.5, rows.min() - 0.5, cols.max() + 0.5, rows.max() + 0.5])
+        vis_boxes.append(boxes_from_pixel_bounds([cols.min(), rows.min(), cols.max(), rows.max()]))
         names.append(cls)
         keep.append(i)
     n = len(names)

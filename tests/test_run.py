@@ -24,15 +24,13 @@ from a3d.runtime.network.preprocess import COLOR_MEAN_BGR, DEPTH_MEAN, color_inp
 from a3d.runtime.pipeline import PipelineConfig, detect, detect_frames
 from a3d.runtime.postprocess.select import decode_detections, select_detections
 from a3d.runtime.sources.folder import (
-    GroundTruth,
-    PrecomputedProposals,
-    list_frames,
-    read_folder_intrinsics,
+    FolderSource,
     write_frame,
     write_intrinsics,
-    write_precomputed_proposals,
 )
+from a3d.runtime.sources.proposals_file import PrecomputedProposals, write_precomputed_proposals
 from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES, NUM_OUTPUTS, class_index
+from a3d.runtime.structures.frame import GroundTruth
 from a3d.runtime.structures.geometry import (
     Intrinsics,
     batched_nms_2d,
@@ -275,9 +273,7 @@ def test_pipeline_detections_round_trip_and_score(tmp_path: Path) -> None:
     folder = write_scene_folder(tmp_path / "frames", ["a", "b", "c"], estimated_gravity=("c",))
     model = FakeModel()
     config = PipelineConfig.from_metadata(model.metadata)
-    refs = list_frames(folder)
-    intrinsics = read_folder_intrinsics(folder)
-    dets = [detect(ref, model, config, intrinsics) for ref in refs]
+    dets = [outcome.detections for outcome in detect_frames(FolderSource(folder), model, config)]
     for det in dets:
         n = len(det.scores)
         assert 0 < n <= NUM_CLASSES * 60
@@ -295,7 +291,7 @@ def test_pipeline_detections_round_trip_and_score(tmp_path: Path) -> None:
             "network",
             "total",
         }
-    assert model.calls == len(refs)  # one network call per frame
+    assert model.calls == len(dets)  # one network call per frame
     np.testing.assert_allclose(dets[0].R_tilt, rtilt_from_pitch_roll(np.radians(-8.0), np.radians(1.5)))
 
     path = tmp_path / "detections.jsonl"
@@ -329,9 +325,8 @@ def test_overlapped_run_gives_the_sequential_results(tmp_path: Path) -> None:
     folder = write_scene_folder(tmp_path / "frames", ["a", "b", "c"])
     model = FakeModel()
     config = PipelineConfig.from_metadata(model.metadata)
-    refs, intrinsics = list_frames(folder), read_folder_intrinsics(folder)
-    sequential = list(detect_frames(refs, model, config, intrinsics))
-    overlapped = list(detect_frames(refs, model, config, intrinsics, overlap=True))
+    sequential = list(detect_frames(FolderSource(folder), model, config))
+    overlapped = list(detect_frames(FolderSource(folder), model, config, overlap=True))
     for a, b in zip(sequential, overlapped, strict=True):
         assert a.detections is not None and b.detections is not None
         assert_same_detections(a.detections, b.detections)
@@ -346,13 +341,13 @@ def test_precomputed_proposals_are_used_and_capped(tmp_path: Path) -> None:
         masks[i, y : y + 20, x : x + 25] = True
         boxes.append([x - 0.5, y - 0.5, x + 24.5, y + 19.5])
     write_precomputed_proposals(folder / "a.proposals.npz", PrecomputedProposals.from_masks(boxes, masks))
-    intrinsics = read_folder_intrinsics(folder)
-    ref_a, ref_b = list_frames(folder)
+    source = FolderSource(folder)
+    ref_a, ref_b = source.refs
     model = FakeModel()
 
     def run(ref, **changes):
         config = PipelineConfig.from_metadata(model.metadata, **changes)
-        return detect(ref, model, config, intrinsics)
+        return detect(source.read(ref), model, config)
 
     auto = run(ref_a)
     assert {tuple(b) for b in auto.boxes2d.tolist()} <= {tuple(b) for b in boxes}
@@ -360,7 +355,7 @@ def test_precomputed_proposals_are_used_and_capped(tmp_path: Path) -> None:
     assert {tuple(b) for b in capped.boxes2d.tolist()} <= {tuple(b) for b in boxes[:2]}
     computed = run(ref_a, proposal_source="compute")
     assert not {tuple(b) for b in computed.boxes2d.tolist()} <= {tuple(b) for b in boxes}
-    [outcome] = detect_frames([ref_b], model, PipelineConfig.from_metadata(model.metadata,
-                              proposal_source="precomputed"), intrinsics)  # fmt: skip
+    [outcome] = detect_frames([source.loader(ref_b)], model, PipelineConfig.from_metadata(model.metadata,
+                              proposal_source="precomputed"))  # fmt: skip
     assert outcome.detections is None
-    assert outcome.problem.startswith(str(ref_b.color_path)) and "b.proposals.npz" in outcome.problem
+    assert outcome.problem.startswith(str(ref_b.color_path)) and "no precomputed proposals" in outcome.problem
