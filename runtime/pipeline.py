@@ -17,7 +17,10 @@ proposals, lifting, network_input, network, postprocess, and total (their sum).
 ``detect_frames`` runs a list of frames and never stops at a bad one: each frame comes back with
 its result or a one-line problem ("PATH: what is wrong"). With ``overlap`` one background thread
 prepares frame i + 1 while the calling thread runs the network on frame i; the caller then gives
-the network one thread fewer so that the cores are not oversubscribed.
+the network one thread fewer so that the cores are not oversubscribed. That pays only where the
+front end takes longer than the network (a small model); with the paper's VGG16 on 2 cores it
+doubles the network's time. ``detect_frames_auto`` times a frame sequentially and overlaps the
+rest only where ``overlap_pays`` (a3d-run's default, ``--overlap auto``).
 """
 
 from __future__ import annotations
@@ -54,6 +57,7 @@ from a3d.runtime.structures.geometry import Intrinsics, box_corners_camera, cont
 ProposalSource = Literal["auto", "compute", "precomputed"]
 PROPOSAL_SOURCES: tuple[str, ...] = typing.get_args(ProposalSource)
 STAGES = ("read", "depth_fill", "gravity", "proposals", "lifting", "network_input", "network", "postprocess")
+FRONT_END_STAGES = STAGES[: STAGES.index("network")]  # what ``prepare`` times
 
 
 class Detector(Protocol):
@@ -275,12 +279,14 @@ def detect(
 
 @dataclass(eq=False)
 class FrameOutcome:
-    """One frame of a run: its detections and prepared inputs, or the problem that stopped it."""
+    """One frame of a run: its detections and prepared inputs, or the problem that stopped it;
+    ``overlapped``: prepared on the background thread during the previous frame's network call."""
 
     ref: FrameRef
     detections: FrameDetections | None = None
     prepared: PreparedFrame | None = None
     problem: str = ""
+    overlapped: bool = False
 
 
 def frame_problem(ref: FrameRef, error: Exception) -> str:
@@ -320,7 +326,55 @@ def detect_frames(
             current = pending or pool.submit(prepare, ref, folder_intrinsics, config)
             following = refs[i + 1] if i + 1 < len(refs) else None
             pending = pool.submit(prepare, following, folder_intrinsics, config) if following else None
-            yield _run_one(ref, current.result, model, config)
+            yield replace(_run_one(ref, current.result, model, config), overlapped=i > 0)
+
+
+def overlap_pays(timing: dict[str, float], threads: int, margin: float = 0.9) -> bool:
+    """Whether frames like this one (its ``timing``, run sequentially on ``threads`` threads) come
+    faster with the next frame prepared on a background thread and the network on one thread fewer.
+
+    Predicted overlapped period: max(network x threads / (threads - 1) + postprocess, front end),
+    against front end + network + postprocess sequentially; overlap only where that is below
+    ``margin`` x sequential. The network is assumed to scale linearly with threads (it scales
+    less, so the real overlapped period is shorter: the choice errs towards sequential), and the
+    caller's own per-frame work (writing, logging) is left out of both (it only adds to the gain).
+    With a network much longer than the front end (the paper's VGG16 on 2 cores) overlap would
+    double the network's time for a small hidden front end; with a small network it hides the
+    network behind the front end.
+    """
+    if threads < 2:
+        return False
+    front = sum(timing.get(stage, 0.0) for stage in FRONT_END_STAGES)
+    network, post = timing.get("network", 0.0), timing.get("postprocess", 0.0)
+    overlapped = max(network * threads / (threads - 1) + post, front)
+    return overlapped < margin * (front + network + post)
+
+
+def detect_frames_auto(
+    refs: Iterable[FrameRef],
+    model: Detector,
+    config: PipelineConfig,
+    folder_intrinsics: Intrinsics | None,
+    *,
+    threads: int,
+    narrow: Callable[[int], Detector],
+) -> Iterator[FrameOutcome]:
+    """``detect_frames`` that chooses overlap where it is faster: frames run sequentially on
+    ``model`` (``threads`` threads) until one after the first (a warm-up) has its timing; the rest
+    then overlap, with the network on ``narrow(threads - 1)``, where ``overlap_pays`` for it,
+    else go on sequentially. The outcomes say which way each frame ran (``overlapped``)."""
+    refs = list(refs)
+    for i, ref in enumerate(refs):
+        outcome = _run_one(ref, lambda r=ref: prepare(r, folder_intrinsics, config), model, config)
+        yield outcome
+        if i == 0 or outcome.detections is None or i + 1 == len(refs):
+            continue
+        rest = refs[i + 1 :]
+        if overlap_pays(outcome.detections.timing, threads):
+            yield from detect_frames(rest, narrow(threads - 1), config, folder_intrinsics, overlap=True)
+        else:
+            yield from detect_frames(rest, model, config, folder_intrinsics)
+        return
 
 
 def _run_one(

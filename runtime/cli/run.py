@@ -2,7 +2,8 @@
 
     a3d-run FOLDER [--model model.onnx] [--output detections.jsonl] [--threads 2]
             [--proposals auto|compute|precomputed] [--max-proposals N] [--score-threshold S]
-            [--resume] [--overlap] [--headless] [--connect] [--url URL] [--serve] [--save FILE.rrd] [--stdout]
+            [--resume] [--overlap [auto|on|off]] [--headless] [--connect] [--url URL] [--serve]
+            [--save FILE.rrd] [--stdout]
 
 FOLDER is a frame folder (README "Frame format"); the model defaults to FOLDER/model.onnx. The
 model is loaded and checked before any frame is read. Each frame goes through
@@ -40,7 +41,14 @@ from tqdm import tqdm
 from a3d.runtime.errors import InputError, ModelError
 from a3d.runtime.io.detections_io import format_line, parse_line
 from a3d.runtime.network.model import DetectorModel
-from a3d.runtime.pipeline import PROPOSAL_SOURCES, FrameOutcome, PipelineConfig, detect_frames
+from a3d.runtime.pipeline import (
+    PROPOSAL_SOURCES,
+    Detector,
+    FrameOutcome,
+    PipelineConfig,
+    detect_frames,
+    detect_frames_auto,
+)
 from a3d.runtime.sources.folder import (
     MODEL_FILE,
     FrameRef,
@@ -54,6 +62,10 @@ from a3d.runtime.structures.geometry import Intrinsics
 from a3d.runtime.viewer import view as viewer
 
 PROG = "a3d-run"
+OVERLAP_MODES = ("auto", "on", "off")
+OVERLAP_NOTE = (
+    "the front end is the longer part: next frames prepared in the background, the network on {n} - 1 threads"
+)
 DEFAULT_MODEL = MODEL_FILE
 DEFAULT_OUTPUT = "detections.jsonl"
 
@@ -85,9 +97,13 @@ def _parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--overlap",
-        action="store_true",
-        help="prepare the next frame on a background thread during the network call "
-        "(the network then gets THREADS - 1 threads)",
+        choices=OVERLAP_MODES,
+        nargs="?",
+        const="auto",
+        default="auto",
+        help="prepare the next frame on a background thread during the network call, the network then "
+        "on THREADS - 1 threads: on, off, or auto (the default; also a bare --overlap): a frame after "
+        "the first is timed sequentially and the rest overlap only where that is predicted faster",
     )
     viewer.add_viewer_args(p)
     return p
@@ -131,8 +147,8 @@ def _job(args: argparse.Namespace) -> _Job:
     if not listing.frames and not incomplete:
         raise InputError(f"{args.folder}: no frames (NAME.color.png + NAME.depth.png)")
     intrinsics = read_folder_intrinsics(args.folder)
-    # With --overlap one thread prepares frames, so the network gets one fewer (no oversubscription).
-    model = load_model(args.model, threads=max(1, args.threads - 1) if args.overlap else args.threads)
+    # With --overlap on one thread prepares frames, so the network gets one fewer (no oversubscription).
+    model = load_model(args.model, threads=max(1, args.threads - 1) if args.overlap == "on" else args.threads)
     config = PipelineConfig.from_metadata(
         model.metadata,
         proposal_source=args.proposals,
@@ -181,12 +197,11 @@ def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] 
         print(f"{PROG}: {problem}", file=sys.stderr)
     index = {ref.name: i for i, ref in enumerate(job.frames)}
     written = 0
+    overlapping = False
     bar = tqdm(total=len(job.todo), desc=PROG, unit="frame", file=sys.stderr, disable=None)
     try:
-        with _threads(1 if args.overlap else args.threads), _warnings_to_stderr():
-            for outcome in detect_frames(
-                job.todo, job.model, job.config, job.intrinsics, overlap=args.overlap
-            ):
+        with _threads(1 if args.overlap == "on" else args.threads), _warnings_to_stderr():
+            for outcome in _frames(job, args):
                 problem = outcome.problem
                 start = written_at = logged_at = time.perf_counter()
                 if outcome.detections is not None:
@@ -197,6 +212,11 @@ def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] 
                     logged_at = time.perf_counter()
                 if on_frame is not None:
                     on_frame(FrameReport(outcome, written_at - start, logged_at - written_at))
+                if outcome.overlapped and not overlapping and args.overlap == "auto":
+                    overlapping = True
+                    tqdm.write(
+                        f"{PROG}: --overlap auto: {OVERLAP_NOTE.format(n=args.threads)}", file=sys.stderr
+                    )
                 if problem:
                     failures.append(problem)
                     tqdm.write(f"{PROG}: {problem}", file=sys.stderr)
@@ -219,6 +239,20 @@ def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] 
     where = "stdout" if args.output == "-" else args.output
     print(f"{PROG}: {written} frames written to {where}{resumed}, {len(failures)} failed", file=sys.stderr)
     return 1 if failures else 0
+
+
+def _frames(job: _Job, args: argparse.Namespace) -> Iterator[FrameOutcome]:
+    """The pipeline's outcomes in the --overlap mode asked for (auto: pipeline.detect_frames_auto)."""
+    if args.overlap != "auto":
+        return detect_frames(job.todo, job.model, job.config, job.intrinsics, overlap=args.overlap == "on")
+
+    def narrow(threads: int) -> Detector:
+        cv2.setNumThreads(1)  # the background thread's OpenCV leaves the other cores to the network
+        return load_model(args.model, threads=threads)
+
+    return detect_frames_auto(
+        job.todo, job.model, job.config, job.intrinsics, threads=args.threads, narrow=narrow
+    )
 
 
 # ----------------------------------------------------------------------------- output file
