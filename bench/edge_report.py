@@ -3,6 +3,7 @@ machine's measured ceiling, where the head's time goes, and the PASS/FAIL target
 
 from __future__ import annotations
 
+import functools
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -44,11 +45,16 @@ class Measurements:
     """Everything one benchmark run measured: the ceilings; a3d-run with the full model's int8 +
     SVD file and with the small model (--overlap off, on, auto); the networks alone; profiles."""
 
-    ceilings: Ceilings | None = None
+    ceiling_runs: list[Ceilings] = field(default_factory=list)  # at the start and at the end
     full: list[RunResult] = field(default_factory=list)
     small: list[RunResult] = field(default_factory=list)
     networks: dict[str, NetworkResult] = field(default_factory=dict)
     profiles: dict[str, NetworkProfile] = field(default_factory=dict)
+
+    @property
+    def ceilings(self) -> Ceilings:
+        """Each ceiling's best measurement in the run."""
+        return functools.reduce(Ceilings.best, self.ceiling_runs)
 
 
 def load_average() -> str:
@@ -68,20 +74,25 @@ def cpu_description() -> str:
     return f"{model} ({', '.join(f for f in ISA_FLAGS if f in flags) or 'no AVX2'})"
 
 
-def print_ceilings(c: Ceilings) -> None:
+def print_ceilings(runs: list[Ceilings]) -> None:
+    """The ceilings as measured at the start and at the end of the run (their spread shows how
+    disturbed the machine was); the parts are judged against the higher of each."""
     m, k, n = GEMM
     c_in, c_out, h, w = CONV
-    print(f"\nthis machine's ceilings through ONNX Runtime, {c.threads} threads (GMAC/s)")
-    print(f"  {'':44s}{'fp32':>8s}{'int8':>8s}{'int8/fp32':>11s}")
-    for label, fp32, int8 in (
-        (f"GEMM {m} x {k} x {n}", c.gemm_fp32, c.gemm_int8),
-        (f"conv 3x3 {c_in} -> {c_out} on {h} x {w}", c.conv_fp32, c.conv_int8),
+    print(f"\nthis machine's ceilings through ONNX Runtime, {runs[0].threads} threads (GMAC/s, start / end)")
+    print(f"  {'':40s}{'fp32':>14s}{'int8':>14s}{'int8/fp32':>11s}")
+    for label, kind in (
+        (f"GEMM {m} x {k} x {n}", "gemm"),
+        (f"conv 3x3 {c_in} -> {c_out} on {h} x {w}", "conv"),
     ):
-        print(f"  {label:44s}{fp32 / 1e9:8.1f}{int8 / 1e9:8.1f}{int8 / fp32:11.2f}")
+        fp32, int8 = ([getattr(c, f"{kind}_{p}") / 1e9 for c in runs] for p in ("fp32", "int8"))
+        shown = ["/".join(f"{v:.1f}" for v in values) for values in (fp32, int8)]
+        print(f"  {label:40s}{shown[0]:>14s}{shown[1]:>14s}{max(int8) / max(fp32):11.2f}")
+    best = functools.reduce(Ceilings.best, runs)
     if not cpu_flags() & set(INT8_DOT_PRODUCT):
+        gains = f"{best.conv_int8 / best.conv_fp32:.1f}-{best.gemm_int8 / best.gemm_fp32:.1f}x"
         print(f"  no int8 dot-product instructions ({', '.join(INT8_DOT_PRODUCT[:3])}): ONNX Runtime's int8 "
-              f"reaches {c.conv_int8 / c.conv_fp32:.1f}-{c.gemm_int8 / c.gemm_fp32:.1f}x fp32 here, "
-              "about 3-4x with VNNI")  # fmt: skip
+              f"reaches {gains} fp32 here, about 3-4x with VNNI")  # fmt: skip
 
 
 def print_breakdown(title: str, runs: list[RunResult], network: NetworkResult | None = None) -> None:
@@ -190,7 +201,7 @@ def print_targets(m: Measurements) -> None:
         print(f"  ONNX Runtime fp32 / torch eager fp32 network: {fp32 / torch_fp32:.2f}")
     print(f"\ntargets ({load_average()} now)")
     profile, c = m.profiles.get("int8 + SVD"), m.ceilings
-    if profile is not None and c is not None:
+    if profile is not None:
         reached = profile.seconds_at_ceiling("trunks", c) / profile.seconds("trunks")
         _target(f"int8 trunks >= {TARGET_TRUNKS_OF_CEILING:.0%} of the measured int8 convolution ceiling",
                 reached >= TARGET_TRUNKS_OF_CEILING, f"{reached:.0%}")  # fmt: skip
@@ -202,7 +213,7 @@ def print_targets(m: Measurements) -> None:
         _target(f"int8 + SVD end to end <= {PAPER_SECONDS} s (the paper: Titan X, network only)",
                 best.frame_seconds <= PAPER_SECONDS,
                 f"{best.frame_seconds:.3f} s a frame ({mode})")  # fmt: skip
-    elif profile is not None and c is not None:
+    elif profile is not None:
         projected = profile.seconds_at_ceiling("trunks", c) + profile.seconds_at_ceiling("head", c)
         projected += best.frame_seconds - best.stages["network"]
         print(f"  [n/a ] int8 + SVD end to end <= {PAPER_SECONDS} s needs int8 dot products (no VNNI here): "

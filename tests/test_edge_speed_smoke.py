@@ -166,3 +166,51 @@ def test_a_child_reports_its_own_peak_memory_not_its_parents() -> None:
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
                          cwd=edge_speed.REPO)  # fmt: skip
     assert int(out.stdout) < 256 * 2**20 < ballast.nbytes
+
+
+def test_targets_judge_what_was_measured(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+) -> None:
+    """The report's verdicts from made-up measurements: trunks at 60 % of a ceiling that the second
+    ceiling run raised, auto overlap slower than sequential for one model only, no VNNI."""
+    from bench.ceilings import Ceilings
+    from bench.edge_speed import NetworkResult, RunResult
+    from bench.network_profile import NetworkProfile, OpStat
+
+    monkeypatch.setattr(edge_report, "cpu_flags", lambda: frozenset({"avx2"}))
+    start = Ceilings(gemm_fp32=20e9, gemm_int8=30e9, conv_fp32=20e9, conv_int8=25e9, threads=2)
+    end = Ceilings(gemm_fp32=25e9, gemm_int8=40e9, conv_fp32=15e9, conv_int8=50e9, threads=2)
+    ops = [OpStat("trunks", "QLinearConv", seconds=1.0, macs=30_000_000_000, nodes=26),  # at 50 G: 0.6 s
+           OpStat("head", "QGemm", seconds=0.2, macs=4_000_000_000, nodes=7),  # at 40 G: 0.1 s
+           OpStat("head", "Transpose", seconds=0.1, nodes=2)]  # fmt: skip
+    stages = {s: 0.01 for s in edge_report.RUN_STAGES} | {"network": 1.3}
+
+    def run(model: str, overlap: str, seconds: float) -> RunResult:
+        return RunResult(model, overlap, 8, 100.0, stages, seconds, overlapped=6 * (overlap != "off"),
+                         peak_bytes=2**30)  # fmt: skip
+
+    m = edge_report.Measurements(
+        ceiling_runs=[start, end],
+        full=[run("a", "off", 1.5), run("a", "on", 1.9), run("a", "auto", 1.52)],
+        small=[run("b", "off", 0.5), run("b", "on", 0.4), run("b", "auto", 0.6)],
+        networks={
+            key: NetworkResult("onnxruntime", key, seconds, 1.0, 100.0)
+            for key, seconds in (("ort int8 + SVD", 1.3), ("ort fp32", 2.0), ("ort small model", 0.2))
+        },
+        profiles={"int8 + SVD": NetworkProfile("a.onnx", 100, 5, ops)},
+    )
+    assert m.ceilings.conv_int8 == 50e9 and m.ceilings.conv_fp32 == 20e9  # each ceiling's best run
+    edge_report.print_targets(m)
+    edge_report.print_parts("a", m.profiles["int8 + SVD"], m.ceilings, m.full[0])
+    out = capsys.readouterr().out
+    assert "[FAIL] int8 trunks >= 75% of the measured int8 convolution ceiling: 60%" in out
+    assert (
+        "[PASS] int8 + SVD end to end <= 1.25 x its network alone: 1.500 s vs 1.25 x 1.300 s (sequential)"
+        in out
+    )
+    assert "[n/a ] int8 + SVD end to end <= 0.739 s" in out and "0.900 s projected" in out  # 0.6 + 0.1 + 0.2
+    assert "[PASS] --overlap auto never slower than sequential, full model" in out  # 1.52 <= 1.05 x 1.5
+    assert "[FAIL] --overlap auto never slower than sequential, small model" in out  # 0.6 > 1.05 x 0.5
+    assert "[PASS] peak resident memory" in out
+    trunks = next(line for line in out.splitlines() if line.strip().startswith("trunks"))
+    assert trunks.split()[1:] == ["30.0", "1000.0", "600.0", "60%"]
