@@ -90,7 +90,8 @@ def print_ceilings(runs: list[Ceilings]) -> None:
         print(f"  {label:40s}{shown[0]:>14s}{shown[1]:>14s}{max(int8) / max(fp32):11.2f}")
     best = functools.reduce(Ceilings.best, runs)
     if not cpu_flags() & set(INT8_DOT_PRODUCT):
-        gains = f"{best.conv_int8 / best.conv_fp32:.1f}-{best.gemm_int8 / best.gemm_fp32:.1f}x"
+        low, high = sorted((best.conv_int8 / best.conv_fp32, best.gemm_int8 / best.gemm_fp32))
+        gains = f"{low:.1f}-{high:.1f}x"
         print(f"  no int8 dot-product instructions ({', '.join(INT8_DOT_PRODUCT[:3])}): ONNX Runtime's int8 "
               f"reaches {gains} fp32 here, about 3-4x with VNNI")  # fmt: skip
 
