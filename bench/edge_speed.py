@@ -44,6 +44,7 @@ is a quick run of the same code on a small network.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import subprocess
 import sys
@@ -196,13 +197,12 @@ def network_inputs(
     (a3d.runtime.pipeline.prepare; a3d.export.verify.folder_inputs does the same but brings torch
     into the process)."""
     from a3d.runtime.network.model import DetectorModel
-    from a3d.runtime.pipeline import PipelineConfig, prepare
-    from a3d.runtime.sources.folder import list_frames, read_folder_intrinsics
+    from a3d.runtime.pipeline import PipelineConfig, load_and_prepare
+    from a3d.runtime.sources.folder import FolderSource
 
     metadata = DetectorModel.load(model, threads=1).metadata
     config = PipelineConfig.from_metadata(metadata, max_proposals=max_proposals)
-    intrinsics = read_folder_intrinsics(frames)
-    return [prepare(ref, intrinsics, config) for ref in list_frames(frames)[:count]]
+    return [load_and_prepare(loader, config) for loader in itertools.islice(FolderSource(frames), count)]
 
 
 @dataclass

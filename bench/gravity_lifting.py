@@ -3,7 +3,7 @@
 Frames come from a folder in the frame format (e.g. a3d-synth's test split) or are rendered on
 the fly by a3d.synth.generate_frame from held-out seeds (`--synth FIRST COUNT`), which also
 gives each object's exact visible fraction. Per frame: hole filling, surface normals, gravity
-(R_tilt) estimation, lifting of the ground-truth instance masks to initial 3D boxes (SPEC.md
+(R_tilt) estimation, lifting of the ground-truth instance masks to initial 3D boxes (docs/conventions.md
 "Proposals and 3D box initialisation"), and the lifting of the frame's real proposals
 (a3d.runtime.frontend.proposals) for timing.
 
@@ -46,7 +46,6 @@ from a3d.runtime.frontend.normals import surface_normals
 from a3d.runtime.frontend.proposals import propose
 from a3d.runtime.io.detections_io import FrameDetections
 from a3d.runtime.sources.folder import (
-    GroundTruth,
     list_frames,
     read_folder_intrinsics,
     read_frame,
@@ -54,6 +53,7 @@ from a3d.runtime.sources.folder import (
     read_instances,
 )
 from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES
+from a3d.runtime.structures.frame import GroundTruth
 from a3d.runtime.structures.geometry import Intrinsics, iou_2d, iou_3d
 from bench.paper_table2 import PAPER_AP
 

@@ -86,8 +86,8 @@ def bootstrap_maps(
     """mAP@0.25 (points) of every variant on each of ``resamples`` paired resamples of the annotated
     frames (drawn with replacement; all variants scored on the same draw with
     a3d.runtime.evaluation.metric, as a3d-eval scores): any difference of two variants is paired."""
-    from a3d.runtime.cli.eval import load_truth
     from a3d.runtime.evaluation.metric import EvalConfig, evaluate
+    from a3d.runtime.evaluation.truth import load_truth
     from a3d.runtime.io.detections_io import read_detections
 
     truth, _ = load_truth(frames)

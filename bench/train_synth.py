@@ -37,12 +37,15 @@ def run(command: list[str], log: Path | None = None) -> float:
     return time.perf_counter() - t0
 
 
-def synthesize(data: Path, frames: int, seed: int, test_share: float) -> float | None:
+def synthesize(
+    data: Path, frames: int, seed: int, test_share: float, options: list[str] = ()
+) -> float | None:
+    """a3d-synth DATA (with more a3d-synth ``options``) unless DATA/train exists; wall seconds or None."""
     if (data / "train").is_dir():
         print(f"using the existing {data}")
         return None
     return run([str(BIN / "a3d-synth"), str(data), "--frames", str(frames), "--seed", str(seed),
-                "--split", f"test={test_share}"])  # fmt: skip
+                "--split", f"test={test_share}", *options])  # fmt: skip
 
 
 def train(train_dir: Path, run_dir: Path, config: str | None, sets: list[str], iters: int | None,

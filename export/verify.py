@@ -19,6 +19,7 @@ NYUv2 frame size with random boxes, some reaching past the border.
 
 from __future__ import annotations
 
+import itertools
 import math
 import os
 from collections.abc import Iterator
@@ -29,8 +30,8 @@ import onnx
 
 from a3d.export.onnx_export import ExportError, example_inputs
 from a3d.runtime.network.model import DetectorModel
-from a3d.runtime.pipeline import PipelineConfig, prepare
-from a3d.runtime.sources.folder import list_frames, read_folder_intrinsics
+from a3d.runtime.pipeline import PipelineConfig, load_and_prepare
+from a3d.runtime.sources.folder import FolderSource
 from a3d.runtime.structures.geometry import NYU_CROP_SIZE
 from a3d.train.inference import TorchNetwork
 
@@ -135,11 +136,10 @@ def compare(model: DetectorModel, reference: TorchNetwork, inputs: list[NetworkI
 def folder_inputs(folder: str | os.PathLike, pipeline: PipelineConfig, limit: int) -> Iterator[NetworkInputs]:
     """The network inputs of the first ``limit`` frames of a frame folder (README "Frame format")
     that have at least one usable proposal, from the runtime's own front end."""
-    intrinsics = read_folder_intrinsics(folder)
-    for ref in list_frames(folder)[:limit]:
-        p = prepare(ref, intrinsics, pipeline)
+    for loader in itertools.islice(FolderSource(folder), limit):
+        p = load_and_prepare(loader, pipeline)
         if len(p.rois):
-            yield NetworkInputs(ref.name, p.color_input, p.depth_input, p.rois, p.context_rois)
+            yield NetworkInputs(loader.name, p.color_input, p.depth_input, p.rois, p.context_rois)
 
 
 def synthetic_inputs(input_scale: float, rois: int = SYNTHETIC_ROIS, seed: int = 0) -> NetworkInputs:

@@ -1,11 +1,14 @@
-"""The per-frame detection pipeline of the edge runtime: frame files -> detections.
+"""The per-frame detection pipeline of the edge runtime: a frame in memory -> its detections.
 
-Three stages, so that the CPU front end of one frame can overlap the network call of another:
+The core takes a ``Frame`` (a3d.runtime.structures.frame: colour, metric depth, intrinsics,
+optional R_tilt and precomputed proposals), whatever source it came from; reading files is a
+frame source's job (a3d.runtime.sources). Three stages, so that the CPU front end of one frame
+can overlap the network call of another:
 
-1. ``prepare`` (numpy + OpenCV): read and validate the frame (a3d.runtime.sources.folder), fill the depth
-   holes, take R_tilt from ``NAME.meta.json`` or estimate it from the raw depth, compute segment
-   proposals (or read ``NAME.proposals.npz``), lift them to initial 3D centres (proposals without
-   any depth are dropped), and build the network inputs: the trunk images at the model's
+1. ``prepare`` (numpy + OpenCV): fill the depth holes, take the frame's R_tilt or estimate it
+   from the raw depth, compute segment proposals (or use the frame's precomputed ones), lift them
+   to initial 3D centres (proposals without any depth are dropped), and build the network
+   inputs: the trunk images at the model's
    ``input_scale`` and the proposal and context RoIs in the resized image's pixel coordinates;
 2. ``infer``: one ONNX Runtime call per frame (both trunks once, the head over all RoIs at once);
 3. ``finish``: per-class top-k and 2D NMS, class-specific 3D boxes and amodal 2D boxes
@@ -14,8 +17,10 @@ Three stages, so that the CPU front end of one frame can overlap the network cal
 Every stage adds its wall time (seconds) to the frame's ``timing``: read, depth_fill, gravity,
 proposals, lifting, network_input, network, postprocess, and total (their sum).
 
-``detect_frames`` runs a list of frames and never stops at a bad one: each frame comes back with
-its result or a one-line problem ("PATH: what is wrong"). With ``overlap`` one background thread
+``detect_frames`` runs the frames of a source (``FrameLoader``s, read where the "read" stage is
+timed) and never stops at a bad one: each frame comes back with its result or a one-line problem
+("ORIGIN: what is wrong"). It takes the source lazily, one frame ahead at most, so a live source
+is never drained in advance. With ``overlap`` one background thread
 prepares frame i + 1 while the calling thread runs the network on frame i; the caller then gives
 the network one thread fewer so that the cores are not oversubscribed. That pays only where the
 front end takes longer than the network (a small model); with the paper's VGG16 on 2 cores it
@@ -25,11 +30,11 @@ rest only where ``overlap_pays`` (a3d-run's default, ``--overlap auto``).
 
 from __future__ import annotations
 
-import dataclasses
+import itertools
 import time
 import typing
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Any, Literal, Protocol
 
@@ -37,30 +42,26 @@ import numpy as np
 
 from a3d.runtime.errors import InputError, ModelError
 from a3d.runtime.frontend.depth import fill_depth
+from a3d.runtime.frontend.frame_proposals import frame_proposals
 from a3d.runtime.frontend.gravity import estimate_rtilt
 from a3d.runtime.frontend.lifting import lift
-from a3d.runtime.frontend.proposals import ProposalConfig, Proposals, proposal_config_from_dict, propose
+from a3d.runtime.frontend.proposals import ProposalConfig, Proposals, proposal_config_from_dict
 from a3d.runtime.io.detections_io import FrameDetections
 from a3d.runtime.network.network_input import network_inputs, scale_boxes
 from a3d.runtime.postprocess.select import decode_detections, select_detections
-from a3d.runtime.sources.folder import (
-    INTRINSICS_FILE,
-    Frame,
-    FrameRef,
-    PrecomputedProposals,
-    read_frame,
-    read_precomputed_proposals,
-)
+from a3d.runtime.sources.base import FrameLoader
+from a3d.runtime.sources.proposals_file import PrecomputedProposals
 from a3d.runtime.structures.classes import NUM_OUTPUTS
-from a3d.runtime.structures.geometry import Intrinsics, box_corners_camera, context_boxes
+from a3d.runtime.structures.frame import Frame
+from a3d.runtime.structures.geometry import box_corners_camera, context_boxes
 
 ProposalSource = Literal["auto", "compute", "precomputed"]
 PROPOSAL_SOURCES: tuple[str, ...] = typing.get_args(ProposalSource)
 STAGES = ("read", "depth_fill", "gravity", "proposals", "lifting", "network_input", "network", "postprocess")
-FRONT_END_STAGES = STAGES[: STAGES.index("network")]  # what ``prepare`` times
+FRONT_END_STAGES = STAGES[: STAGES.index("network")]  # what ``load_and_prepare`` times
 
 
-class Detector(Protocol):
+class NetworkRunner(Protocol):
     """What the pipeline needs of a model: a3d.runtime.network.model.DetectorModel's ``run``."""
 
     def run(
@@ -75,8 +76,8 @@ class PipelineConfig:
     ``mean_sizes`` (19, 3) class mean [l, w, h] in metres (the initial boxes); ``input_scale``
     the trunk image scale; ``context_scale`` the context box scale about the proposal's centre;
     ``depth_truncation_m`` the depth mapped to 255; ``top_k`` / ``nms_iou`` / ``min_score`` the
-    post-processing; ``proposal_source``: "auto" uses ``NAME.proposals.npz`` where a frame has
-    one, "compute" always runs a3d.runtime.frontend.proposals, "precomputed" requires the file;
+    post-processing; ``proposal_source``: "auto" uses a frame's precomputed proposals where it
+    has them, "compute" always runs a3d.runtime.frontend.proposals, "precomputed" requires them;
     ``max_proposals`` caps computed and precomputed proposals alike (the first ones are kept).
     """
 
@@ -163,12 +164,11 @@ class NetworkOutput:
     deltas2d: np.ndarray
 
 
-def prepare(ref: FrameRef, folder_intrinsics: Intrinsics | None, config: PipelineConfig) -> PreparedFrame:
-    """Stage 1: everything before the network (see the module docstring)."""
-    timing: dict[str, float] = {}
+def prepare(frame: Frame, config: PipelineConfig, timing: dict[str, float] | None = None) -> PreparedFrame:
+    """Stage 1: everything before the network (see the module docstring); ``timing`` may already
+    hold the frame's read time."""
+    timing = {} if timing is None else timing
     clock = _Clock(timing)
-    frame = read_frame(ref, folder_intrinsics)
-    clock.lap("read")
     filled = fill_depth(frame.depth)
     clock.lap("depth_fill")
     R_tilt = frame.R_tilt if frame.R_tilt is not None else estimate_rtilt(frame.depth, frame.intrinsics)
@@ -190,28 +190,26 @@ def prepare(ref: FrameRef, folder_intrinsics: Intrinsics | None, config: Pipelin
     return PreparedFrame(frame, R_tilt, boxes, centers, color[None], depth[None], rois, context_rois, timing)
 
 
+def load_and_prepare(loader: FrameLoader, config: PipelineConfig) -> PreparedFrame:
+    """Read the frame (timed as "read"), then stage 1."""
+    timing: dict[str, float] = {}
+    clock = _Clock(timing)
+    frame = loader.load()
+    clock.lap("read")
+    return prepare(frame, config, timing)
+
+
 def _proposals(
     frame: Frame, filled: np.ndarray, config: PipelineConfig
 ) -> tuple[Proposals | PrecomputedProposals | np.ndarray, np.ndarray]:
     """(segments in a form ``lift`` takes, boxes (N, 4) float64), at most ``max_proposals``."""
-    path = frame.ref.proposals_path
-    if config.proposal_source == "precomputed" and path is None:
-        raise InputError(f"{frame.ref.color_path}: no {frame.name}.proposals.npz (--proposals precomputed)")
-    if path is None or config.proposal_source == "compute":
-        computed = propose(frame.color, filled, frame.intrinsics, config.proposals)
-        return computed, np.asarray(computed.boxes, np.float64)
-    pre = read_precomputed_proposals(path, frame.image_size)
-    n = min(len(pre), config.max_proposals)
-    boxes = np.asarray(pre.boxes[:n], np.float64)
-    if pre.packed_masks is not None:
-        masks = np.unpackbits(pre.packed_masks[:n], axis=-1, count=frame.image_size[1]).view(bool)
-        return masks, boxes
-    assert pre.indptr is not None and pre.indices is not None
-    end = int(pre.indptr[n])
-    return replace(pre, boxes=pre.boxes[:n], indptr=pre.indptr[: n + 1], indices=pre.indices[:end]), boxes
+    if config.proposal_source == "precomputed" and frame.proposals is None:
+        raise InputError(f"{frame.origin}: no precomputed proposals (--proposals precomputed)")
+    precomputed = None if config.proposal_source == "compute" else frame.proposals
+    return frame_proposals(frame.color, filled, frame.intrinsics, config.proposals, precomputed)
 
 
-def infer(model: Detector, prepared: PreparedFrame) -> NetworkOutput:
+def infer(model: NetworkRunner, prepared: PreparedFrame) -> NetworkOutput:
     """Stage 2: one model call over all RoIs of the frame (skipped when there are none)."""
     clock = _Clock(prepared.timing)
     n, c = len(prepared.rois), NUM_OUTPUTS
@@ -250,27 +248,25 @@ def finish(prepared: PreparedFrame, out: NetworkOutput, config: PipelineConfig) 
     clock.lap("postprocess")
     timing = prepared.timing
     timing["total"] = sum(timing[stage] for stage in STAGES if stage in timing)
-    ref = prepared.frame.ref
+    frame = prepared.frame
     return FrameDetections(
-        frame=prepared.frame.name,
+        frame=frame.name,
         R_tilt=prepared.R_tilt,
         class_ids=class_idx,
         scores=scores,
         boxes2d=prepared.boxes[rows],
         boxes3d=boxes3d,
         corners=corners,
-        color=str(ref.color_path),
-        depth=str(ref.depth_path),
+        color=frame.color_file,
+        depth=frame.depth_file,
         timing=dict(timing),
         boxes2d_amodal=amodal,
     )
 
 
-def detect(
-    ref: FrameRef, model: Detector, config: PipelineConfig, folder_intrinsics: Intrinsics | None
-) -> FrameDetections:
-    """All three stages for one frame (raises on a bad frame)."""
-    prepared = prepare(ref, folder_intrinsics, config)
+def detect(frame: Frame, model: NetworkRunner, config: PipelineConfig) -> FrameDetections:
+    """All three stages for one frame in memory (raises on a bad frame)."""
+    prepared = prepare(frame, config)
     return finish(prepared, infer(model, prepared), config)
 
 
@@ -282,51 +278,52 @@ class FrameOutcome:
     """One frame of a run: its detections and prepared inputs, or the problem that stopped it;
     ``overlapped``: prepared on the background thread during the previous frame's network call."""
 
-    ref: FrameRef
+    name: str
+    origin: str
     detections: FrameDetections | None = None
     prepared: PreparedFrame | None = None
     problem: str = ""
     overlapped: bool = False
 
 
-def frame_problem(ref: FrameRef, error: Exception) -> str:
-    """A one-line "PATH: problem" for a failed frame: the message as it is when it starts with one
-    of the frame's files (InputError does), else prefixed with the colour file."""
+def frame_problem(loader: FrameLoader, error: Exception) -> str:
+    """A one-line "ORIGIN: problem" for a failed frame: the message as it is when it starts with
+    one of the frame's files or its origin (InputError does), else prefixed with the origin."""
     if isinstance(error, ValueError):
         message = str(error)
     else:
         message = f"internal error: {type(error).__name__}: {error}"
-    files = [getattr(ref, f.name) for f in dataclasses.fields(ref) if f.name.endswith("_path")]
-    files.append(ref.color_path.parent / INTRINSICS_FILE)
-    named = any(message.startswith(f"{path}:") for path in files if path is not None)
-    return message if named else f"{ref.color_path}: {message}"
+    named = any(message.startswith(f"{path}:") for path in (*loader.files, loader.origin))
+    return message if named else f"{loader.origin}: {message}"
 
 
 def detect_frames(
-    refs: Iterable[FrameRef],
-    model: Detector,
+    loaders: Iterable[FrameLoader],
+    model: NetworkRunner,
     config: PipelineConfig,
-    folder_intrinsics: Intrinsics | None,
     *,
     overlap: bool = False,
 ) -> Iterator[FrameOutcome]:
     """Run frames in order; a bad frame yields its problem and the run goes on.
 
-    With ``overlap``, frame i + 1 is prepared on one background thread during frame i's network
-    call and post-processing (at most two frames in flight).
+    With ``overlap``, frame i + 1 is loaded and prepared on one background thread during frame
+    i's network call and post-processing (at most two frames in flight).
     """
-    refs = list(refs)
     if not overlap:
-        for ref in refs:
-            yield _run_one(ref, lambda r=ref: prepare(r, folder_intrinsics, config), model, config)
+        for loader in loaders:
+            yield _run_one(loader, lambda item=loader: load_and_prepare(item, config), model, config)
         return
+    items = iter(loaders)
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="a3d-prepare") as pool:
-        pending: Future | None = None
-        for i, ref in enumerate(refs):
-            current = pending or pool.submit(prepare, ref, folder_intrinsics, config)
-            following = refs[i + 1] if i + 1 < len(refs) else None
-            pending = pool.submit(prepare, following, folder_intrinsics, config) if following else None
-            yield replace(_run_one(ref, current.result, model, config), overlapped=i > 0)
+        current = next(items, None)
+        pending = None if current is None else pool.submit(load_and_prepare, current, config)
+        first = True
+        while current is not None and pending is not None:
+            following = next(items, None)
+            ready = pending
+            pending = None if following is None else pool.submit(load_and_prepare, following, config)
+            yield replace(_run_one(current, ready.result, model, config), overlapped=not first)
+            current, first = following, False
 
 
 def overlap_pays(timing: dict[str, float], threads: int, margin: float = 0.9) -> bool:
@@ -351,37 +348,44 @@ def overlap_pays(timing: dict[str, float], threads: int, margin: float = 0.9) ->
 
 
 def detect_frames_auto(
-    refs: Iterable[FrameRef],
-    model: Detector,
+    loaders: Iterable[FrameLoader],
+    model: NetworkRunner,
     config: PipelineConfig,
-    folder_intrinsics: Intrinsics | None,
     *,
     threads: int,
-    narrow: Callable[[int], Detector],
+    narrow: Callable[[int], NetworkRunner],
 ) -> Iterator[FrameOutcome]:
     """``detect_frames`` that chooses overlap where it is faster: frames run sequentially on
     ``model`` (``threads`` threads) until one after the first (a warm-up) has its timing; the rest
     then overlap, with the network on ``narrow(threads - 1)``, where ``overlap_pays`` for it,
-    else go on sequentially. The outcomes say which way each frame ran (``overlapped``)."""
-    refs = list(refs)
-    for i, ref in enumerate(refs):
-        outcome = _run_one(ref, lambda r=ref: prepare(r, folder_intrinsics, config), model, config)
+    else go on sequentially. The source is taken lazily as by ``detect_frames``; the outcomes say
+    which way each frame ran (``overlapped``)."""
+    items = iter(loaders)
+    for i, loader in enumerate(items):
+        outcome = _run_one(loader, lambda item=loader: load_and_prepare(item, config), model, config)
         yield outcome
-        if i == 0 or outcome.detections is None or i + 1 == len(refs):
+        if i == 0 or outcome.detections is None:
             continue
-        rest = refs[i + 1 :]
+        following = next(items, None)  # a live source's next frame, which the run needs next anyway
+        if following is None:
+            return
+        rest = itertools.chain([following], items)
         if overlap_pays(outcome.detections.timing, threads):
-            yield from detect_frames(rest, narrow(threads - 1), config, folder_intrinsics, overlap=True)
+            yield from detect_frames(rest, narrow(threads - 1), config, overlap=True)
         else:
-            yield from detect_frames(rest, model, config, folder_intrinsics)
+            yield from detect_frames(rest, model, config)
         return
 
 
 def _run_one(
-    ref: FrameRef, get_prepared: Callable[[], PreparedFrame], model: Detector, config: PipelineConfig
+    loader: FrameLoader,
+    get_prepared: Callable[[], PreparedFrame],
+    model: NetworkRunner,
+    config: PipelineConfig,
 ) -> FrameOutcome:
     try:
         prepared = get_prepared()
-        return FrameOutcome(ref, finish(prepared, infer(model, prepared), config), prepared)
-    except Exception as error:  # a bad frame must never stop the folder; it is reported instead
-        return FrameOutcome(ref, problem=frame_problem(ref, error))
+        detections = finish(prepared, infer(model, prepared), config)
+        return FrameOutcome(loader.name, loader.origin, detections, prepared)
+    except Exception as error:  # a bad frame must never stop the run; it is reported instead
+        return FrameOutcome(loader.name, loader.origin, problem=frame_problem(loader, error))

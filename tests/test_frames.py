@@ -15,7 +15,10 @@ import pytest
 from a3d.runtime.errors import InputError
 from a3d.runtime.io import image_io
 from a3d.runtime.sources import folder as frames
-from a3d.runtime.sources.folder import GroundTruth, PrecomputedProposals
+from a3d.runtime.sources import proposals_file
+from a3d.runtime.sources.proposals_file import PrecomputedProposals
+from a3d.runtime.structures import frame
+from a3d.runtime.structures.frame import GroundTruth
 from a3d.runtime.structures.geometry import Intrinsics, rtilt_from_pitch_roll
 
 H, W = 24, 32
@@ -48,7 +51,7 @@ def _frame(folder: Path, name: str = "f", **kwargs) -> frames.FrameRef:
     return frames.write_frame(folder, name, _color(), _depth(), **kwargs)
 
 
-def _read(ref: frames.FrameRef) -> frames.Frame:
+def _read(ref: frames.FrameRef) -> frame.Frame:
     return frames.read_frame(ref, frames.read_folder_intrinsics(ref.color_path.parent))
 
 
@@ -409,14 +412,14 @@ def _superpixel_proposals() -> PrecomputedProposals:
 def test_proposals_round_trip_in_both_forms(tmp_path: Path) -> None:
     boxes, masks = _masks()
     path = tmp_path / "f.proposals.npz"
-    frames.write_precomputed_proposals(path, PrecomputedProposals.from_masks(boxes, masks, [3, 2, 1]))
-    read = frames.read_precomputed_proposals(path, (H, W))
+    proposals_file.write_precomputed_proposals(path, PrecomputedProposals.from_masks(boxes, masks, [3, 2, 1]))
+    read = proposals_file.read_precomputed_proposals(path, (H, W))
     assert len(read) == 3 and np.array_equal(read.boxes, boxes) and np.array_equal(read.scores, [3, 2, 1])
     for i in range(3):
         assert np.array_equal(read.mask(i), masks[i])
     original = _superpixel_proposals()
-    frames.write_precomputed_proposals(path, original)
-    read = frames.read_precomputed_proposals(path, (H, W))
+    proposals_file.write_precomputed_proposals(path, original)
+    read = proposals_file.read_precomputed_proposals(path, (H, W))
     assert np.array_equal(read.superpixels, original.superpixels) and np.array_equal(
         read.indices, original.indices
     )
@@ -453,9 +456,11 @@ def test_bad_proposal_files(tmp_path: Path) -> None:
     ]
     for change, *fragments in cases:
         _npz(path, **{**arrays, **change})
-        _expect(lambda: frames.read_precomputed_proposals(path, (H, W)), path, *fragments)
+        _expect(lambda: proposals_file.read_precomputed_proposals(path, (H, W)), path, *fragments)
     _npz(path, boxes=good.boxes, masks=np.zeros((2, H, 3), np.uint8))
-    _expect(lambda: frames.read_precomputed_proposals(path, (H, W)), path, "masks is uint8 (2, 24, 3)")
+    _expect(
+        lambda: proposals_file.read_precomputed_proposals(path, (H, W)), path, "masks is uint8 (2, 24, 3)"
+    )
     _npz(path, **arrays)
     path.write_bytes(path.read_bytes()[:-50])
-    _expect(lambda: frames.read_precomputed_proposals(path, (H, W)), path, "not a readable .npz")
+    _expect(lambda: proposals_file.read_precomputed_proposals(path, (H, W)), path, "not a readable .npz")

@@ -9,7 +9,7 @@ import pytest
 import scipy.io
 
 from a3d.runtime.errors import InputError
-from a3d.runtime.sources import folder as frames
+from a3d.runtime.sources import proposals_file
 from a3d.train.data import mcg
 
 H, W = 20, 30
@@ -89,8 +89,8 @@ def test_candidates_become_superpixel_proposals(tmp_path: Path) -> None:
 def test_written_proposals_read_back_identically(tmp_path: Path) -> None:
     proposals = mcg.read_mcg_candidates(write_candidates(tmp_path / "candidates.mat"))
     path = tmp_path / "0001.proposals.npz"
-    frames.write_precomputed_proposals(path, proposals)
-    read = frames.read_precomputed_proposals(path, (H, W))
+    proposals_file.write_precomputed_proposals(path, proposals)
+    read = proposals_file.read_precomputed_proposals(path, (H, W))
     for field in ("boxes", "scores", "superpixels", "indptr", "indices"):
         assert np.array_equal(getattr(read, field), getattr(proposals, field)), field
     assert read.superpixels.dtype == np.int32 and read.indptr.dtype == np.int64

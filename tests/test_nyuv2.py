@@ -12,6 +12,7 @@ import scipy.io
 
 from a3d.runtime.errors import InputError
 from a3d.runtime.sources import folder as frames
+from a3d.runtime.sources import proposals_file
 from a3d.runtime.structures.geometry import (
     NYU_CROP_INTRINSICS,
     NYU_CROP_SIZE,
@@ -311,7 +312,7 @@ def test_cli_writes_mcg_proposals_filtered_as_the_authors_do(tmp_path: Path) -> 
     assert nyuv2_cli.main([str(root), str(out), "--mcg", str(tmp_path / "Segs")]) == 0
     (ref,) = frames.list_frames(out / "test")
     assert ref.proposals_path == out / "test" / "0002.proposals.npz"
-    proposals = frames.read_precomputed_proposals(ref.proposals_path, (H, W))
+    proposals = proposals_file.read_precomputed_proposals(ref.proposals_path, (H, W))
     assert proposals.boxes.tolist() == [[-0.5, -0.5, 39.5, 39.5], [79.5, -0.5, 159.5, 19.5]]
     assert proposals.mask(1).sum() == 80 * 20
 

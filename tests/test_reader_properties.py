@@ -28,17 +28,14 @@ from hypothesis import strategies as st
 from a3d.runtime.errors import InputError
 from a3d.runtime.io import image_io
 from a3d.runtime.io.detections_io import FrameDetections, format_line, parse_line
-from a3d.runtime.sources.folder import (
-    FrameRef,
-    GroundTruth,
+from a3d.runtime.sources.folder import FrameRef, read_frame, read_ground_truth, write_frame
+from a3d.runtime.sources.proposals_file import (
     PrecomputedProposals,
-    read_frame,
-    read_ground_truth,
     read_precomputed_proposals,
-    write_frame,
     write_precomputed_proposals,
 )
 from a3d.runtime.structures.classes import NUM_CLASSES
+from a3d.runtime.structures.frame import GroundTruth
 from a3d.runtime.structures.geometry import Intrinsics, is_rotation, rtilt_from_pitch_roll
 
 SETTINGS = settings(

@@ -128,7 +128,7 @@ def test_unusable_model_is_refused_before_any_frame(
     path.write_bytes(damage(tiny_model.read_bytes(), tmp_path))
     folder = write_scene_folder(tmp_path / "frames", ["a", "b"])
     read: list[object] = []
-    monkeypatch.setattr(pipeline, "read_frame", lambda *args: read.append(args))
+    monkeypatch.setattr(pipeline, "load_and_prepare", lambda *args: read.append(args))
     output = tmp_path / "out" / "detections.jsonl"
 
     status = run_cli.main([str(folder), "--model", str(path), "--output", str(output), "--headless"])

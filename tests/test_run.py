@@ -26,15 +26,13 @@ from a3d.runtime.network.preprocess import COLOR_MEAN_BGR, DEPTH_MEAN, color_inp
 from a3d.runtime.pipeline import PipelineConfig, detect, detect_frames, detect_frames_auto, overlap_pays
 from a3d.runtime.postprocess.select import decode_detections, select_detections
 from a3d.runtime.sources.folder import (
-    GroundTruth,
-    PrecomputedProposals,
-    list_frames,
-    read_folder_intrinsics,
+    FolderSource,
     write_frame,
     write_intrinsics,
-    write_precomputed_proposals,
 )
+from a3d.runtime.sources.proposals_file import PrecomputedProposals, write_precomputed_proposals
 from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES, NUM_OUTPUTS, class_index
+from a3d.runtime.structures.frame import GroundTruth
 from a3d.runtime.structures.geometry import (
     Intrinsics,
     batched_nms_2d,
@@ -277,9 +275,7 @@ def test_pipeline_detections_round_trip_and_score(tmp_path: Path) -> None:
     folder = write_scene_folder(tmp_path / "frames", ["a", "b", "c"], estimated_gravity=("c",))
     model = FakeModel()
     config = PipelineConfig.from_metadata(model.metadata)
-    refs = list_frames(folder)
-    intrinsics = read_folder_intrinsics(folder)
-    dets = [detect(ref, model, config, intrinsics) for ref in refs]
+    dets = [outcome.detections for outcome in detect_frames(FolderSource(folder), model, config)]
     for det in dets:
         n = len(det.scores)
         assert 0 < n <= NUM_CLASSES * 60
@@ -297,7 +293,7 @@ def test_pipeline_detections_round_trip_and_score(tmp_path: Path) -> None:
             "network",
             "total",
         }
-    assert model.calls == len(refs)  # one network call per frame
+    assert model.calls == len(dets)  # one network call per frame
     np.testing.assert_allclose(dets[0].R_tilt, rtilt_from_pitch_roll(np.radians(-8.0), np.radians(1.5)))
 
     path = tmp_path / "detections.jsonl"
@@ -331,9 +327,8 @@ def test_overlapped_run_gives_the_sequential_results(tmp_path: Path) -> None:
     folder = write_scene_folder(tmp_path / "frames", ["a", "b", "c"])
     model = FakeModel()
     config = PipelineConfig.from_metadata(model.metadata)
-    refs, intrinsics = list_frames(folder), read_folder_intrinsics(folder)
-    sequential = list(detect_frames(refs, model, config, intrinsics))
-    overlapped = list(detect_frames(refs, model, config, intrinsics, overlap=True))
+    sequential = list(detect_frames(FolderSource(folder), model, config))
+    overlapped = list(detect_frames(FolderSource(folder), model, config, overlap=True))
     for a, b in zip(sequential, overlapped, strict=True):
         assert a.detections is not None and b.detections is not None
         assert_same_detections(a.detections, b.detections)
@@ -374,23 +369,22 @@ def test_auto_overlap_times_a_frame_then_overlaps_only_where_it_pays(
     folder = write_scene_folder(tmp_path / "frames", ["a", "b", "c", "d", "e"])
     model = TimedNetwork(network)
     config = PipelineConfig.from_metadata(model.metadata)
-    refs, intrinsics = list_frames(folder), read_folder_intrinsics(folder)
-    sequential = list(detect_frames(refs, model, config, intrinsics))
-    prepare = pipeline.prepare
+    sequential = list(detect_frames(FolderSource(folder), model, config))
+    load_and_prepare = pipeline.load_and_prepare
 
     def slow_front_end(*args):
-        prepared = prepare(*args)
+        prepared = load_and_prepare(*args)
         prepared.timing["proposals"] += front_end  # as if it took that long (the choice reads the timing)
         return prepared
 
-    monkeypatch.setattr(pipeline, "prepare", slow_front_end)
+    monkeypatch.setattr(pipeline, "load_and_prepare", slow_front_end)
     narrowed: list[int] = []
 
     def narrow(threads: int) -> FakeModel:
         narrowed.append(threads)
         return model
 
-    auto = list(detect_frames_auto(refs, model, config, intrinsics, threads=2, narrow=narrow))
+    auto = list(detect_frames_auto(FolderSource(folder), model, config, threads=2, narrow=narrow))
     # Frames a and b run sequentially (a warms up, b is timed); c is prepared after the choice.
     assert [o.overlapped for o in auto] == [False, False, False, overlaps, overlaps]
     assert narrowed == ([1] if overlaps else [])
@@ -408,13 +402,13 @@ def test_precomputed_proposals_are_used_and_capped(tmp_path: Path) -> None:
         masks[i, y : y + 20, x : x + 25] = True
         boxes.append([x - 0.5, y - 0.5, x + 24.5, y + 19.5])
     write_precomputed_proposals(folder / "a.proposals.npz", PrecomputedProposals.from_masks(boxes, masks))
-    intrinsics = read_folder_intrinsics(folder)
-    ref_a, ref_b = list_frames(folder)
+    source = FolderSource(folder)
+    ref_a, ref_b = source.refs
     model = FakeModel()
 
     def run(ref, **changes):
         config = PipelineConfig.from_metadata(model.metadata, **changes)
-        return detect(ref, model, config, intrinsics)
+        return detect(source.read(ref), model, config)
 
     auto = run(ref_a)
     assert {tuple(b) for b in auto.boxes2d.tolist()} <= {tuple(b) for b in boxes}
@@ -422,7 +416,7 @@ def test_precomputed_proposals_are_used_and_capped(tmp_path: Path) -> None:
     assert {tuple(b) for b in capped.boxes2d.tolist()} <= {tuple(b) for b in boxes[:2]}
     computed = run(ref_a, proposal_source="compute")
     assert not {tuple(b) for b in computed.boxes2d.tolist()} <= {tuple(b) for b in boxes}
-    [outcome] = detect_frames([ref_b], model, PipelineConfig.from_metadata(model.metadata,
-                              proposal_source="precomputed"), intrinsics)  # fmt: skip
+    [outcome] = detect_frames([source.loader(ref_b)], model, PipelineConfig.from_metadata(model.metadata,
+                              proposal_source="precomputed"))  # fmt: skip
     assert outcome.detections is None
-    assert outcome.problem.startswith(str(ref_b.color_path)) and "b.proposals.npz" in outcome.problem
+    assert outcome.problem.startswith(str(ref_b.color_path)) and "no precomputed proposals" in outcome.problem

@@ -15,7 +15,8 @@ import pytest
 
 from a3d.runtime.cli import run as run_cli
 from a3d.runtime.io.detections_io import read_detections
-from a3d.runtime.sources.folder import GroundTruth, list_frames, read_folder_intrinsics, write_frame
+from a3d.runtime.sources.folder import FolderSource, write_frame
+from a3d.runtime.structures.frame import GroundTruth
 from a3d.runtime.structures.geometry import rtilt_from_pitch_roll
 from tests.rrd_reader import as_array, read_columns
 from tests.test_run import (
@@ -69,6 +70,12 @@ def test_usage_errors_exit_2_before_any_frame(tmp_path: Path, capsys: pytest.Cap
     assert run([str(folder), "--threads", "0", "--headless"]) == 2
     assert run([str(folder), "--proposals", "mcg", "--headless"]) == 2
     assert run([str(tmp_path / "nowhere"), "--model", str(folder / "model.onnx"), "--headless"]) == 2
+    capsys.readouterr()
+    assert run([str(tmp_path / "nowhere"), "--headless"]) == 2  # the folder is named, not the model
+    assert (
+        capsys.readouterr().err.strip().splitlines()[-1]
+        == f"a3d-run: error: {tmp_path / 'nowhere'}: no such folder"
+    )
     assert not out.exists()
 
 
@@ -216,7 +223,7 @@ def test_saved_recording_holds_the_written_boxes(tmp_path: Path, fake_model: Fak
 
 def test_headless_without_a_sink_records_nothing(tmp_path: Path, fake_model: FakeModel, monkeypatch) -> None:
     folder = write_scene_folder(tmp_path / "frames", ["a"])
-    monkeypatch.setattr(run_cli.viewer, "open_recording", lambda args: pytest.fail("recording opened"))
+    monkeypatch.setattr(run_cli.viewer, "load_view", lambda: pytest.fail("rerun view loaded"))
     assert run([str(folder), "--model", "m.onnx", "--output", str(tmp_path / "d.jsonl"), "--headless"]) == 0
 
 
@@ -246,9 +253,9 @@ def test_exported_model_end_to_end(tmp_path: Path) -> None:
 
     eager = TorchNetwork(net, stats)
     config = PipelineConfig.from_metadata(fake_metadata())
-    intrinsics = read_folder_intrinsics(folder)
-    for det, ref in zip(got, list_frames(folder), strict=True):
-        reference = detect(ref, eager, config, intrinsics)
+    source = FolderSource(folder)
+    for det, ref in zip(got, source.refs, strict=True):
+        reference = detect(source.read(ref), eager, config)
         assert len(det.scores) > 0
         # The best score per class is continuous in the network outputs (no ties to flip).
         for c in np.unique(reference.class_ids):

@@ -8,7 +8,8 @@ import pytest
 from a3d.runtime.frontend.depth import fill_depth
 from a3d.runtime.network.network_input import network_inputs, scale_boxes
 from a3d.runtime.network.preprocess import color_input
-from a3d.runtime.sources.folder import GroundTruth, list_frames, read_frame, write_frame, write_intrinsics
+from a3d.runtime.sources.folder import list_frames, read_frame, write_frame, write_intrinsics
+from a3d.runtime.structures.frame import GroundTruth
 from a3d.runtime.structures.geometry import flip_boxes_2d, flip_boxes_3d, flip_intrinsics, flip_rtilt
 from a3d.train.config import apply_overrides, load_config
 from a3d.train.dataset import BatchDataset, compute_target_stats, raw_targets

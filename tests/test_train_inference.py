@@ -8,7 +8,7 @@ import torch
 
 from a3d.runtime.io.detections_io import read_detections
 from a3d.runtime.pipeline import prepare
-from a3d.runtime.sources.folder import list_frames
+from a3d.runtime.sources.folder import FolderSource, list_frames
 from a3d.runtime.structures.classes import NUM_OUTPUTS
 from a3d.train.config import apply_overrides, load_config
 from a3d.train.dataset import BatchDataset, TargetStats, compute_target_stats
@@ -31,10 +31,11 @@ def test_training_batches_and_the_runtime_pipeline_feed_the_network_alike(setup)
     """Images, RoIs and context RoIs of a training batch (unflipped) equal the runtime's inputs."""
     folder, config, db, _ = setup
     batch = BatchDataset(db.records, K, compute_target_stats(db.records, False), config, 1)[0]
-    refs = {r.name: r for r in list_frames(folder)}
+    source = FolderSource(folder)
+    refs = {r.name: r for r in source.refs}
     rows_start = 0
     for b, name in enumerate(batch["frames"]):
-        prepared = prepare(refs[name], K, config.pipeline(db.mean_sizes))
+        prepared = prepare(source.read(refs[name]), config.pipeline(db.mean_sizes))
         np.testing.assert_array_equal(batch["color"][b].numpy(), prepared.color_input[0])
         np.testing.assert_array_equal(batch["depth"][b].numpy(), prepared.depth_input[0])
         rows = np.flatnonzero(batch["rois"][:, 0].numpy() == b)

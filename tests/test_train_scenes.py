@@ -13,13 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from a3d.runtime.sources.folder import (
-    GroundTruth,
-    list_frames,
-    read_ground_truth,
-    write_frame,
-    write_intrinsics,
-)
+from a3d.runtime.sources.folder import list_frames, read_ground_truth, write_frame, write_intrinsics
+from a3d.runtime.structures.frame import GroundTruth
 from a3d.runtime.structures.geometry import Intrinsics, project_boxes_to_2d
 
 SIZE = (48, 64)  # (H, W)

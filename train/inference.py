@@ -14,19 +14,19 @@ detection keeps its initial box (lifted centre, class mean size, theta 0): the p
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from a3d.runtime.cli.eval import load_truth
 from a3d.runtime.evaluation.metric import EvalConfig, EvalResult, evaluate
+from a3d.runtime.evaluation.truth import load_truth
 from a3d.runtime.io.detections_io import FrameDetections, write_detections
 from a3d.runtime.pipeline import PipelineConfig, detect, detect_frames
-from a3d.runtime.sources.folder import FrameRef, list_frames, read_folder_intrinsics
+from a3d.runtime.sources.folder import FolderSource
 from a3d.runtime.structures.classes import NUM_OUTPUTS
+from a3d.runtime.structures.frame import Frame
 from a3d.train.checkpoint import load_checkpoint
 from a3d.train.config import TrainConfig
 from a3d.train.dataset import TargetStats
@@ -104,12 +104,9 @@ class TorchDetector:
         stats = TargetStats.from_tensors(state["target_stats"])
         return cls.build(model, config, stats, state["mean_sizes"].numpy(), device)
 
-    def detect(self, ref: FrameRef, folder_intrinsics=None) -> FrameDetections:
+    def detect(self, frame: Frame) -> FrameDetections:
         """Detections of one frame (README detections format, a3d.runtime.io.detections_io)."""
-        return detect(ref, self.network, self.pipeline, folder_intrinsics)
-
-    def detect_all(self, refs: Iterable[FrameRef], folder_intrinsics=None) -> dict[str, FrameDetections]:
-        return {ref.name: self.detect(ref, folder_intrinsics) for ref in refs}
+        return detect(frame, self.network, self.pipeline)
 
 
 def write_folder_detections(
@@ -117,9 +114,9 @@ def write_folder_detections(
 ) -> tuple[list[FrameDetections], list[str]]:
     """Detections of the frames of ``folder`` written to ``out`` (JSON lines, as a3d-run writes
     them); a bad frame is skipped and reported as "PATH: problem" instead of stopping the run."""
-    refs = list_frames(folder)
-    refs = refs[:max_frames] if max_frames > 0 else refs
-    outcomes = detect_frames(refs, detector.network, detector.pipeline, read_folder_intrinsics(folder))
+    loaders = list(FolderSource(folder))
+    loaders = loaders[:max_frames] if max_frames > 0 else loaders
+    outcomes = detect_frames(loaders, detector.network, detector.pipeline)
     done, problems = [], []
     for outcome in outcomes:
         if outcome.detections is None:
@@ -134,7 +131,8 @@ def validate(detector: TorchDetector, folder: str | os.PathLike, max_frames: int
     """The paper's mAP (a3d.runtime.evaluation.metric, as a3d-eval scores) on the annotated frames
     of ``folder``."""
     truth, _ = load_truth(Path(folder))
-    refs = [r for r in list_frames(folder) if r.name in truth]
+    source = FolderSource(folder)
+    refs = [r for r in source.refs if r.name in truth]
     refs = refs[:max_frames] if max_frames > 0 else refs
-    detections = detector.detect_all(refs, read_folder_intrinsics(folder))
+    detections = {ref.name: detector.detect(source.read(ref)) for ref in refs}
     return evaluate({r.name: truth[r.name] for r in refs}, detections, EvalConfig())

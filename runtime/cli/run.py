@@ -1,11 +1,13 @@
-"""a3d-run: detect the objects in every frame of a folder; one JSON line per frame, live rerun view.
+"""a3d-run: detect the objects in every frame of a source; one JSON line per frame, live rerun view.
 
     a3d-run FOLDER [--model model.onnx] [--output detections.jsonl] [--threads 2]
             [--proposals auto|compute|precomputed] [--max-proposals N] [--score-threshold S]
             [--resume] [--overlap [auto|on|off]] [--headless] [--connect] [--url URL] [--serve]
             [--save FILE.rrd] [--stdout]
 
-FOLDER is a frame folder (README "Frame format"); the model defaults to FOLDER/model.onnx. The
+SOURCE is a frame source (a3d.runtime.sources.registry: an a3d frame folder, README "Frame
+format", and the other kinds registered there; --source-format forces one); for a folder the
+model defaults to FOLDER/model.onnx. The
 model is loaded and checked before any frame is read. Each frame goes through
 a3d.runtime.pipeline and its line (README "Detections format") is appended to the output as one
 write, then flushed and fsynced, so an interrupted run leaves only complete lines (at most a
@@ -33,33 +35,31 @@ import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
-import rerun as rr
 from tqdm import tqdm
 
-from a3d.runtime.errors import InputError, ModelError
+from a3d.runtime.cli.common import build_parser as command_parser
+from a3d.runtime.cli.common import command
+from a3d.runtime.errors import InputError
 from a3d.runtime.io.detections_io import format_line, parse_line
 from a3d.runtime.network.model import DetectorModel
 from a3d.runtime.pipeline import (
     PROPOSAL_SOURCES,
-    Detector,
     FrameOutcome,
+    NetworkRunner,
     PipelineConfig,
     detect_frames,
     detect_frames_auto,
 )
-from a3d.runtime.sources.folder import (
-    MODEL_FILE,
-    FrameRef,
-    GroundTruth,
-    SkippedFile,
-    read_folder_intrinsics,
-    read_ground_truth,
-    scan_folder,
-)
-from a3d.runtime.structures.geometry import Intrinsics
-from a3d.runtime.viewer import view as viewer
+from a3d.runtime.sources.base import FrameLoader
+from a3d.runtime.sources.folder import MODEL_FILE
+from a3d.runtime.sources.registry import FrameSource, SourceOptions, kinds, open_source
+from a3d.runtime.viewer import options as viewer
+
+if TYPE_CHECKING:
+    import rerun as rr
 
 PROG = "a3d-run"
 OVERLAP_MODES = ("auto", "on", "off")
@@ -72,18 +72,19 @@ DEFAULT_OUTPUT = "detections.jsonl"
 load_model = DetectorModel.load  # the model loader (tests substitute a fake model here)
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
-    p.add_argument("folder", type=Path, help="frame folder (README 'Frame format')")
+def build_parser() -> argparse.ArgumentParser:
+    p = command_parser(PROG, __doc__.split("\n\n")[0])
+    p.add_argument("source", type=Path, help="frame source: an a3d frame folder or another registered kind")
+    p.add_argument("--source-format", choices=kinds(), help="the kind of SOURCE (default: recognised)")
     p.add_argument("--model", type=Path, help=f"model file (default: FOLDER/{DEFAULT_MODEL})")
-    p.add_argument("--output", default=DEFAULT_OUTPUT, help="JSON lines file, '-': stdout (%(default)s)")
-    p.add_argument("--threads", type=int, default=2, help="CPU threads, OpenCV and ONNX Runtime (default: 2)")
+    p.add_argument("--output", default=DEFAULT_OUTPUT, help="JSON lines file, '-': stdout")
+    p.add_argument("--threads", type=int, default=2, help="CPU threads, OpenCV and ONNX Runtime")
     p.add_argument(
         "--proposals",
         choices=PROPOSAL_SOURCES,
         default="auto",
         help="auto: NAME.proposals.npz where present, else computed; compute: always computed; "
-        "precomputed: NAME.proposals.npz required (default: auto)",
+        "precomputed: NAME.proposals.npz required",
     )
     p.add_argument("--max-proposals", type=int, metavar="N", help="proposals per frame (default: model)")
     p.add_argument("--score-threshold", type=float, metavar="S", help="drop scores below S (default: model)")
@@ -93,7 +94,7 @@ def _parser() -> argparse.ArgumentParser:
         type=float,
         default=0.3,
         metavar="S",
-        help="rerun view: draw detections scoring >= S (all are written to the output; default: %(default)s)",
+        help="rerun view: draw detections scoring >= S (all are written to the output)",
     )
     p.add_argument(
         "--overlap",
@@ -102,8 +103,8 @@ def _parser() -> argparse.ArgumentParser:
         const="auto",
         default="auto",
         help="prepare the next frame on a background thread during the network call, the network then "
-        "on THREADS - 1 threads: on, off, or auto (the default; also a bare --overlap): a frame after "
-        "the first is timed sequentially and the rest overlap only where that is predicted faster",
+        "on THREADS - 1 threads: on, off, or auto (also a bare --overlap): a frame after the first is "
+        "timed sequentially and the rest overlap only where that is predicted faster",
     )
     viewer.add_viewer_args(p)
     return p
@@ -111,7 +112,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def _arguments(argv: list[str] | None) -> argparse.Namespace:
     """Parsed and checked flags (argparse exits with status 2 on a usage error)."""
-    parser = _parser()
+    parser = build_parser()
     args = parser.parse_args(argv)
     if args.threads < 1:
         parser.error("--threads must be at least 1")
@@ -121,8 +122,10 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
         parser.error("--score-threshold must be in [0, 1]")
     if args.output == "-" and (args.resume or args.stdout):
         parser.error("--output - cannot be combined with --resume or --stdout")
+    if not args.source.exists() and ":" not in str(args.source):  # "realsense:SERIAL" names no file
+        parser.error(f"{args.source}: no such file or folder")
     if args.model is None:
-        args.model = args.folder / DEFAULT_MODEL
+        args.model = args.source / DEFAULT_MODEL
         if not args.model.is_file():
             parser.error(f"no model given and {args.model} does not exist; pass --model FILE")
     return args
@@ -132,21 +135,18 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
 class _Job:
     """What a run needs, all checked before the first frame: the frames, the model, the settings."""
 
-    frames: list[FrameRef]  # every complete frame of the folder, sorted (rerun timeline index)
-    todo: list[FrameRef]  # the frames to process (without those --resume found in the output)
-    incomplete: list[str]  # "PATH: reason" of files that belong to an incomplete frame
-    intrinsics: Intrinsics | None
+    source: FrameSource
+    done: set[str]  # the frames --resume found in the output
     model: DetectorModel
     config: PipelineConfig
 
 
 def _job(args: argparse.Namespace) -> _Job:
-    """Scan the folder, load the model and read the output to resume (InputError / ModelError)."""
-    listing = scan_folder(args.folder)
-    incomplete = _incomplete_frames(listing.skipped)
-    if not listing.frames and not incomplete:
-        raise InputError(f"{args.folder}: no frames (NAME.color.png + NAME.depth.png)")
-    intrinsics = read_folder_intrinsics(args.folder)
+    """Open the source, load the model and read the output to resume (InputError / ModelError)."""
+    options = SourceOptions(
+        with_proposals=args.proposals != "compute", with_truth=viewer.viewer_requested(args)
+    )
+    source = open_source(args.source, options, args.source_format)
     # With --overlap on one thread prepares frames, so the network gets one fewer (no oversubscription).
     model = load_model(args.model, threads=max(1, args.threads - 1) if args.overlap == "on" else args.threads)
     config = PipelineConfig.from_metadata(
@@ -156,19 +156,16 @@ def _job(args: argparse.Namespace) -> _Job:
         min_score=args.score_threshold,
     )
     done = completed_frames(Path(args.output)) if args.resume else set()
-    todo = [ref for ref in listing.frames if ref.name not in done]
-    return _Job(listing.frames, todo, incomplete, intrinsics, model, config)
+    return _Job(source, done, model, config)
 
 
-def _incomplete_frames(skipped: list[SkippedFile]) -> list[str]:
-    """One "PATH: reason" per frame that cannot be read, naming its first skipped file (a colour or
-    depth file of an unsupported type comes first); files of no frame (the model, notes, folders,
-    the output itself) are no problem."""
-    first: dict[str, SkippedFile] = {}
-    for item in skipped:
-        if item.frame:
-            first.setdefault(item.frame, item)
-    return [f"{item.path}: {item.reason}" for item in first.values()]
+def _frames_to_do(source: FrameSource, done: set[str], index: dict[str, int]) -> Iterator[FrameLoader]:
+    """The source's frames, lazily, less those already done; ``index`` learns each frame's
+    position as it goes (so a live source is never drained ahead of the run)."""
+    for position, loader in enumerate(source):
+        index[loader.name] = position
+        if loader.name not in done:
+            yield loader
 
 
 @dataclass(frozen=True)
@@ -182,33 +179,32 @@ class FrameReport:
     log_seconds: float
 
 
+@command(PROG)
 def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] | None = None) -> int:
     args = _arguments(argv)
-    try:
-        job = _job(args)
-        recording = _open_recording(args)
-        view = viewer.ViewOptions(min_score=args.view_min_score)
-        output = _open_output(args.output, append=args.resume)
-    except (InputError, ModelError) as e:
-        print(f"{PROG}: error: {e}", file=sys.stderr)
-        return 2
-    failures = list(job.incomplete)
+    job = _job(args)  # InputError / ModelError: exit 2 before any frame (command)
+    recording = _open_recording(args)
+    view = viewer.ViewOptions(min_score=args.view_min_score)
+    output = _open_output(args.output, append=args.resume)
+    failures = list(job.source.incomplete)
     for problem in failures:
         print(f"{PROG}: {problem}", file=sys.stderr)
-    index = {ref.name: i for i, ref in enumerate(job.frames)}
     written = 0
     overlapping = False
-    bar = tqdm(total=len(job.todo), desc=PROG, unit="frame", file=sys.stderr, disable=None)
+    index: dict[str, int] = {}  # frame name -> its position in the source (the rerun timeline)
+    todo = _frames_to_do(job.source, job.done, index)
+    total = len(job.source) - len(job.done) if hasattr(job.source, "__len__") else None
+    bar = tqdm(total=total, desc=PROG, unit="frame", file=sys.stderr, disable=None)
     try:
         with _threads(1 if args.overlap == "on" else args.threads), _warnings_to_stderr():
-            for outcome in _frames(job, args):
+            for outcome in _frames(todo, job, args):
                 problem = outcome.problem
                 start = written_at = logged_at = time.perf_counter()
                 if outcome.detections is not None:
                     output.write(format_line(outcome.detections))
                     written += 1
                     written_at = time.perf_counter()
-                    problem = _log(recording, index[outcome.ref.name], outcome, view)
+                    problem = _log(recording, index[outcome.name], outcome, view)
                     logged_at = time.perf_counter()
                 if on_frame is not None:
                     on_frame(FrameReport(outcome, written_at - start, logged_at - written_at))
@@ -233,26 +229,23 @@ def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] 
         if recording is not None:
             recording.flush()
     if recording is not None:
-        rr.script_teardown(args)  # --serve: keeps serving until Ctrl-C
-        rr.disconnect(recording)
-    resumed = f", {len(job.frames) - len(job.todo)} already there" if args.resume else ""
+        viewer.load_view().close_recording(args, recording)  # --serve: keeps serving until Ctrl-C
+    resumed = f", {len(job.done)} already there" if args.resume else ""
     where = "stdout" if args.output == "-" else args.output
     print(f"{PROG}: {written} frames written to {where}{resumed}, {len(failures)} failed", file=sys.stderr)
     return 1 if failures else 0
 
 
-def _frames(job: _Job, args: argparse.Namespace) -> Iterator[FrameOutcome]:
+def _frames(todo: Iterator[FrameLoader], job: _Job, args: argparse.Namespace) -> Iterator[FrameOutcome]:
     """The pipeline's outcomes in the --overlap mode asked for (auto: pipeline.detect_frames_auto)."""
     if args.overlap != "auto":
-        return detect_frames(job.todo, job.model, job.config, job.intrinsics, overlap=args.overlap == "on")
+        return detect_frames(todo, job.model, job.config, overlap=args.overlap == "on")
 
-    def narrow(threads: int) -> Detector:
+    def narrow(threads: int) -> NetworkRunner:
         cv2.setNumThreads(1)  # the background thread's OpenCV leaves the other cores to the network
         return load_model(args.model, threads=threads)
 
-    return detect_frames_auto(
-        job.todo, job.model, job.config, job.intrinsics, threads=args.threads, narrow=narrow
-    )
+    return detect_frames_auto(todo, job.model, job.config, threads=args.threads, narrow=narrow)
 
 
 # ----------------------------------------------------------------------------- output file
@@ -328,9 +321,10 @@ def _open_recording(args: argparse.Namespace) -> rr.RecordingStream | None:
     """The rerun recording the flags ask for, with the static entities logged; None for none."""
     if not viewer.viewer_requested(args):
         return None
+    view = viewer.load_view()  # rerun is imported here, only when a view or recording is asked for
     try:
-        recording = viewer.open_recording(args)
-        viewer.log_static(recording)
+        recording = view.open_recording(args)
+        view.log_static(recording)
     except (OSError, RuntimeError, ValueError) as e:
         raise InputError(f"rerun: cannot open the recording ({e})") from None
     return recording
@@ -345,9 +339,9 @@ def _log(
         return ""
     assert outcome.prepared is not None and outcome.detections is not None
     frame, det = outcome.prepared.frame, outcome.detections
-    gt = _ground_truth(frame.ref)
+    gt = frame.truth
     try:
-        viewer.log_frame(
+        viewer.load_view().log_frame(
             recording,
             index,
             color=frame.color,
@@ -364,17 +358,8 @@ def _log(
             options=options,
         )
     except Exception as e:  # the line is written; a viewer problem must not stop the run
-        return f"{frame.ref.color_path}: rerun: cannot log the frame ({type(e).__name__}: {e})"
+        return f"{frame.origin}: rerun: cannot log the frame ({type(e).__name__}: {e})"
     return ""
-
-
-def _ground_truth(ref: FrameRef) -> GroundTruth | None:
-    """The frame's ground truth for the view; a bad gt.json only costs the view its boxes."""
-    try:
-        return read_ground_truth(ref)
-    except InputError as e:
-        tqdm.write(f"{PROG}: warning: {e} (ground truth not shown)", file=sys.stderr)
-        return None
 
 
 @contextlib.contextmanager

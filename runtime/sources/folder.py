@@ -31,13 +31,10 @@ import io
 import json
 import logging
 import os
-import tokenize
-import zipfile
-import zlib
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, fields, replace
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any
 
 import cv2
 import numpy as np
@@ -54,7 +51,11 @@ from a3d.runtime.io.image_io import (
     read_image_header,
 )
 from a3d.runtime.io.json_input import parse_json
+from a3d.runtime.io.npy import npy_header
+from a3d.runtime.sources.base import FrameLoader
+from a3d.runtime.sources.proposals_file import read_precomputed_proposals
 from a3d.runtime.structures.classes import CLASSES
+from a3d.runtime.structures.frame import Frame, GroundTruth
 from a3d.runtime.structures.geometry import Intrinsics, check_rotation
 
 logger = logging.getLogger(__name__)
@@ -79,12 +80,10 @@ NPY_MILLIMETRE_MEDIAN = 20.0
 """A depth ``.npy`` whose median valid value is above this many "metres" is taken to be millimetres."""
 PNG_METRE_MEDIAN_MM = 20.0
 """A depth PNG whose median valid value is below this many millimetres is taken to be metres."""
-MAX_PROPOSALS = 100_000
 """Most proposals accepted in a ``.proposals.npz`` file."""
 _INTRINSICS_KEYS = ("fx", "fy", "cx", "cy")
 _META_KEYS = ("intrinsics", "R_tilt")
 _OBJECT_KEYS = ("class", "box3d", "box2d_visible", "box2d_amodal", "instance")
-_CLASS_INDEX = {name: i for i, name in enumerate(CLASSES)}
 _COLOR_FLAGS = cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION  # EXIF rotation would break registration
 
 
@@ -125,69 +124,6 @@ class FrameMeta:
 
     intrinsics: Intrinsics | None = None
     R_tilt: np.ndarray | None = None  # (3, 3) p_tilt = R_tilt p_cam
-
-
-@dataclass(frozen=True)
-class Frame:
-    """A validated frame: colour uint8 BGR (H, W, 3), depth float32 metres (H, W), 0 = missing."""
-
-    name: str
-    color: np.ndarray
-    depth: np.ndarray
-    intrinsics: Intrinsics
-    R_tilt: np.ndarray | None  # (3, 3) p_tilt = R_tilt p_cam, or None: estimate from depth
-    ref: FrameRef
-    warnings: tuple[str, ...] = ()  # readable but suspicious, e.g. "depth has no valid pixels"
-
-    @property
-    def image_size(self) -> tuple[int, int]:
-        """(height, width)."""
-        return self.depth.shape[0], self.depth.shape[1]
-
-
-@dataclass(frozen=True)
-class GroundTruth:
-    """A frame's annotated objects (``NAME.gt.json``), as arrays of N rows.
-
-    ``boxes3d`` (N, 7) in the camera frame with theta in the frame's R_tilt tilt frame;
-    ``boxes2d_visible`` (N, 4) the box of the visible pixels (the paper's gt2d_sel);
-    ``boxes2d_amodal`` (N, 4) the projected whole 3D box, clipped to the image; ``instance_ids``
-    (N,) the object's value in ``NAME.instances.png`` (0 = not in the map).
-    """
-
-    classes: list[str]
-    class_ids: np.ndarray  # (N,) int64, 0-based CLASSES index
-    boxes3d: np.ndarray  # (N, 7) float64
-    boxes2d_visible: np.ndarray  # (N, 4) float64
-    boxes2d_amodal: np.ndarray  # (N, 4) float64
-    instance_ids: np.ndarray  # (N,) int64
-
-    def __len__(self) -> int:
-        return len(self.classes)
-
-    @classmethod
-    def from_classes(
-        cls,
-        classes: Sequence[str],
-        boxes3d: Any,
-        boxes2d_visible: Any,
-        boxes2d_amodal: Any,
-        instance_ids: Any = None,
-    ) -> GroundTruth:
-        """Build from class names (ValueError if unknown) and array-likes; N = 0 is fine."""
-        n = len(classes)
-        return cls(
-            classes=list(classes),
-            class_ids=np.array([_class_id(name) for name in classes], dtype=np.int64),
-            boxes3d=np.asarray(boxes3d, dtype=np.float64).reshape(n, 7),
-            boxes2d_visible=np.asarray(boxes2d_visible, dtype=np.float64).reshape(n, 4),
-            boxes2d_amodal=np.asarray(boxes2d_amodal, dtype=np.float64).reshape(n, 4),
-            instance_ids=(
-                np.zeros(n, np.int64)
-                if instance_ids is None
-                else np.asarray(instance_ids, np.int64).reshape(n)
-            ),
-        )
 
 
 # ----------------------------------------------------------------------------- listing
@@ -279,8 +215,9 @@ def read_folder_intrinsics(folder: str | os.PathLike) -> Intrinsics | None:
     return _parse_intrinsics(_load_json(path), path, "intrinsics")
 
 
-def read_frame(ref: FrameRef, folder_intrinsics: Intrinsics | None) -> Frame:
-    """Read and validate one frame (see the module docstring for what is checked)."""
+def read_frame(ref: FrameRef, folder_intrinsics: Intrinsics | None, *, with_proposals: bool = False) -> Frame:
+    """Read and validate one frame (see the module docstring for what is checked); with
+    ``with_proposals``, its ``NAME.proposals.npz`` too where it has one."""
     color_data, color_header = read_color_bytes(ref.color_path)
     depth_size, load_depth = _open_depth(ref.depth_path)
     if depth_size != color_header.size:
@@ -300,7 +237,21 @@ def read_frame(ref: FrameRef, folder_intrinsics: Intrinsics | None) -> Frame:
     if not depth.any():
         warnings = (f"{ref.depth_path}: depth has no valid pixels (all zero)",)
         logger.warning(warnings[0])
-    return Frame(ref.name, color, depth, intrinsics, meta.R_tilt, ref, warnings)
+    proposals = None
+    if with_proposals and ref.proposals_path is not None:
+        proposals = read_precomputed_proposals(ref.proposals_path, depth.shape)
+    return Frame(
+        ref.name,
+        color,
+        depth,
+        intrinsics,
+        meta.R_tilt,
+        origin=str(ref.color_path),
+        color_file=str(ref.color_path),
+        depth_file=str(ref.depth_path),
+        proposals=proposals,
+        warnings=warnings,
+    )
 
 
 def read_ground_truth(ref: FrameRef) -> GroundTruth | None:
@@ -389,7 +340,7 @@ def _open_depth(path: Path) -> tuple[tuple[int, int], Callable[[], np.ndarray]]:
 def _open_depth_npy(path: Path) -> tuple[tuple[int, int], Callable[[], np.ndarray]]:
     try:
         with open(path, "rb") as f:
-            shape, dtype, offset = _npy_header(f, path)
+            shape, dtype, offset = npy_header(f, path)
     except OSError as error:
         raise InputError(f"{path}: cannot read: {error.strerror or error}") from None
     if len(shape) != 2:
@@ -423,22 +374,6 @@ def _open_depth_npy(path: Path) -> tuple[tuple[int, int], Callable[[], np.ndarra
         return depth
 
     return (shape[0], shape[1]), load
-
-
-def _npy_header(f: BinaryIO, path: Path) -> tuple[tuple[int, ...], np.dtype, int]:
-    """(shape, dtype, data offset) of a .npy stream, read without loading the array."""
-    try:
-        version = np.lib.format.read_magic(f)
-        if version == (1, 0):
-            shape, _, dtype = np.lib.format.read_array_header_1_0(f)
-        else:
-            shape, _, dtype = np.lib.format.read_array_header_2_0(f)
-    except (ValueError, EOFError, SyntaxError, TypeError, RecursionError, tokenize.TokenError) as error:
-        # numpy parses the header with ast / tokenize: a malformed one raises any of these
-        raise InputError(f"{path}: not a valid .npy array ({error})") from None
-    if dtype.hasobject:
-        raise InputError(f"{path}: .npy holds Python objects; expected a numeric array")
-    return tuple(shape), dtype, f.tell()
 
 
 def read_meta(ref: FrameRef) -> FrameMeta:
@@ -480,7 +415,7 @@ def _parse_object(obj: Any, path: Path, what: str) -> tuple[str, np.ndarray, np.
     if missing:
         raise InputError(f"{path}: {what} lacks {', '.join(missing)}")
     name = obj["class"]
-    if not isinstance(name, str) or name not in _CLASS_INDEX:
+    if not isinstance(name, str) or name not in CLASSES:
         raise InputError(f"{path}: {what}.class {name!r} is not one of the 19 classes ({', '.join(CLASSES)})")
     box3d = _numbers(obj["box3d"], (7,), path, f"{what}.box3d")
     if not (box3d[3:6] > 0).all():
@@ -541,13 +476,6 @@ def _load_json(path: Path) -> Any:
 
 def _describe(header: ImageHeader) -> str:
     return f"this is a {header.bit_depth}-bit {header.kind.upper()} with {header.channels} channel(s)"
-
-
-def _class_id(name: str) -> int:
-    try:
-        return _CLASS_INDEX[name]
-    except KeyError:
-        raise ValueError(f"unknown class name {name!r} (expected one of: {', '.join(CLASSES)})") from None
 
 
 # ----------------------------------------------------------------------------- writing
@@ -712,190 +640,49 @@ def _existing(path: Path) -> Path | None:
     return path if path.exists() else None
 
 
-# ----------------------------------------------------------------------------- precomputed proposals
-
-_PROPOSAL_MEMBERS = ("boxes", "scores", "masks", "superpixels", "indptr", "indices")
-# What zipfile raises for a damaged archive: bad structure or CRC, a cut file, corrupt deflate
-# data, an unknown compression method (NotImplementedError), an encrypted member (RuntimeError),
-# a member name that is not UTF-8 (ValueError).
-_ZIP_ERRORS = (
-    zipfile.BadZipFile,
-    OSError,
-    EOFError,
-    zlib.error,
-    NotImplementedError,
-    RuntimeError,
-    ValueError,
-)
+# ----------------------------------------------------------------------------- as a frame source
 
 
-@dataclass(frozen=True)
-class PrecomputedProposals:
-    """Proposals read from ``NAME.proposals.npz`` (README "Precomputed proposals").
+class FolderSource:
+    """An a3d frame folder as a frame source: its complete frames, sorted by name.
 
-    ``boxes`` (N, 4) float32 in README pixel coordinates; ``scores`` (N,) float32 or None. The
-    segments come in one of two forms: ``packed_masks`` (N, H, ceil(W / 8)) uint8, the masks
-    packed along rows with ``np.packbits`` (big-endian bit order); or ``superpixels`` (H, W)
-    int32 ids in [0, S) with CSR ``indptr`` (N + 1,) int64 / ``indices`` (nnz,) int32: segment i
-    is the union of superpixels ``indices[indptr[i]:indptr[i + 1]]``.
+    ``incomplete`` lists one "PATH: reason" per frame that cannot be read (named by its first
+    skipped file); files of no frame (the model, notes, sub-folders) are no problem. With
+    ``with_proposals`` a frame brings its ``NAME.proposals.npz``; with ``with_truth`` its ground
+    truth (a bad ``NAME.gt.json`` then costs the frame only its ground truth, with a warning).
     """
 
-    boxes: np.ndarray
-    image_size: tuple[int, int]
-    scores: np.ndarray | None = None
-    packed_masks: np.ndarray | None = None
-    superpixels: np.ndarray | None = None
-    indptr: np.ndarray | None = None
-    indices: np.ndarray | None = None
+    def __init__(self, folder: str | os.PathLike, *, with_proposals: bool = True, with_truth: bool = False):
+        listing = scan_folder(folder)
+        self.folder = Path(folder)
+        self.refs = listing.frames
+        first: dict[str, SkippedFile] = {}
+        for item in listing.skipped:
+            if item.frame:
+                first.setdefault(item.frame, item)
+        self.incomplete = [f"{item.path}: {item.reason}" for item in first.values()]
+        self.intrinsics = read_folder_intrinsics(folder)
+        self.with_proposals = with_proposals
+        self.with_truth = with_truth
+
+    def __iter__(self) -> Iterator[FrameLoader]:
+        return (self.loader(ref) for ref in self.refs)
 
     def __len__(self) -> int:
-        return len(self.boxes)
+        return len(self.refs)
 
-    def mask(self, i: int) -> np.ndarray:
-        """Segment ``i`` as an (H, W) bool mask."""
-        if self.packed_masks is not None:
-            return np.unpackbits(self.packed_masks[i], axis=-1, count=self.image_size[1]).astype(bool)
-        assert self.superpixels is not None and self.indptr is not None and self.indices is not None
-        members = np.zeros(int(self.superpixels.max()) + 1, dtype=bool)
-        members[self.indices[self.indptr[i] : self.indptr[i + 1]]] = True
-        return members[self.superpixels]
+    def loader(self, ref: FrameRef) -> FrameLoader:
+        files = [getattr(ref, f.name) for f in fields(ref) if f.name.endswith("_path")]
+        files.append(self.folder / INTRINSICS_FILE)
+        named = tuple(str(path) for path in files if path is not None)
+        return FrameLoader(ref.name, str(ref.color_path), lambda: self.read(ref), named)
 
-    @classmethod
-    def from_masks(cls, boxes: Any, masks: np.ndarray, scores: Any = None) -> PrecomputedProposals:
-        """Pack (N, H, W) bool masks."""
-        masks = np.asarray(masks, dtype=bool)
-        return cls(
-            boxes=np.asarray(boxes, np.float32).reshape(-1, 4),
-            image_size=(masks.shape[1], masks.shape[2]),
-            scores=None if scores is None else np.asarray(scores, np.float32),
-            packed_masks=np.packbits(masks, axis=-1),
-        )
-
-
-def write_precomputed_proposals(path: str | os.PathLike, proposals: PrecomputedProposals) -> None:
-    """Write ``proposals`` as a compressed ``.npz`` (atomically)."""
-    arrays = {key: getattr(proposals, "packed_masks" if key == "masks" else key) for key in _PROPOSAL_MEMBERS}
-    buffer = io.BytesIO()
-    np.savez_compressed(buffer, **{key: value for key, value in arrays.items() if value is not None})
-    atomic_write_bytes(path, buffer.getvalue())
-
-
-def read_precomputed_proposals(path: str | os.PathLike, image_size: tuple[int, int]) -> PrecomputedProposals:
-    """Read and validate ``NAME.proposals.npz`` for an image of ``image_size`` (H, W).
-
-    Array shapes are checked from the ``.npy`` headers inside the archive before anything is
-    loaded, so a file cannot make the reader allocate more than its image size allows.
-    """
-    path = Path(path)
-    height, width = image_size
-    try:
-        with zipfile.ZipFile(path) as archive:
-            headers = {}
-            for member in archive.namelist():
-                key = member.removesuffix(".npy")
-                if key not in _PROPOSAL_MEMBERS or not member.endswith(".npy"):
-                    raise InputError(
-                        f"{path}: unknown array {member!r} (expected: {', '.join(_PROPOSAL_MEMBERS)})"
-                    )
-                with archive.open(member) as f:
-                    headers[key] = _npy_header(f, path)[:2]
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such file") from None
-    except InputError:
-        raise
-    except _ZIP_ERRORS as error:
-        raise InputError(f"{path}: not a readable .npz archive ({error})") from None
-    if "boxes" not in headers:
-        raise InputError(f"{path}: has no 'boxes' array")
-    superpixel_keys = {"superpixels", "indptr", "indices"} & headers.keys()
-    if not (
-        ("masks" in headers and not superpixel_keys) or ("masks" not in headers and len(superpixel_keys) == 3)
-    ):
-        raise InputError(f"{path}: needs either 'masks' or all of 'superpixels', 'indptr', 'indices'")
-    n = headers["boxes"][0][0] if len(headers["boxes"][0]) == 2 else -1
-    if not 0 <= n <= MAX_PROPOSALS:
-        raise InputError(
-            f"{path}: boxes has shape {headers['boxes'][0]}; expected (N, 4) with N <= {MAX_PROPOSALS}"
-        )
-    expected = {"boxes": ((n, 4), "f"), "scores": ((n,), "f"), "masks": ((n, height, (width + 7) // 8), "u")}
-    expected |= {"superpixels": ((height, width), "iu"), "indptr": ((n + 1,), "iu"), "indices": (None, "iu")}
-    for key, (shape, dtype) in headers.items():
-        want_shape, kinds = expected[key]
-        ok_shape = shape == want_shape if want_shape is not None else len(shape) == 1
-        if not ok_shape or dtype.kind not in kinds or (key == "masks" and dtype != np.uint8):
-            raise InputError(f"{path}: {key} is {dtype} {shape}; expected {_expected_text(key, want_shape)}")
-    return _load_proposals(path, image_size, headers)
-
-
-def _expected_text(key: str, shape: tuple[int, ...] | None) -> str:
-    kind = {"boxes": "float", "scores": "float", "masks": "uint8"}.get(key, "integer")
-    return f"{kind} {shape if shape is not None else '(nnz,)'}"
-
-
-def _load_proposals(path: Path, image_size: tuple[int, int], headers: dict) -> PrecomputedProposals:
-    height, width = image_size
-
-    def load(archive: zipfile.ZipFile, key: str) -> np.ndarray:
+    def read(self, ref: FrameRef) -> Frame:
+        frame = read_frame(ref, self.intrinsics, with_proposals=self.with_proposals)
+        if not self.with_truth or ref.gt_path is None:
+            return frame
         try:
-            with archive.open(f"{key}.npy") as f:
-                return np.lib.format.read_array(f, allow_pickle=False)
-        except _ZIP_ERRORS as error:
-            raise InputError(f"{path}: cannot load {key} ({error})") from None
-
-    # The members are read as the header pass read them (np.load would look at the file's first
-    # bytes instead, and take a zip with data in front of it for a pickle).
-    with zipfile.ZipFile(path) as npz:
-        arrays: dict[str, np.ndarray] = {}
-        if "superpixels" in headers:  # bounds the size of indices before it is loaded
-            superpixels = arrays["superpixels"] = load(npz, "superpixels")
-            if superpixels.min(initial=0) < 0 or superpixels.max(initial=0) >= 2**31:
-                raise InputError(f"{path}: superpixels must hold ids in [0, 2^31)")
-            nnz = headers["indices"][0][0]
-            if nnz > headers["boxes"][0][0] * (int(superpixels.max(initial=0)) + 1):
-                raise InputError(f"{path}: indices has {nnz} entries, more than N x superpixels")
-        arrays |= {key: load(npz, key) for key in headers if key not in arrays}
-    boxes = arrays["boxes"].astype(np.float32)
-    if not np.isfinite(boxes).all():
-        raise InputError(f"{path}: boxes has non-finite values")
-    eps = 1e-3
-    inside = (
-        (boxes[:, 0] >= -0.5 - eps)
-        & (boxes[:, 1] >= -0.5 - eps)
-        & (boxes[:, 2] <= width - 0.5 + eps)
-        & (boxes[:, 3] <= height - 0.5 + eps)
-        & (boxes[:, 2] > boxes[:, 0])
-        & (boxes[:, 3] > boxes[:, 1])
-    )
-    if not inside.all():
-        bad = int(np.flatnonzero(~inside)[0])
-        raise InputError(
-            f"{path}: box {bad} {boxes[bad].tolist()} is empty or outside the {height}x{width} image "
-            "(README pixel coordinates span [-0.5, W - 0.5])"
-        )
-    scores = arrays.get("scores")
-    if scores is not None and not np.isfinite(scores).all():
-        raise InputError(f"{path}: scores has non-finite values")
-    if "masks" in arrays:
-        return PrecomputedProposals(
-            boxes,
-            image_size,
-            None if scores is None else scores.astype(np.float32),
-            packed_masks=arrays["masks"],
-        )
-    indptr = arrays["indptr"].astype(np.int64)
-    indices = arrays["indices"]
-    if indptr[0] != 0 or indptr[-1] != len(indices) or (np.diff(indptr) < 0).any():
-        raise InputError(
-            f"{path}: indptr must start at 0, not decrease, and end at len(indices) = {len(indices)}"
-        )
-    count = int(arrays["superpixels"].max(initial=0)) + 1
-    if len(indices) and (indices.min() < 0 or indices.max() >= count):
-        raise InputError(f"{path}: indices must be superpixel ids in [0, {count})")
-    return PrecomputedProposals(
-        boxes,
-        image_size,
-        None if scores is None else scores.astype(np.float32),
-        superpixels=arrays["superpixels"].astype(np.int32),
-        indptr=indptr,
-        indices=indices.astype(np.int32),
-    )
+            return replace(frame, truth=read_ground_truth(ref))
+        except InputError as e:
+            logger.warning("%s (ground truth not used)", e)
+            return frame

@@ -1,0 +1,99 @@
+"""Which frame source a3d-run (and ``Detector.detect_frames``) opens for a SOURCE argument.
+
+Each kind registers how to recognise its SOURCE (a folder's files, a file's extension, a
+``scheme:`` prefix) and how to open it. Recognition goes in registration order and the first
+kind that claims SOURCE opens it; ``--source-format NAME`` skips recognition. Readers that need an
+optional extra (rosbags, pyrealsense2) import it only when opened.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Protocol
+
+from a3d.runtime.errors import InputError
+from a3d.runtime.sources.base import FrameLoader
+from a3d.runtime.structures.geometry import Intrinsics
+
+
+class FrameSource(Protocol):
+    """Frames to load, in order; ``incomplete`` holds "PATH: reason" for inputs found unusable
+    before any frame is read (reported by the run, which goes on with the rest)."""
+
+    incomplete: list[str]
+
+    def __iter__(self) -> Iterator[FrameLoader]: ...
+
+
+@dataclass(frozen=True)
+class SourceOptions:
+    """What the command line may tell any source. ``intrinsics`` / ``depth_scale`` (metres per
+    depth unit) override what the source says; ``resize_depth`` lets depth of another size than
+    the colour be resized to it (refused otherwise); ``with_proposals`` / ``with_truth`` ask for
+    precomputed proposals and ground truth where the source has them; ``extra`` holds the
+    options of one kind (bag topics, a TUM preset, ...)."""
+
+    intrinsics: Intrinsics | None = None
+    depth_scale: float | None = None
+    resize_depth: bool = False
+    with_proposals: bool = True
+    with_truth: bool = False
+    extra: dict[str, object] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class SourceKind:
+    """One kind of source: ``claims(spec)`` says whether SOURCE looks like it; ``open`` opens it."""
+
+    name: str
+    claims: Callable[[str], bool]
+    open: Callable[[str, SourceOptions], FrameSource]
+    describe: str
+
+
+_KINDS: dict[str, SourceKind] = {}
+
+
+def register(kind: SourceKind) -> None:
+    _KINDS[kind.name] = kind
+
+
+def kinds() -> list[str]:
+    return list(_KINDS)
+
+
+def open_source(spec: str | os.PathLike, options: SourceOptions, kind: str | None = None) -> FrameSource:
+    """The source SOURCE names (InputError "SOURCE: ..." when nothing can open it)."""
+    text = os.fspath(spec)
+    if kind is not None:
+        if kind not in _KINDS:
+            raise InputError(f"--source-format: unknown format {kind!r} (one of: {', '.join(_KINDS)})")
+        return _KINDS[kind].open(text, options)
+    for candidate in _KINDS.values():
+        if candidate.claims(text):
+            return candidate.open(text, options)
+    if not Path(text).exists() and ":" not in text:
+        raise InputError(f"{text}: no such file or folder")
+    known = "; ".join(f"{k.name}: {k.describe}" for k in _KINDS.values())
+    raise InputError(f"{text}: not a frame source a3d knows ({known}); --source-format forces one")
+
+
+def _is_frame_folder(spec: str) -> bool:
+    path = Path(spec)
+    if not path.is_dir():
+        return False
+    return any(name.endswith((".color.png", ".color.jpg", ".color.jpeg")) for name in os.listdir(path))
+
+
+def _open_folder(spec: str, options: SourceOptions) -> FrameSource:
+    from a3d.runtime.sources.folder import FolderSource
+
+    return FolderSource(spec, with_proposals=options.with_proposals, with_truth=options.with_truth)
+
+
+register(
+    SourceKind("a3d", _is_frame_folder, _open_folder, "a folder of NAME.color.png + NAME.depth.png frames")
+)
