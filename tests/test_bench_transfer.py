@@ -4,9 +4,7 @@ scores say, and the false positives are counted on exactly the frames without an
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import pytest
@@ -17,28 +15,14 @@ from a3d.synth.cli import main as synth_main
 from tests.test_train_scenes import TINY
 
 pytestmark = pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")
-BENCH = Path(__file__).resolve().parents[1] / "bench"
 SAMPLE_MODEL = Path(__file__).resolve().parents[1] / "samples" / "model.onnx"
-
-
-def _load(name: str):
-    sys.path.insert(0, str(BENCH))  # the scripts import their neighbours, as when run from bench/
-    try:
-        spec = importlib.util.spec_from_file_location(name, BENCH / f"{name}.py")
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-        return module
-    finally:
-        sys.path.remove(str(BENCH))
 
 
 @pytest.fixture(scope="module")
 def benches():
-    modules = {name: _load(name) for name in ("false_positives", "train_synth", "transfer")}
-    yield modules
-    for name in modules:
-        sys.modules.pop(name, None)
+    from bench import false_positives, train_synth, transfer
+
+    return {"false_positives": false_positives, "train_synth": train_synth, "transfer": transfer}
 
 
 def _empty_names(folder: Path) -> set[str]:
