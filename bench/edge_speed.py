@@ -1,7 +1,7 @@
 """Edge speed: the paper's full network, end to end through a3d-run, judged against the machine's own limit.
 
 The paper reports 0.739 s per frame on a Titan X for the network alone. A bar in seconds says
-little on CPUs whose instruction sets differ (int8 is ~4x fp32 with VNNI, ~1.5x on AVX2 alone), so
+little on CPUs whose instruction sets differ (int8 is ~4x fp32 with VNNI, ~1.5-2x on AVX2 alone), so
 this benchmark measures, in the same run, what the machine can do and how close each part gets:
 
 - the ceilings (bench.ceilings): GEMM and convolution throughput of ONNX Runtime, fp32 and int8,
