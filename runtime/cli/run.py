@@ -2,7 +2,8 @@
 
     a3d-run FOLDER [--model model.onnx] [--output detections.jsonl] [--threads 2]
             [--proposals auto|compute|precomputed] [--max-proposals N] [--score-threshold S]
-            [--resume] [--overlap] [--headless] [--connect] [--url URL] [--serve] [--save FILE.rrd] [--stdout]
+            [--resume] [--overlap [auto|on|off]] [--headless] [--connect] [--url URL] [--serve]
+            [--save FILE.rrd] [--stdout]
 
 SOURCE is a frame source (a3d.runtime.sources.registry: an a3d frame folder, README "Frame
 format", and the other kinds registered there; --source-format forces one); for a folder the
@@ -44,7 +45,14 @@ from a3d.runtime.cli.common import command
 from a3d.runtime.errors import InputError
 from a3d.runtime.io.detections_io import format_line, parse_line
 from a3d.runtime.network.model import DetectorModel
-from a3d.runtime.pipeline import PROPOSAL_SOURCES, FrameOutcome, PipelineConfig, detect_frames
+from a3d.runtime.pipeline import (
+    PROPOSAL_SOURCES,
+    FrameOutcome,
+    NetworkRunner,
+    PipelineConfig,
+    detect_frames,
+    detect_frames_auto,
+)
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.folder import MODEL_FILE
 from a3d.runtime.sources.registry import FrameSource, SourceOptions, kinds, open_source
@@ -54,6 +62,10 @@ if TYPE_CHECKING:
     import rerun as rr
 
 PROG = "a3d-run"
+OVERLAP_MODES = ("auto", "on", "off")
+OVERLAP_NOTE = (
+    "the front end is the longer part: next frames prepared in the background, the network on {n} - 1 threads"
+)
 DEFAULT_MODEL = MODEL_FILE
 DEFAULT_OUTPUT = "detections.jsonl"
 
@@ -86,9 +98,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--overlap",
-        action="store_true",
-        help="prepare the next frame on a background thread during the network call "
-        "(the network then gets THREADS - 1 threads)",
+        choices=OVERLAP_MODES,
+        nargs="?",
+        const="auto",
+        default="auto",
+        help="prepare the next frame on a background thread during the network call, the network then "
+        "on THREADS - 1 threads: on, off, or auto (also a bare --overlap): a frame after the first is "
+        "timed sequentially and the rest overlap only where that is predicted faster",
     )
     viewer.add_viewer_args(p)
     return p
@@ -131,8 +147,8 @@ def _job(args: argparse.Namespace) -> _Job:
         with_proposals=args.proposals != "compute", with_truth=viewer.viewer_requested(args)
     )
     source = open_source(args.source, options, args.source_format)
-    # With --overlap one thread prepares frames, so the network gets one fewer (no oversubscription).
-    model = load_model(args.model, threads=max(1, args.threads - 1) if args.overlap else args.threads)
+    # With --overlap on one thread prepares frames, so the network gets one fewer (no oversubscription).
+    model = load_model(args.model, threads=max(1, args.threads - 1) if args.overlap == "on" else args.threads)
     config = PipelineConfig.from_metadata(
         model.metadata,
         proposal_source=args.proposals,
@@ -174,13 +190,14 @@ def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] 
     for problem in failures:
         print(f"{PROG}: {problem}", file=sys.stderr)
     written = 0
+    overlapping = False
     index: dict[str, int] = {}  # frame name -> its position in the source (the rerun timeline)
     todo = _frames_to_do(job.source, job.done, index)
     total = len(job.source) - len(job.done) if hasattr(job.source, "__len__") else None
     bar = tqdm(total=total, desc=PROG, unit="frame", file=sys.stderr, disable=None)
     try:
-        with _threads(1 if args.overlap else args.threads), _warnings_to_stderr():
-            for outcome in detect_frames(todo, job.model, job.config, overlap=args.overlap):
+        with _threads(1 if args.overlap == "on" else args.threads), _warnings_to_stderr():
+            for outcome in _frames(todo, job, args):
                 problem = outcome.problem
                 start = written_at = logged_at = time.perf_counter()
                 if outcome.detections is not None:
@@ -191,6 +208,11 @@ def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] 
                     logged_at = time.perf_counter()
                 if on_frame is not None:
                     on_frame(FrameReport(outcome, written_at - start, logged_at - written_at))
+                if outcome.overlapped and not overlapping and args.overlap == "auto":
+                    overlapping = True
+                    tqdm.write(
+                        f"{PROG}: --overlap auto: {OVERLAP_NOTE.format(n=args.threads)}", file=sys.stderr
+                    )
                 if problem:
                     failures.append(problem)
                     tqdm.write(f"{PROG}: {problem}", file=sys.stderr)
@@ -212,6 +234,18 @@ def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] 
     where = "stdout" if args.output == "-" else args.output
     print(f"{PROG}: {written} frames written to {where}{resumed}, {len(failures)} failed", file=sys.stderr)
     return 1 if failures else 0
+
+
+def _frames(todo: Iterator[FrameLoader], job: _Job, args: argparse.Namespace) -> Iterator[FrameOutcome]:
+    """The pipeline's outcomes in the --overlap mode asked for (auto: pipeline.detect_frames_auto)."""
+    if args.overlap != "auto":
+        return detect_frames(todo, job.model, job.config, overlap=args.overlap == "on")
+
+    def narrow(threads: int) -> NetworkRunner:
+        cv2.setNumThreads(1)  # the background thread's OpenCV leaves the other cores to the network
+        return load_model(args.model, threads=threads)
+
+    return detect_frames_auto(todo, job.model, job.config, threads=args.threads, narrow=narrow)
 
 
 # ----------------------------------------------------------------------------- output file
