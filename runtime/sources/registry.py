@@ -123,3 +123,31 @@ def _open_tum(spec: str, options: SourceOptions) -> FrameSource:
 
 
 register(SourceKind("tum", _claims_tum, _open_tum, "a TUM RGB-D sequence folder (rgb.txt, depth.txt)"))
+
+
+def _claims_sunrgbd(spec: str) -> bool:
+    from a3d.runtime.sources.sunrgbd import is_sunrgbd
+
+    return is_sunrgbd(spec)
+
+
+def _open_sunrgbd(spec: str, options: SourceOptions) -> FrameSource:
+    from a3d.runtime.sources.sunrgbd import SunOptions, open_sunrgbd
+
+    sun = SunOptions(
+        depth=str(options.extra.get("depth", "raw")),
+        classes=str(options.extra.get("classes", "nyu19")),
+        with_truth=options.with_truth,
+        resize_depth=options.resize_depth,
+    )
+    return open_sunrgbd(spec, sun)
+
+
+register(
+    SourceKind(
+        "sunrgbd",
+        _claims_sunrgbd,
+        _open_sunrgbd,
+        "SUN RGB-D: release frame folders (or a tree of them), or VoteNet's sunrgbd_trainval",
+    )
+)
