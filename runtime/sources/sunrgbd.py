@@ -236,6 +236,63 @@ class ReleaseSource:
             raise InputError(f"{files[-1]}: expected a 3x3 or 3x4 matrix, found {numbers.size} numbers")
         return nearest_rotation(numbers.reshape(3, -1)[:, :3], str(files[-1]))
 
+    def splits(self, split_file: Path | None = None) -> dict[str, str] | None:
+        """Frame name -> "train" / "val" from the toolbox's allsplit.mat (``alltrain`` /
+        ``alltest``, as VoteNet splits): ``split_file``, else ``find_split_file``; None without one."""
+        path = split_file or find_split_file(self.root)
+        if path is None:
+            return None
+        keys = read_allsplit(path)
+        out: dict[str, str] = {}
+        for folder in self.folders:
+            parts = folder.resolve().parts
+            for k in range(1, len(parts) + 1):
+                split = keys.get("/".join(parts[-k:]))
+                if split is not None:
+                    out[self.name_of(folder)] = split
+                    break
+        return out
+
+
+SPLIT_FILE = Path("SUNRGBDtoolbox") / "traintestSUNRGBD" / "allsplit.mat"
+
+
+def find_split_file(root: Path) -> Path | None:
+    """``SUNRGBDtoolbox/traintestSUNRGBD/allsplit.mat`` in ``root`` or a folder above it, if any."""
+    for folder in (root.resolve(), *root.resolve().parents):
+        if (folder / SPLIT_FILE).is_file():
+            return folder / SPLIT_FILE
+    return None
+
+
+def read_allsplit(path: Path) -> dict[str, str]:
+    """allsplit.mat's frame folders ("kv1/NYUdata/NYU0001", the part after ``SUNRGBD/``) -> split."""
+    loadmat = _loadmat(path)
+    try:
+        document = loadmat(path, variable_names=["alltrain", "alltest"])
+    except (OSError, ValueError, TypeError, NotImplementedError) as e:
+        raise InputError(f"{path}: cannot read the MATLAB file ({e})") from None
+    out: dict[str, str] = {}
+    for variable, split in (("alltrain", "train"), ("alltest", "val")):
+        cells = document.get(variable)
+        if not isinstance(cells, np.ndarray) or cells.dtype != object:
+            raise InputError(f"{path}: expected a cell array of folder paths {variable!r}")
+        for cell in cells.ravel():
+            text = "".join(np.asarray(cell).ravel().tolist()).strip().rstrip("/")
+            out[text.split("/SUNRGBD/")[-1].lstrip("/")] = split
+    return out
+
+
+def _loadmat(path: Path) -> Any:
+    """scipy.io.loadmat, or InputError naming the extra that brings it."""
+    try:
+        import scipy.io
+    except ImportError:
+        raise InputError(
+            f"{path}: reading SUN RGB-D .mat files needs scipy: pip install 'a3d[sunrgbd]'"
+        ) from None
+    return scipy.io.loadmat
+
 
 def read_annotation(path: Path, classes: str) -> tuple[list[str], np.ndarray, np.ndarray]:
     """(class names, footprints (N, 3, 2), heights (N, 2)) of an annotation3Dfinal/index.json,
