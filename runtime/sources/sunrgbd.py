@@ -429,14 +429,9 @@ def read_labels(path: Path, classes: str) -> tuple[list[str], np.ndarray, np.nda
 
 def read_point_cloud(path: Path) -> np.ndarray:
     """The (N, >= 3) point cloud of a VoteNet ``depth/%06d.mat`` (variable ``instance``)."""
+    loadmat = _loadmat(path)
     try:
-        import scipy.io
-    except ImportError:
-        raise InputError(
-            f"{path}: reading SUN RGB-D point clouds needs scipy: pip install 'a3d[sunrgbd]'"
-        ) from None
-    try:
-        points: Any = scipy.io.loadmat(path, variable_names=["instance"]).get("instance")
+        points: Any = loadmat(path, variable_names=["instance"]).get("instance")
     except (OSError, ValueError, TypeError, NotImplementedError) as e:
         raise InputError(f"{path}: cannot read the MATLAB file ({e})") from None
     if (

@@ -54,6 +54,7 @@ def normalize_class_name(name: str) -> str | None:
     key = CLASS_ALIASES.get(key.replace(" ", ""), key)
     return key if key in CLASSES else None
 
+
 # One colour per class (RGB, tab20-like, distinct at a glance), shared by every view and plot.
 CLASS_COLORS_RGB: tuple[tuple[int, int, int], ...] = (
     (31, 119, 180),
