@@ -30,6 +30,7 @@ from tqdm import tqdm
 from a3d.runtime.cli.common import build_parser as command_parser
 from a3d.runtime.cli.common import command
 from a3d.runtime.io.image_io import read_bytes
+from a3d.runtime.pipeline import frame_problem
 from a3d.runtime.sources.folder import write_frame
 from a3d.runtime.sources.sunrgbd import DEPTH_FOLDERS, ReleaseSource, SunOptions, open_sunrgbd
 from a3d.runtime.sources.sunrgbd_conventions import CLASS_SETS
@@ -86,7 +87,7 @@ def main(argv: list[str] | None = None) -> int:
                 gt=frame.truth if frame.R_tilt is not None else None,
             )
         except ValueError as e:  # InputError included: one line per bad frame
-            failures.append(f"{loader.origin}: {e}" if loader.origin not in str(e) else str(e))
+            failures.append(frame_problem(loader, e))
             tqdm.write(f"{PROG}: {failures[-1]}", file=sys.stderr)
             continue
         frames[split] += 1

@@ -200,9 +200,13 @@ class ReleaseSource:
 
     def __iter__(self) -> Iterator[FrameLoader]:
         for folder in self.folders:
-            yield FrameLoader(
-                self.name_of(folder), str(folder), lambda f=folder: self.read(f), (str(folder),)
+            files = (
+                str(p)
+                for sub in ("image", "depth", "depth_bfx", "extrinsics", "annotation3Dfinal")
+                for p in sorted((folder / sub).glob("*.*"))
             )
+            named = (str(folder / "intrinsics.txt"), *files)
+            yield FrameLoader(self.name_of(folder), str(folder), lambda f=folder: self.read(f), named)
 
     def read(self, folder: Path) -> Frame:
         color_path = _only_file(folder / "image", ".jpg")
@@ -361,7 +365,12 @@ class VotenetSource:
     def __iter__(self) -> Iterator[FrameLoader]:
         for name in self.names:
             image = self.root / "image" / f"{name}.jpg"
-            yield FrameLoader(name, str(image), lambda n=name: self.read(n), (str(image),))
+            files = [
+                self.root / sub / f"{name}.{ext}"
+                for sub, ext in (("depth", "mat"), ("calib", "txt"), ("label", "txt"))
+            ]
+            named = (str(image), *map(str, files))
+            yield FrameLoader(name, str(image), lambda n=name: self.read(n), named)
 
     def splits(self) -> dict[str, str] | None:
         """Frame name -> "train" / "val" from train_data_idx.txt / val_data_idx.txt, or None without them."""
