@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from a3d.runtime import Detector
 from a3d.runtime.errors import InputError
 from a3d.runtime.sources.folder import write_frame, write_intrinsics
 from a3d.runtime.sources.overrides import INTRINSICS_PRESETS, parse_intrinsics
@@ -80,6 +81,9 @@ def test_run_on_a_sequence_equals_run_on_the_frame_folder(tmp_path: Path, tiny_m
     write_intrinsics(folder, INTRINSICS_PRESETS["fr1"])
     expected = run_detections(folder, tiny_model, tmp_path / "folder.jsonl")
     assert_same_detections(run_detections(sequence, tiny_model, tmp_path / "tum.jsonl"), expected)
+    # The Python API on the same source (docs/sources.md), to the detections file's precision.
+    outcomes = Detector.load(tiny_model, threads=1).detect_frames(open_source(sequence, SourceOptions()))
+    assert_same_detections({o.name: o.detections for o in outcomes}, expected, atol=1e-4)
     # The same with the camera given on the command line, and split into two shards.
     K = frames[0].intrinsics
     write_intrinsics(folder, K)
