@@ -80,9 +80,9 @@ def command(
 
     def wrap(main: Callable[..., int]) -> Callable[..., int]:
         @functools.wraps(main)
-        def run(argv: list[str] | None = None) -> int:
+        def run(argv: list[str] | None = None, **options: object) -> int:
             try:
-                return main(argv)
+                return main(argv, **options)
             except usage_errors as e:
                 print(f"{prog}: error: {e}", file=sys.stderr)
                 return EXIT_USAGE
