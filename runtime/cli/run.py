@@ -4,6 +4,7 @@
             [--proposals auto|compute|precomputed] [--max-proposals N] [--score-threshold S]
             [--resume] [--overlap [auto|on|off]] [--headless] [--connect] [--url URL] [--serve]
             [--save FILE.rrd] [--stdout]
+            [--intrinsics FX,FY,CX,CY | fr1 | fr2 | fr3] [--depth-scale S] [--resize-depth] [--shard K/N]
 
 SOURCE is a frame source (a3d.runtime.sources.registry: an a3d frame folder, README "Frame
 format", and the other kinds registered there; --source-format forces one); for a folder the
@@ -55,6 +56,7 @@ from a3d.runtime.pipeline import (
 )
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.folder import MODEL_FILE
+from a3d.runtime.sources.overrides import parse_depth_scale, parse_intrinsics
 from a3d.runtime.sources.registry import FrameSource, SourceOptions, kinds, open_source
 from a3d.runtime.viewer import options as viewer
 
@@ -106,6 +108,17 @@ def build_parser() -> argparse.ArgumentParser:
         "on THREADS - 1 threads: on, off, or auto (also a bare --overlap): a frame after the first is "
         "timed sequentially and the rest overlap only where that is predicted faster",
     )
+    p.add_argument(
+        "--intrinsics",
+        metavar="FX,FY,CX,CY",
+        help="camera intrinsics in pixels for every frame, or a preset (fr1|fr2|fr3: TUM RGB-D); "
+        "replaces what the source says",
+    )
+    p.add_argument(
+        "--depth-scale", metavar="S", help="metres per depth unit (0.001: mm), replaces the source's"
+    )
+    p.add_argument("--resize-depth", action="store_true", help="resize depth of another size to the colour's")
+    p.add_argument("--shard", metavar="K/N", help="only every N-th frame from the K-th (K = 0..N-1)")
     viewer.add_viewer_args(p)
     return p
 
@@ -124,11 +137,22 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
         parser.error("--output - cannot be combined with --resume or --stdout")
     if not args.source.exists() and ":" not in str(args.source):  # "realsense:SERIAL" names no file
         parser.error(f"{args.source}: no such file or folder")
+    args.shard = _shard(parser, args.shard)
     if args.model is None:
         args.model = args.source / DEFAULT_MODEL
         if not args.model.is_file():
             parser.error(f"no model given and {args.model} does not exist; pass --model FILE")
     return args
+
+
+def _shard(parser: argparse.ArgumentParser, text: str | None) -> tuple[int, int]:
+    """--shard K/N as (K, N); (0, 1) without it."""
+    if text is None:
+        return 0, 1
+    k, _, n = text.partition("/")
+    if not (k.isdigit() and n.isdigit() and 0 <= int(k) < int(n)):
+        parser.error(f"--shard: expected K/N with 0 <= K < N, got {text!r}")
+    return int(k), int(n)
 
 
 @dataclass(frozen=True)
@@ -144,7 +168,11 @@ class _Job:
 def _job(args: argparse.Namespace) -> _Job:
     """Open the source, load the model and read the output to resume (InputError / ModelError)."""
     options = SourceOptions(
-        with_proposals=args.proposals != "compute", with_truth=viewer.viewer_requested(args)
+        intrinsics=None if args.intrinsics is None else parse_intrinsics(args.intrinsics),
+        depth_scale=None if args.depth_scale is None else parse_depth_scale(args.depth_scale),
+        resize_depth=args.resize_depth,
+        with_proposals=args.proposals != "compute",
+        with_truth=viewer.viewer_requested(args),
     )
     source = open_source(args.source, options, args.source_format)
     # With --overlap on one thread prepares frames, so the network gets one fewer (no oversubscription).
@@ -159,12 +187,16 @@ def _job(args: argparse.Namespace) -> _Job:
     return _Job(source, done, model, config)
 
 
-def _frames_to_do(source: FrameSource, done: set[str], index: dict[str, int]) -> Iterator[FrameLoader]:
-    """The source's frames, lazily, less those already done; ``index`` learns each frame's
-    position as it goes (so a live source is never drained ahead of the run)."""
+def _frames_to_do(
+    source: FrameSource, done: set[str], index: dict[str, int], shard: tuple[int, int] = (0, 1)
+) -> Iterator[FrameLoader]:
+    """The source's frames of this ``shard`` (K, N): positions K, K + N, ..., lazily, less those
+    already done; ``index`` learns each frame's position as it goes (so a live source is never
+    drained ahead of the run)."""
+    k, n = shard
     for position, loader in enumerate(source):
         index[loader.name] = position
-        if loader.name not in done:
+        if position % n == k and loader.name not in done:
             yield loader
 
 
@@ -192,8 +224,11 @@ def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] 
     written = 0
     overlapping = False
     index: dict[str, int] = {}  # frame name -> its position in the source (the rerun timeline)
-    todo = _frames_to_do(job.source, job.done, index)
-    total = len(job.source) - len(job.done) if hasattr(job.source, "__len__") else None
+    todo = _frames_to_do(job.source, job.done, index, args.shard)
+    total = None
+    if hasattr(job.source, "__len__"):
+        k, n = args.shard
+        total = max(0, len(range(k, len(job.source), n)) - len(job.done))
     bar = tqdm(total=total, desc=PROG, unit="frame", file=sys.stderr, disable=None)
     try:
         with _threads(1 if args.overlap == "on" else args.threads), _warnings_to_stderr():
