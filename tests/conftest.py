@@ -10,7 +10,8 @@ import pytest
 @pytest.fixture(scope="session")
 def tiny_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """A real a3d-export graph (A3DNet at width 0.125, random weights) with tests/test_run.py's
-    model metadata (half-scale input, 60 proposals): ~10 s to export, once per session."""
+    model metadata (tests/helpers/runtime_frames.py: half-scale input, 60 proposals): ~10 s to
+    export, once per session."""
     pytest.importorskip("torch")
     import torch
 
@@ -26,3 +27,10 @@ def tiny_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
     path = root / "model.onnx"
     save_model(raw, fake_metadata(), path)
     return path
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """A test that needs the exported tiny model is slow (the export takes 10-60 s on 2 cores)."""
+    for item in items:
+        if "tiny_model" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.slow)

@@ -6,6 +6,8 @@ softmax index ``i + 1``.
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 
 CLASSES: tuple[str, ...] = (
@@ -52,6 +54,18 @@ def class_index(name: str) -> int:
         return _INDEX[name]
     except KeyError:
         raise ValueError(f"unknown class name {name!r} (expected one of: {', '.join(CLASSES)})") from None
+
+
+CLASS_ALIASES = {"tv": "television", "nightstand": "night stand", "garbagebin": "garbage bin"}
+"""Other spellings of the 19 class names (NYUv2, SUN RGB-D), keyed lower-case without spaces or "_"."""
+
+
+def normalize_class_name(name: str) -> str | None:
+    """The a3d class of a data set's label ('night_stand' -> 'night stand', 'tv' -> 'television'), or None."""
+    key = re.sub(r"\s+", " ", name.strip().lower().replace("_", " "))
+    key = CLASS_ALIASES.get(key.replace(" ", ""), key)
+    return key if key in CLASSES else None
+
 
 # One colour per class (RGB, tab20-like, distinct at a glance), shared by every view and plot.
 CLASS_COLORS_RGB: tuple[tuple[int, int, int], ...] = (
