@@ -9,9 +9,9 @@ import pytest
 
 @pytest.fixture(scope="session")
 def tiny_model(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A real a3d-export graph (A3DNet at width 0.125, random weights) with tests/test_run.py's
-    model metadata (tests/helpers/runtime_frames.py: half-scale input, 60 proposals): ~10 s to
-    export, once per session."""
+    """A real a3d-export graph (A3DNet at width 0.125, random weights) with the runtime tests' fake
+    metadata (tests/helpers/runtime_frames.py: half-scale input, 60 proposals): ~10 s to export,
+    once per session."""
     pytest.importorskip("torch")
     import torch
 
