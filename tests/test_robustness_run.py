@@ -20,10 +20,11 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+import pytest
 
 from a3d.runtime.sources.folder import write_frame
 from a3d.runtime.structures.geometry import rtilt_from_pitch_roll
-from tests.test_run import H, K, W, scene
+from tests.helpers.runtime_frames import H, K, W, scene
 
 GOOD = ("good_1", "good_2", "good_3")  # good_2 without R_tilt: gravity estimated from its depth
 R_TILT = rtilt_from_pitch_roll(np.radians(-9.0), np.radians(1.0))
@@ -141,6 +142,7 @@ BAD: dict[str, tuple[Callable[[Path], None], str, str]] = {
 }
 
 
+@pytest.mark.slow  # the exported tiny model (conftest) and a3d-run processes
 def test_bad_frames_are_reported_once_and_the_good_ones_match_a_clean_run(
     tmp_path: Path, tiny_model: Path
 ) -> None:

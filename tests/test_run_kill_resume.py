@@ -20,9 +20,11 @@ from pathlib import Path
 import pytest
 
 from a3d.runtime.io.detections_io import parse_line
-from tests.test_run import write_scene_folder
+from tests.helpers.runtime_frames import write_scene_folder
 
 FRAMES = 24
+
+pytestmark = pytest.mark.slow  # kills a3d-run processes and resumes them
 
 
 def _command(folder: Path, model: Path, output: Path, *extra: str) -> list[str]:
@@ -80,7 +82,7 @@ def _kill_after_first_line(
 
 @pytest.mark.parametrize(
     ("sig", "status", "extra"),
-    [(signal.SIGINT, 130, ("--overlap",)), (signal.SIGKILL, -signal.SIGKILL, ())],
+    [(signal.SIGINT, 130, ("--overlap", "on")), (signal.SIGKILL, -signal.SIGKILL, ())],
     ids=["sigint-overlap", "kill-9"],
 )
 def test_killed_run_resumes_to_the_clean_output(

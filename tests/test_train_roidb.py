@@ -21,7 +21,7 @@ from a3d.runtime.structures.frame import GroundTruth
 from a3d.train.config import apply_overrides, load_config
 from a3d.train.loop import train
 from a3d.train.roidb import build_roidb, class_mean_sizes, compute_front_end, label_rois
-from tests.test_train_scenes import TINY, write_scenes
+from tests.helpers.train_scenes import TINY, write_scenes
 
 
 def test_label_rois_known_answers():
@@ -182,7 +182,7 @@ def test_the_training_front_end_equals_the_runtime_pipeline(scenes, tmp_path, fo
         ref = list_frames(folder)[0]
     front, filled = compute_front_end(ref, read_ground_truth(ref), intrinsics, config)
     pipeline = PipelineConfig(np.ones((NUM_CLASSES, 3)), proposals=config, max_proposals=config.max_proposals)
-    prepared = prepare(ref, intrinsics, pipeline)
+    prepared = prepare(read_frame(ref, intrinsics, with_proposals=True), pipeline)
     assert 0 < len(front.proposal_boxes) <= 5
     np.testing.assert_array_equal(front.proposal_boxes, prepared.boxes)
     np.testing.assert_array_equal(front.proposal_centers, prepared.centers)

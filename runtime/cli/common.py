@@ -1,6 +1,6 @@
 """The skeleton every a3d command shares: one parser style and one error -> exit-code mapping.
 
-Exit codes, the same for all seven commands:
+Exit codes, the same for every a3d command:
 
 - 0 (``EXIT_OK``): everything done;
 - 1 (``EXIT_FAILED``): the command ran but some inputs failed (each named on stderr), or a check
@@ -80,9 +80,9 @@ def command(
 
     def wrap(main: Callable[..., int]) -> Callable[..., int]:
         @functools.wraps(main)
-        def run(argv: list[str] | None = None) -> int:
+        def run(argv: list[str] | None = None, **options: object) -> int:
             try:
-                return main(argv)
+                return main(argv, **options)
             except usage_errors as e:
                 print(f"{prog}: error: {e}", file=sys.stderr)
                 return EXIT_USAGE
