@@ -6,7 +6,8 @@ frame source's job (a3d.runtime.sources). Three stages, so that the CPU front en
 can overlap the network call of another:
 
 1. ``prepare`` (numpy + OpenCV): fill the depth holes, choose R_tilt (the frame's own, the
-   estimate from the depth, or a fallback the line names: frontend.gravity.choose_gravity), compute segment proposals (or use the frame's precomputed ones), lift them
+   estimate from the depth, or a fallback the line names: frontend.gravity.choose_gravity),
+   compute segment proposals (or use the frame's precomputed ones), lift them
    to initial 3D centres (proposals without any depth are dropped), and build the network
    inputs: the trunk images at the model's
    ``input_scale`` and the proposal and context RoIs in the resized image's pixel coordinates;
@@ -196,9 +197,8 @@ def prepare(frame: Frame, config: PipelineConfig, timing: dict[str, float] | Non
     context_rois = scale_boxes(context, sx, sy).astype(np.float32)
     clock.lap("network_input")
     R_tilt = np.asarray(gravity.R_tilt, np.float64)
-    return PreparedFrame(
-        frame, R_tilt, boxes, centers, color[None], depth[None], rois, context_rois, timing, gravity.source, notes
-    )
+    inputs = (color[None], depth[None], rois, context_rois)
+    return PreparedFrame(frame, R_tilt, boxes, centers, *inputs, timing, gravity.source, notes)
 
 
 def load_and_prepare(loader: FrameLoader, config: PipelineConfig) -> PreparedFrame:

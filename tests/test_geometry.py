@@ -314,8 +314,10 @@ def test_projection_of_a_box_straddling_the_camera_known_answer():
     got = project_boxes_to_2d(box, np.eye(3), K, (H, W))[0]
     near = NEAR_PLANE_M
     expected = [
-        K.cx + K.fx * 0.01, K.cy - K.fy * 0.01 / near,
-        K.cx + K.fx * 0.02 / near, K.cy + K.fy * 0.01 / near,
+        K.cx + K.fx * 0.01,
+        K.cy - K.fy * 0.01 / near,
+        K.cx + K.fx * 0.02 / near,
+        K.cy + K.fy * 0.01 / near,
     ]
     np.testing.assert_allclose(got, expected, atol=1e-9)
 

@@ -48,7 +48,10 @@ def test_values_of_every_kind_build_the_dataclass() -> None:
         ({"weights": [1.0]}, "cfg.weights must be a list of 2 values"),
         ({"weights": "ab"}, "cfg.weights must be a list of 2 values"),
         ({"inners": []}, "cfg.inners must be a non-empty list"),
-        ({"inners": [{}, {"count": -1}]}, f"cfg.inners[1].count must be an integer in [0, {MAX_COUNT}], got -1"),  # noqa: E501
+        (
+            {"inners": [{}, {"count": -1}]},
+            f"cfg.inners[1].count must be an integer in [0, {MAX_COUNT}], got -1",
+        ),  # noqa: E501
         ({"inner": {"count": 2.0}}, "cfg.inner.count must be an integer"),
         ({"inner": {"count": True}}, "cfg.inner.count must be an integer"),
         ({"inner": {"count": MAX_COUNT + 1}}, "cfg.inner.count must be an integer"),

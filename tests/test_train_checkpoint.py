@@ -20,8 +20,10 @@ def _payload(value: float) -> dict:
         "iteration": 7,
         "config": '{"solver": {"lr": 0.005}}',
         "model": {"fc.weight": torch.full((3, 4), value), "bn.num_batches_tracked": torch.tensor(3)},
-        "optimizer": {"state": {0: {"momentum_buffer": torch.ones(2)}},
-                      "param_groups": [{"lr": 0.1, "params": [0]}]},
+        "optimizer": {
+            "state": {0: {"momentum_buffer": torch.ones(2)}},
+            "param_groups": [{"lr": 0.1, "params": [0]}],
+        },
         "classes": ["bathtub", "bed"],
     }
 

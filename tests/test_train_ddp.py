@@ -32,4 +32,3 @@ def test_two_gloo_processes_stay_in_sync(tmp_path):
         assert len(r["digests"]) == 2 and r["digests"][0] == r["digests"][1]
     assert [r["iter"] for r in records if r["kind"] == "train"] == [1, 2, 3, 4]
     assert load_checkpoint(run / "checkpoint.pt")["iteration"] == 4
-

@@ -111,6 +111,7 @@ def proposal_config_from_dict(values: Mapping[str, Any], where: str = "proposal_
     defaults), every value type- and range-checked: a ModelError names the first bad setting."""
     return dataclass_from_plain(ProposalConfig, values, where, _LIMITS)
 
+
 @dataclass(frozen=True)
 class Proposals:
     """Segment proposals in superpixel form, best first.

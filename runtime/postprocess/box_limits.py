@@ -6,8 +6,8 @@ clamped boxes goes into the frame's detections line (``notes``):
 
 - the centre's depth z to at least ``near_m``: the frame's near range, the least valid raw depth
   (no seen surface is nearer, so no centre of a seen object is, short of one reaching out of the
-  image toward the camera), never below ``MIN_NEAR_M``; a centre is moved along its viewing ray where it is in front of the camera
-  (the box still projects where the network put it), else only its z is set;
+  image toward the camera), never below ``MIN_NEAR_M``; a centre in front of the camera is moved
+  along its viewing ray (the box still projects where the network put it), else only z is set;
 - each size l, w, h to ``[MIN_SIZE_M, max of the class's family]``: the family bounds are
   generous (the largest objects of SUN RGB-D / NYUv2 annotations of each kind fit with room to
   spare) so that only regressions that went wrong are touched.

@@ -41,6 +41,7 @@ def class_index(name: str) -> int:
     except KeyError:
         raise ValueError(f"unknown class name {name!r} (expected one of: {', '.join(CLASSES)})") from None
 
+
 # One colour per class (RGB, tab20-like, distinct at a glance), shared by every view and plot.
 CLASS_COLORS_RGB: tuple[tuple[int, int, int], ...] = (
     (31, 119, 180),
