@@ -3,8 +3,10 @@
     a3d-eval FOLDER --detections detections.jsonl [--out DIR] [--nms 0.3 | --no-nms] [--iou 0.25 0.5]
 
 Prints a table (per class: #GT, #det, AP at each IoU threshold, in percent; then the mAP over
-all 19 classes and over the classes with ground truth) and, with ``--out``, writes DIR/eval.json
-and DIR/pr_curves.png atomically. The metric is ``a3d.runtime.evaluation.metric`` (see its docstring).
+all 19 classes and over the classes with ground truth), then the angle between each line's
+gravity and the ground truth's (a3d.runtime.evaluation.gravity_report: the mAP cannot see it)
+and, with ``--out``, writes DIR/eval.json and DIR/pr_curves.png atomically. The metric is
+``a3d.runtime.evaluation.metric`` (see its docstring).
 
 The test set is every frame of FOLDER that has ``NAME.gt.json``; a frame with ground truth and no
 detection line has all its objects missed. A detection line for a frame of FOLDER without
@@ -23,6 +25,7 @@ from pathlib import Path
 import cv2
 
 from a3d.runtime.errors import InputError
+from a3d.runtime.evaluation.gravity_report import gravity_report
 from a3d.runtime.evaluation.metric import (
     IOU_THRESHOLDS,
     NMS_IOU,
@@ -196,6 +199,8 @@ def main(argv: list[str] | None = None) -> int:
         f"{len(result.retilted_frames)} re-expressed in the ground-truth tilt frame"
     )
     print(format_table(result))
+    gravity = gravity_report(truth, detections)
+    print(gravity.format())
     if args.out is not None:
         inputs = {
             "folder": str(args.folder.resolve()),
@@ -205,6 +210,7 @@ def main(argv: list[str] | None = None) -> int:
             "frames_without_detections": result.frames_without_detections,
             "skipped_frames_without_gt": skipped,
             "retilted_frames": result.retilted_frames,
+            "gravity": gravity.summary(),
         }
         report = json.dumps(eval_report(result, inputs), indent=1)
         ok, png = cv2.imencode(".png", draw_pr_curves(result))
