@@ -30,6 +30,7 @@ import contextlib
 import logging
 import os
 import sys
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,6 +39,8 @@ import cv2
 import rerun as rr
 from tqdm import tqdm
 
+from a3d.runtime.cli.progress import make_progress
+from a3d.runtime.cli.summary import RunSummary
 from a3d.runtime.errors import InputError, ModelError
 from a3d.runtime.io.detections_io import format_line, parse_line
 from a3d.runtime.network.model import DetectorModel
@@ -45,6 +48,7 @@ from a3d.runtime.pipeline import PROPOSAL_SOURCES, FrameOutcome, PipelineConfig,
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.folder import MODEL_FILE
 from a3d.runtime.sources.registry import FrameSource, SourceOptions, kinds, open_source
+from a3d.runtime.viewer import launch as viewer_launch
 from a3d.runtime.viewer import view as viewer
 
 PROG = "a3d-run"
@@ -149,13 +153,19 @@ def _frames_to_do(source: FrameSource, done: set[str], index: dict[str, int]) ->
 def main(argv: list[str] | None = None) -> int:
     args = _arguments(argv)
     try:
+        starts_viewer = viewer_launch.launches_viewer(args)
+        if starts_viewer:
+            viewer_launch.check_can_launch(args)  # no display, no viewer: say so before loading anything
         job = _job(args)
-        recording = _open_recording(args)
+        launched = viewer_launch.launch(args) if starts_viewer else None
+        recording = _open_recording(args, launched)
         view = viewer.ViewOptions(min_score=args.view_min_score)
         output = _open_output(args.output, append=args.resume)
     except (InputError, ModelError) as e:
         print(f"{PROG}: error: {e}", file=sys.stderr)
         return 2
+    if launched is not None and launched.web_url is not None:
+        print(f"{PROG}: web viewer: open {launched.web_url}", file=sys.stderr, flush=True)
     failures = list(job.source.incomplete)
     for problem in failures:
         print(f"{PROG}: {problem}", file=sys.stderr)
@@ -163,7 +173,8 @@ def main(argv: list[str] | None = None) -> int:
     index: dict[str, int] = {}  # frame name -> its position in the source (the rerun timeline)
     todo = _frames_to_do(job.source, job.done, index)
     total = len(job.source) - len(job.done) if hasattr(job.source, "__len__") else None
-    bar = tqdm(total=total, desc=PROG, unit="frame", file=sys.stderr, disable=None)
+    bar = make_progress(PROG, total)
+    summary = RunSummary(args.view_min_score)
     try:
         with _threads(1 if args.overlap else args.threads), _warnings_to_stderr():
             for outcome in detect_frames(todo, job.model, job.config, overlap=args.overlap):
@@ -171,13 +182,18 @@ def main(argv: list[str] | None = None) -> int:
                 if outcome.detections is not None:
                     output.write(format_line(outcome.detections))
                     written += 1
+                    summary.add(outcome.detections)
                     problem = _log(recording, index[outcome.name], outcome, view)
+                else:
+                    summary.fail()
                 if problem:
                     failures.append(problem)
-                    tqdm.write(f"{PROG}: {problem}", file=sys.stderr)
-                bar.update()
+                    bar.write(f"{PROG}: {problem}")
+                bar.update(failed=outcome.detections is None)
     except KeyboardInterrupt:
         print(f"\n{PROG}: interrupted after {written} frames; --resume continues", file=sys.stderr)
+        if launched is not None and launched.web_url is not None:
+            launched.stop()
         return 130
     except OSError as e:
         print(f"{PROG}: error: {args.output}: cannot write ({e.strerror or e}); stopped", file=sys.stderr)
@@ -187,13 +203,40 @@ def main(argv: list[str] | None = None) -> int:
         output.close()
         if recording is not None:
             recording.flush()
-    if recording is not None:
-        rr.script_teardown(args)  # --serve: keeps serving until Ctrl-C
-        rr.disconnect(recording)
     resumed = f", {len(job.done)} already there" if args.resume else ""
     where = "stdout" if args.output == "-" else args.output
+    for line in summary.lines(_outputs(args, where, launched)):
+        print(f"{PROG}: summary: {line}", file=sys.stderr)
     print(f"{PROG}: {written} frames written to {where}{resumed}, {len(failures)} failed", file=sys.stderr)
+    if recording is not None:
+        rr.disconnect(recording)
+    if launched is not None and launched.web_url is not None:
+        _serve_until_interrupted(launched)
     return 1 if failures else 0
+
+
+def _outputs(args: argparse.Namespace, where: str, launched: viewer_launch.Launched | None) -> list[str]:
+    """Where the run's outputs went, for the summary."""
+    outputs = [f"detections -> {where}"]
+    if args.save:
+        outputs.append(f"recording -> {args.save}")
+    if args.connect:
+        outputs.append(f"viewer -> {args.url or 'the default viewer address'}")
+    if launched is not None:
+        outputs.append(f"viewer -> {launched.web_url or launched.grpc_url}")
+    return outputs
+
+
+def _serve_until_interrupted(launched: viewer_launch.Launched) -> None:
+    """--serve: the web viewer keeps the recording until Ctrl-C, then is stopped."""
+    print(f"{PROG}: serving the recording at {launched.web_url}; Ctrl-C to stop", file=sys.stderr, flush=True)
+    try:
+        while launched.process is not None and launched.process.poll() is None:
+            time.sleep(0.5)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        launched.stop()
 
 
 # ----------------------------------------------------------------------------- output file
@@ -265,12 +308,15 @@ def completed_frames(path: Path) -> set[str]:
 # ----------------------------------------------------------------------------- viewer, environment
 
 
-def _open_recording(args: argparse.Namespace) -> rr.RecordingStream | None:
-    """The rerun recording the flags ask for, with the static entities logged; None for none."""
+def _open_recording(
+    args: argparse.Namespace, launched: viewer_launch.Launched | None
+) -> rr.RecordingStream | None:
+    """The rerun recording the flags ask for (to the viewer a3d-run started, if it started one),
+    with the static entities logged; None for none."""
     if not viewer.viewer_requested(args):
         return None
     try:
-        recording = viewer.open_recording(args)
+        recording = viewer.open_recording(args, None if launched is None else launched.grpc_url)
         viewer.log_static(recording)
     except (OSError, RuntimeError, ValueError) as e:
         raise InputError(f"rerun: cannot open the recording ({e})") from None

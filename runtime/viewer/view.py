@@ -32,6 +32,7 @@ from a3d.runtime.structures.geometry import (
     box_edges_clipped,
     project_points,
 )
+from a3d.runtime.viewer.launch import add_bind_arg
 
 APPLICATION_ID = "a3d"
 GROUND_TRUTH_RGB = (255, 255, 255)  # ground truth in one neutral colour, apart from the class colours
@@ -48,8 +49,10 @@ class ViewOptions:
 
 
 def add_viewer_args(parser: argparse.ArgumentParser) -> None:
-    """The rerun SDK's standard script flags: --headless, --connect, --serve, --url, --save, --stdout."""
+    """The rerun SDK's standard script flags: --headless, --connect, --serve, --url, --save, --stdout,
+    and --bind for the viewer a3d-run starts (a3d.runtime.viewer.launch)."""
     rr.script_add_args(parser)
+    add_bind_arg(parser)
 
 
 def viewer_requested(args: argparse.Namespace) -> bool:
@@ -92,11 +95,16 @@ def default_blueprint() -> rrb.Blueprint:
     )
 
 
-def open_recording(args: argparse.Namespace) -> rr.RecordingStream:
-    """Start the recording on the sink the flags name, with the default blueprint."""
+def open_recording(args: argparse.Namespace, grpc_url: str | None = None) -> rr.RecordingStream:
+    """Start the recording on the sink the flags name, with the default blueprint; with
+    ``grpc_url``, on the viewer a3d started there (a3d.runtime.viewer.launch) instead."""
     if args.save:
         Path(args.save).parent.mkdir(parents=True, exist_ok=True)
-    return rr.script_setup(args, APPLICATION_ID, default_blueprint=default_blueprint())
+    if grpc_url is None:
+        return rr.script_setup(args, APPLICATION_ID, default_blueprint=default_blueprint())
+    recording = rr.RecordingStream(APPLICATION_ID)
+    recording.connect_grpc(grpc_url, default_blueprint=default_blueprint())
+    return recording
 
 
 def log_static(rec: rr.RecordingStream) -> None:
