@@ -47,6 +47,7 @@ from a3d.runtime.network.model import DetectorModel
 from a3d.runtime.pipeline import PROPOSAL_SOURCES, FrameOutcome, PipelineConfig, detect_frames
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.folder import MODEL_FILE
+from a3d.runtime.sources.newest import NewestFrames
 from a3d.runtime.sources.registry import FrameSource, SourceOptions, kinds, open_source
 from a3d.runtime.viewer import launch as viewer_launch
 from a3d.runtime.viewer import view as viewer
@@ -83,6 +84,12 @@ def _parser() -> argparse.ArgumentParser:
         default=0.3,
         metavar="S",
         help="rerun view: draw detections scoring >= S (all are written to the output; default: %(default)s)",
+    )
+    p.add_argument(
+        "--realtime",
+        action="store_true",
+        help="play a recorded source at its recorded rate (frame time stamps) and, as with a live "
+        "camera, work on the newest frame only, dropping the stale ones",
     )
     p.add_argument(
         "--overlap",
@@ -171,8 +178,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{PROG}: {problem}", file=sys.stderr)
     written = 0
     index: dict[str, int] = {}  # frame name -> its position in the source (the rerun timeline)
-    todo = _frames_to_do(job.source, job.done, index)
-    total = len(job.source) - len(job.done) if hasattr(job.source, "__len__") else None
+    live = NewestFrames(job.source, realtime=args.realtime) if _is_live(args, job.source) else None
+    todo = _frames_to_do(job.source if live is None else live, job.done, index)
+    total = len(job.source) - len(job.done) if live is None and hasattr(job.source, "__len__") else None
     bar = make_progress(PROG, total)
     summary = RunSummary(args.view_min_score)
     try:
@@ -205,6 +213,7 @@ def main(argv: list[str] | None = None) -> int:
             recording.flush()
     resumed = f", {len(job.done)} already there" if args.resume else ""
     where = "stdout" if args.output == "-" else args.output
+    summary.dropped = None if live is None else live.dropped
     for line in summary.lines(_outputs(args, where, launched)):
         print(f"{PROG}: summary: {line}", file=sys.stderr)
     print(f"{PROG}: {written} frames written to {where}{resumed}, {len(failures)} failed", file=sys.stderr)
@@ -213,6 +222,11 @@ def main(argv: list[str] | None = None) -> int:
     if launched is not None and launched.web_url is not None:
         _serve_until_interrupted(launched)
     return 1 if failures else 0
+
+
+def _is_live(args: argparse.Namespace, source: FrameSource) -> bool:
+    """Live sources (a camera: ``source.live``) and --realtime runs work on the newest frame only."""
+    return bool(args.realtime or getattr(source, "live", False))
 
 
 def _outputs(args: argparse.Namespace, where: str, launched: viewer_launch.Launched | None) -> list[str]:

@@ -31,6 +31,7 @@ class RunSummary:
     per_class: Counter[str] = field(default_factory=Counter)
     gravity: Counter[str] = field(default_factory=Counter)
     noted: Counter[str] = field(default_factory=Counter)
+    dropped: int | None = None  # stale frames a live source dropped (None: not a live run)
 
     def add(self, det: FrameDetections) -> None:
         self.frames += 1
@@ -51,8 +52,9 @@ class RunSummary:
         fallbacks = sum(n for source, n in self.gravity.items() if source.startswith("fallback"))
         sources = ", ".join(f"{source} {n}" for source, n in sorted(self.gravity.items())) or "no frame"
         notes = ", ".join(f"'{kind}' {n}" for kind, n in sorted(self.noted.items())) or "none"
+        dropped = "" if self.dropped is None else f", {self.dropped} stale frames dropped"
         return [
-            f"{done} frames ({self.failed} failed) in {elapsed:.1f} s, {rate:.2f} frames/s",
+            f"{done} frames ({self.failed} failed{dropped}) in {elapsed:.1f} s, {rate:.2f} frames/s",
             f"detections scoring >= {self.min_score:g} (the viewer's threshold): {found}",
             f"gravity fallbacks on {fallbacks} frames (sources: {sources}); frames with notes: {notes}",
             f"outputs: {'; '.join(outputs)}",
