@@ -97,7 +97,8 @@ def main() -> None:
         front = float(np.median(np.sum([times[s] for s in FRONT_END], axis=0)))
         stages = ", ".join(f"{s} {med[s]:.0f}" for s in STAGES if s in med)
         print(
-            f"{name:7s} front end {front:5.0f} ms (target <= 40; CPU {np.median(cpu):4.0f} ms), frame {med['total']:5.0f} ms = "
+            f"{name:7s} front end {front:5.0f} ms (target <= 40; CPU {np.median(cpu):4.0f} ms), "
+            f"frame {med['total']:5.0f} ms = "
             f"{1e3 / med['total']:4.1f} frames/s; recall@0.5 {matched / max(total, 1):.3f}, "
             f"mAP@0.25 {100 * result.map_all(0.25):.1f}\n        stages (median ms): {stages}"
         )
