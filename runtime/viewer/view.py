@@ -35,6 +35,7 @@ from a3d.runtime.structures.geometry import (
 from a3d.runtime.viewer.launch import add_bind_arg
 
 APPLICATION_ID = "a3d"
+BOX_LINE_RADIUS_M = 0.006  # box edges about as thick as the cloud's points (radius 8 mm)
 GROUND_TRUTH_RGB = (255, 255, 255)  # ground truth in one neutral colour, apart from the class colours
 
 
@@ -130,9 +131,14 @@ def _yaw_rotations(theta: np.ndarray) -> list[rr.RotationAxisAngle]:
 def boxes3d_archetype(
     boxes: np.ndarray, R_tilt: np.ndarray, class_ids: np.ndarray, labels: list[str]
 ) -> rr.Boxes3D:
-    """Boxes3D in the world (tilt) frame: centre R_tilt c, half sizes (l, h, w)/2, yaw about y."""
+    """Boxes3D in the world (tilt) frame: centre R_tilt c, half sizes (l, h, w)/2, yaw about y.
+
+    Drawn as thin wireframes (never solid or translucent faces), so the point cloud inside and
+    behind every box stays visible."""
     boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 7)
     return rr.Boxes3D(
+        fill_mode=rr.components.FillMode.MajorWireframe,
+        radii=BOX_LINE_RADIUS_M,
         centers=boxes[:, :3] @ np.asarray(R_tilt).T,
         half_sizes=boxes[:, [3, 5, 4]] / 2.0,
         rotation_axis_angles=_yaw_rotations(boxes[:, 6]),
