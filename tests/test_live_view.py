@@ -117,3 +117,14 @@ def test_served_viewer_listens_on_loopback_only(monkeypatch) -> None:
     finally:
         started.stop()
     assert started.process.poll() is not None
+
+
+def test_connect_to_no_viewer_is_one_line_before_any_frame() -> None:
+    port = _free_port()  # nothing listens there
+    with pytest.raises(
+        launch.ViewerError, match=rf"^no rerun viewer listening at rerun\+http://127.0.0.1:{port}/"
+    ):
+        launch.check_connect_target(_args("--connect", "--url", f"rerun+http://127.0.0.1:{port}/proxy"))
+    with socket.create_server(("127.0.0.1", 0)) as server:
+        url = f"rerun+http://127.0.0.1:{server.getsockname()[1]}/proxy"
+        launch.check_connect_target(_args("--connect", "--url", url))  # a listener: no error

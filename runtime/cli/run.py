@@ -171,6 +171,8 @@ def main(argv: list[str] | None = None) -> int:
         starts_viewer = viewer_launch.launches_viewer(args)
         if starts_viewer:
             viewer_launch.check_can_launch(args)  # no display, no viewer: say so before loading anything
+        elif args.connect:
+            viewer_launch.check_connect_target(args)
         job = _job(args)
         launched = viewer_launch.launch(args) if starts_viewer else None
         recording = _open_recording(args, launched)
@@ -218,7 +220,7 @@ def main(argv: list[str] | None = None) -> int:
         bar.close()
         output.close()
         if recording is not None:
-            recording.flush()
+            _flush(recording)
     resumed = f", {len(job.done)} already there" if args.resume else ""
     where = "stdout" if args.output == "-" else args.output
     summary.dropped = None if live is None else live.dropped
@@ -230,6 +232,15 @@ def main(argv: list[str] | None = None) -> int:
     if launched is not None and launched.web_url is not None:
         _serve_until_interrupted(launched)
     return 1 if failures else 0
+
+
+def _flush(recording: rr.RecordingStream) -> None:
+    """Send what the viewer has not received yet; a viewer gone mid-run is one line, not a traceback
+    (the detections are written either way)."""
+    try:
+        recording.flush()
+    except RuntimeError as e:
+        print(f"{PROG}: warning: rerun: the viewer did not receive everything ({e})", file=sys.stderr)
 
 
 def _is_live(args: argparse.Namespace, source: FrameSource) -> bool:

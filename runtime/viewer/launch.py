@@ -12,6 +12,7 @@ So a3d-run starts the viewer itself:
   does), and a3d-run waits until it accepts connections, or reports its exit in one line;
 - with no display (Linux without DISPLAY or WAYLAND_DISPLAY) the native viewer is not started
   at all: one line names the alternatives (--serve, --save, --connect) before any frame;
+- ``--connect`` checks that a viewer listens at the address before any frame;
 - ``--serve`` starts ``rerun --serve-web`` (the web viewer over HTTP on port 9090 and the gRPC
   server on 9876, both on the bind address) and prints the URL to open in a browser.
 """
@@ -124,6 +125,24 @@ def check_can_launch(
             "(pip install rerun-sdk); or use --save FILE.rrd or --headless"
         )
     return executable
+
+
+def check_connect_target(args: argparse.Namespace) -> None:
+    """--connect: ViewerError (one line, before any frame) when nothing listens at the viewer's
+    address; the SDK would retry in the background and raise at the end of the run instead."""
+    url = args.url or f"rerun+http://{LOOPBACK}:{GRPC_PORT}/proxy"
+    parts = urllib.parse.urlsplit(url)
+    try:
+        host, port = parts.hostname or LOOPBACK, parts.port or GRPC_PORT
+    except ValueError:
+        raise ViewerError(
+            f"--url {url}: not a viewer address like rerun+http://127.0.0.1:9876/proxy"
+        ) from None
+    if not _accepts(host, port):
+        raise ViewerError(
+            f"no rerun viewer listening at {url} (start one with `rerun`); "
+            "or use --serve, --save FILE.rrd or --headless"
+        )
 
 
 def launch(args: argparse.Namespace) -> Launched:
