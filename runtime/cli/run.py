@@ -29,6 +29,7 @@ import argparse
 import contextlib
 import logging
 import os
+import signal
 import sys
 import time
 from collections.abc import Iterator
@@ -261,8 +262,9 @@ def _outputs(args: argparse.Namespace, where: str, launched: viewer_launch.Launc
 
 
 def _serve_until_interrupted(launched: viewer_launch.Launched) -> None:
-    """--serve: the web viewer keeps the recording until Ctrl-C, then is stopped."""
+    """--serve: the web viewer keeps the recording until Ctrl-C (or SIGTERM), then is stopped."""
     print(f"{PROG}: serving the recording at {launched.web_url}; Ctrl-C to stop", file=sys.stderr, flush=True)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)  # a plain `kill` stops the server too
     try:
         while launched.process is not None and launched.process.poll() is None:
             time.sleep(0.5)
