@@ -41,9 +41,10 @@ import numpy as np
 
 from a3d.runtime.errors import InputError, ModelError
 from a3d.runtime.frontend.depth import fill_depth_info
+from a3d.runtime.frontend.frame_proposals import frame_proposals
 from a3d.runtime.frontend.gravity import choose_gravity
 from a3d.runtime.frontend.lifting import lift
-from a3d.runtime.frontend.proposals import ProposalConfig, Proposals, proposal_config_from_dict, propose
+from a3d.runtime.frontend.proposals import ProposalConfig, Proposals, proposal_config_from_dict
 from a3d.runtime.io.detections_io import FrameDetections
 from a3d.runtime.network.network_input import network_inputs, scale_boxes
 from a3d.runtime.postprocess.box_limits import bound_boxes, near_range
@@ -215,28 +216,19 @@ def _proposals(
 ) -> tuple[Proposals | PrecomputedProposals | np.ndarray, np.ndarray]:
     """(segments in a form ``lift`` takes, boxes (N, 4) float64), at most ``max_proposals``;
     ``notes`` learns when there are none or the cap cut the list."""
-    pre = frame.proposals
-    if config.proposal_source == "precomputed" and pre is None:
+    if config.proposal_source == "precomputed" and frame.proposals is None:
         raise InputError(f"{frame.origin}: no precomputed proposals (--proposals precomputed)")
-    if pre is None or config.proposal_source == "compute":
-        computed = propose(frame.color, filled, frame.intrinsics, config.proposals)
-        if len(computed.boxes) == 0:
-            notes.append("no proposals: the segmentation found no candidate object")
-        elif len(computed.boxes) >= config.proposals.max_proposals:
-            notes.append(f"proposals capped at {config.proposals.max_proposals}")
-        return computed, np.asarray(computed.boxes, np.float64)
-    n = min(len(pre), config.max_proposals)
-    if len(pre) == 0:
+    precomputed = None if config.proposal_source == "compute" else frame.proposals
+    segments, boxes = frame_proposals(frame.color, filled, frame.intrinsics, config.proposals, precomputed)
+    if precomputed is None and not len(boxes):
+        notes.append("no proposals: the segmentation found no candidate object")
+    elif precomputed is None and len(boxes) >= config.proposals.max_proposals:
+        notes.append(f"proposals capped at {config.proposals.max_proposals}")
+    elif precomputed is not None and not len(precomputed):
         notes.append("no proposals: the precomputed list is empty")
-    elif n < len(pre):
-        notes.append(f"proposals capped at {n} of {len(pre)} precomputed")
-    boxes = np.asarray(pre.boxes[:n], np.float64)
-    if pre.packed_masks is not None:
-        masks = np.unpackbits(pre.packed_masks[:n], axis=-1, count=frame.image_size[1]).view(bool)
-        return masks, boxes
-    assert pre.indptr is not None and pre.indices is not None
-    end = int(pre.indptr[n])
-    return replace(pre, boxes=pre.boxes[:n], indptr=pre.indptr[: n + 1], indices=pre.indices[:end]), boxes
+    elif precomputed is not None and len(boxes) < len(precomputed):
+        notes.append(f"proposals capped at {len(boxes)} of {len(precomputed)} precomputed")
+    return segments, boxes
 
 
 def infer(model: NetworkRunner, prepared: PreparedFrame) -> NetworkOutput:

@@ -80,5 +80,6 @@ def test_a3d_run_reports_a_gravity_fallback_in_the_line_and_once_on_stderr(
     assert lines["synth_000000"]["gravity"] == GRAVITY_ESTIMATED
     assert lines["synth_000001"]["gravity"].startswith("fallback: filled depth (raw depth: too few")
     assert "depth mostly missing: 9" in " ".join(lines["synth_000001"]["notes"])
-    warnings = [line for line in capsys.readouterr().err.splitlines() if "gravity fallback" in line]
+    err = capsys.readouterr().err.splitlines()
+    warnings = [line for line in err if line.startswith("a3d-run: warning: ") and "gravity fallback" in line]
     assert len(warnings) == 1 and "synth_000001" in warnings[0]

@@ -14,7 +14,7 @@ import psutil
 import pytest
 
 from a3d.runtime.viewer import launch
-from a3d.runtime.viewer.view import add_viewer_args
+from a3d.runtime.viewer.options import add_viewer_args
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "samples"

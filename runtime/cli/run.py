@@ -14,8 +14,12 @@ partial last one, which ``--resume`` cuts off before it skips the frames already
 ``--resume`` the output starts empty. ``--output -`` writes the lines to stdout; the progress bar
 and all messages go to stderr.
 
-The rerun flags are the SDK's standard ones: with none the viewer is spawned, ``--save`` writes an
-.rrd, ``--headless`` alone logs nothing. Frames are logged as they are processed (colour, depth,
+The rerun flags are the SDK's standard ones: with none the viewer is started (on 127.0.0.1, found
+next to this Python when not on PATH; a3d.runtime.viewer.launch), ``--serve`` serves the web
+viewer and prints its URL, ``--save`` writes an .rrd, ``--headless`` alone logs nothing. The run
+ends with a summary (a3d.runtime.cli.summary); progress is a bar on a terminal, else a line every
+few seconds (a3d.runtime.cli.progress). Live sources and ``--realtime`` work on the newest frame
+only (a3d.runtime.sources.newest); docs/live.md. Frames are logged as they are processed (colour, depth,
 point cloud, detections and, where the frame has it, ground truth).
 
 A bad frame never stops the run: it is named on stderr as ``a3d-run: PATH: problem`` and the rest
@@ -32,17 +36,19 @@ import os
 import signal
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
-import rerun as rr
 from tqdm import tqdm
 
+from a3d.runtime.cli.common import build_parser as command_parser
+from a3d.runtime.cli.common import command
 from a3d.runtime.cli.progress import make_progress
 from a3d.runtime.cli.summary import RunSummary
-from a3d.runtime.errors import InputError, ModelError
+from a3d.runtime.errors import InputError
 from a3d.runtime.io.detections_io import format_line, parse_line
 from a3d.runtime.network.model import DetectorModel
 from a3d.runtime.pipeline import PROPOSAL_SOURCES, FrameOutcome, PipelineConfig, detect_frames
@@ -51,7 +57,10 @@ from a3d.runtime.sources.folder import MODEL_FILE
 from a3d.runtime.sources.newest import NewestFrames
 from a3d.runtime.sources.registry import FrameSource, SourceOptions, kinds, open_source
 from a3d.runtime.viewer import launch as viewer_launch
-from a3d.runtime.viewer import view as viewer
+from a3d.runtime.viewer import options as viewer
+
+if TYPE_CHECKING:
+    import rerun as rr
 
 PROG = "a3d-run"
 DEFAULT_MODEL = MODEL_FILE
@@ -61,21 +70,19 @@ VIEW_MIN_SCORE = 0.5  # bench.view_threshold: precision of the shown boxes 0.53 
 load_model = DetectorModel.load  # the model loader (tests substitute a fake model here)
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
-    p.add_argument("source", type=Path, help="frame source: an a3d frame folder, or another registered kind")
-    p.add_argument(
-        "--source-format", choices=kinds(), help="the kind of SOURCE (default: recognised from it)"
-    )
+def build_parser() -> argparse.ArgumentParser:
+    p = command_parser(PROG, __doc__.split("\n\n")[0])
+    p.add_argument("source", type=Path, help="frame source: an a3d frame folder or another registered kind")
+    p.add_argument("--source-format", choices=kinds(), help="the kind of SOURCE (default: recognised)")
     p.add_argument("--model", type=Path, help=f"model file (default: FOLDER/{DEFAULT_MODEL})")
-    p.add_argument("--output", default=DEFAULT_OUTPUT, help="JSON lines file, '-': stdout (%(default)s)")
-    p.add_argument("--threads", type=int, default=2, help="CPU threads, OpenCV and ONNX Runtime (default: 2)")
+    p.add_argument("--output", default=DEFAULT_OUTPUT, help="JSON lines file, '-': stdout")
+    p.add_argument("--threads", type=int, default=2, help="CPU threads, OpenCV and ONNX Runtime")
     p.add_argument(
         "--proposals",
         choices=PROPOSAL_SOURCES,
         default="auto",
         help="auto: NAME.proposals.npz where present, else computed; compute: always computed; "
-        "precomputed: NAME.proposals.npz required (default: auto)",
+        "precomputed: NAME.proposals.npz required",
     )
     p.add_argument("--max-proposals", type=int, metavar="N", help="proposals per frame (default: model)")
     p.add_argument(
@@ -112,7 +119,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def _arguments(argv: list[str] | None) -> argparse.Namespace:
     """Parsed and checked flags (argparse exits with status 2 on a usage error)."""
-    parser = _parser()
+    parser = build_parser()
     args = parser.parse_args(argv)
     if args.threads < 1:
         parser.error("--threads must be at least 1")
@@ -122,6 +129,8 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
         parser.error("--score-threshold must be in [0, 1]")
     if args.output == "-" and (args.resume or args.stdout):
         parser.error("--output - cannot be combined with --resume or --stdout")
+    if not args.source.exists() and ":" not in str(args.source):  # "realsense:SERIAL" names no file
+        parser.error(f"{args.source}: no such file or folder")
     if args.model is None:
         args.model = args.source / DEFAULT_MODEL
         if not args.model.is_file():
@@ -166,22 +175,30 @@ def _frames_to_do(source: FrameSource, done: set[str], index: dict[str, int]) ->
             yield loader
 
 
-def main(argv: list[str] | None = None) -> int:
+@dataclass(frozen=True)
+class FrameReport:
+    """What a run did with one frame, handed to ``main``'s ``on_frame`` once the frame is written and
+    logged: for callers that time a3d-run's own loop (bench/edge_speed.py) without patching it.
+    ``output_seconds``: formatting + writing the line; ``log_seconds``: the synchronous rerun logging."""
+
+    outcome: FrameOutcome
+    output_seconds: float
+    log_seconds: float
+
+
+@command(PROG)
+def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] | None = None) -> int:
     args = _arguments(argv)
-    try:
-        starts_viewer = viewer_launch.launches_viewer(args)
-        if starts_viewer:
-            viewer_launch.check_can_launch(args)  # no display, no viewer: say so before loading anything
-        elif args.connect:
-            viewer_launch.check_connect_target(args)
-        job = _job(args)
-        launched = viewer_launch.launch(args) if starts_viewer else None
-        recording = _open_recording(args, launched)
-        view = viewer.ViewOptions(min_score=args.view_min_score)
-        output = _open_output(args.output, append=args.resume)
-    except (InputError, ModelError) as e:
-        print(f"{PROG}: error: {e}", file=sys.stderr)
-        return 2
+    starts_viewer = viewer_launch.launches_viewer(args)
+    if starts_viewer:
+        viewer_launch.check_can_launch(args)  # no display, no viewer: one line before loading anything
+    elif args.connect:
+        viewer_launch.check_connect_target(args)
+    job = _job(args)  # InputError / ModelError: exit 2 before any frame (command)
+    launched = viewer_launch.launch(args) if starts_viewer else None
+    recording = _open_recording(args, launched)
+    view = viewer.ViewOptions(min_score=args.view_min_score)
+    output = _open_output(args.output, append=args.resume)
     if launched is not None and launched.web_url is not None:
         print(f"{PROG}: web viewer: open {launched.web_url}", file=sys.stderr, flush=True)
     failures = list(job.source.incomplete)
@@ -198,13 +215,18 @@ def main(argv: list[str] | None = None) -> int:
         with _threads(1 if args.overlap else args.threads), _warnings_to_stderr():
             for outcome in detect_frames(todo, job.model, job.config, overlap=args.overlap):
                 problem = outcome.problem
+                start = written_at = logged_at = time.perf_counter()
                 if outcome.detections is not None:
                     output.write(format_line(outcome.detections))
                     written += 1
+                    written_at = time.perf_counter()
                     summary.add(outcome.detections)
                     problem = _log(recording, index[outcome.name], outcome, view)
+                    logged_at = time.perf_counter()
                 else:
                     summary.fail()
+                if on_frame is not None:
+                    on_frame(FrameReport(outcome, written_at - start, logged_at - written_at))
                 if problem:
                     failures.append(problem)
                     bar.write(f"{PROG}: {problem}")
@@ -229,7 +251,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{PROG}: summary: {line}", file=sys.stderr)
     print(f"{PROG}: {written} frames written to {where}{resumed}, {len(failures)} failed", file=sys.stderr)
     if recording is not None:
-        rr.disconnect(recording)
+        viewer.load_view().close_recording(args, recording, own_viewer=launched is not None)
     if launched is not None and launched.web_url is not None:
         _serve_until_interrupted(launched)
     return 1 if failures else 0
@@ -350,9 +372,10 @@ def _open_recording(
     with the static entities logged; None for none."""
     if not viewer.viewer_requested(args):
         return None
+    view = viewer.load_view()  # rerun is imported here, only when a view or recording is asked for
     try:
-        recording = viewer.open_recording(args, None if launched is None else launched.grpc_url)
-        viewer.log_static(recording)
+        recording = view.open_recording(args, None if launched is None else launched.grpc_url)
+        view.log_static(recording)
     except (OSError, RuntimeError, ValueError) as e:
         raise InputError(f"rerun: cannot open the recording ({e})") from None
     return recording
@@ -369,7 +392,7 @@ def _log(
     frame, det = outcome.prepared.frame, outcome.detections
     gt = frame.truth
     try:
-        viewer.log_frame(
+        viewer.load_view().log_frame(
             recording,
             index,
             color=frame.color,

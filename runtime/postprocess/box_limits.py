@@ -6,8 +6,9 @@ clamped boxes goes into the frame's detections line (``notes``):
 
 - the centre's depth z to at least ``near_m``: the frame's near range, the least valid raw depth
   (no seen surface is nearer, so no centre of a seen object is, short of one reaching out of the
-  image toward the camera), never below ``MIN_NEAR_M``; a centre in front of the camera is moved
-  along its viewing ray (the box still projects where the network put it), else only z is set;
+  image toward the camera), never below ``MIN_NEAR_M``; a centre at least ``SLIDE_FROM`` of the
+  near range in front of the camera is moved along its viewing ray (the box still projects where
+  the network put it), a nearer one only has its z set (sliding it would throw it far sideways);
 - each size l, w, h to ``[MIN_SIZE_M, max of the class's family]``: the family bounds are
   generous (the largest objects of SUN RGB-D / NYUv2 annotations of each kind fit with room to
   spare) so that only regressions that went wrong are touched.
@@ -29,6 +30,7 @@ from a3d.runtime.structures.classes import CLASSES
 
 MIN_NEAR_M = 0.1
 MIN_SIZE_M = 0.02
+SLIDE_FROM = 0.25  # centres nearer than this share of the near range are not slid along their ray
 FAMILY_MAX_SIZE_M = {"large": 6.0, "small": 2.5}
 LARGE_CLASSES = frozenset(
     {"bathtub", "bed", "bookshelf", "counter", "desk", "door", "dresser", "sofa", "table"}
@@ -67,7 +69,7 @@ def bound_boxes(boxes3d: np.ndarray, class_idx: np.ndarray, near_m: float) -> Bo
     boxes = np.array(boxes3d, dtype=np.float64).reshape(-1, 7)
     z = boxes[:, 2]
     behind = z < near_m
-    ahead = behind & (z > 0)
+    ahead = behind & (z >= SLIDE_FROM * near_m)
     boxes[ahead, :3] *= (near_m / z[ahead])[:, None]  # slide along the ray to depth near_m
     boxes[behind & ~ahead, 2] = near_m
     upper = CLASS_MAX_SIZE_M[np.asarray(class_idx, np.int64)][:, None]
