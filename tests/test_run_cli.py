@@ -107,7 +107,8 @@ def test_bad_frames_are_reported_and_the_rest_match_a_clean_run(
     folder = tmp_path / "frames"
     bad = _mixed_folder(folder)
     mixed = tmp_path / "mixed.jsonl"  # bad frames fail on the background thread too
-    assert run([str(folder), "--model", "m.onnx", "--output", str(mixed), "--headless", "--overlap"]) == 1
+    argv = [str(folder), "--model", "m.onnx", "--output", str(mixed), "--headless", "--overlap", "on"]
+    assert run(argv) == 1
     err = capsys.readouterr().err
     assert "Traceback" not in err
     reports = ("a3d-run: 3 frames written", "a3d-run: summary: ", "a3d-run: progress: ", "a3d-run: warning: ")
