@@ -54,7 +54,7 @@ def test_main_command_on_samples_writes_detections_and_a_recording(
     # The .rrd holds the drawn boxes (score >= the view cut) with the JSON's values.
     logged = read_columns(rrd, "/world/detections")
     for index, det in enumerate(lines):
-        shown = det.scores >= 0.3
+        shown = det.scores >= run_cli.VIEW_MIN_SCORE  # the default view cut
         if not shown.any():
             continue
         boxes = logged[index]
