@@ -26,9 +26,10 @@ from torch import nn
 
 from a3d.runtime.io.atomic import atomic_write_bytes
 from a3d.runtime.network.model import INPUT_NAMES, METADATA_KEY, OUTPUT_NAMES, ModelMetadata, content_digest
+from a3d.runtime.structures.boxes import BOX_DIM
 from a3d.runtime.structures.classes import NUM_OUTPUTS
 from a3d.train.dataset import TargetStats
-from a3d.train.model.net import BOX2D_SIZE, BOX3D_SIZE, A3DNet
+from a3d.train.model.net import BOX2D_SIZE, A3DNet
 
 MIN_OPSET = 18  # the dynamo exporter's lowest native opset; lower ones fail its version conversion
 MAX_IR_VERSION = 13  # ONNX Runtime 1.31 reads IR <= 13 (onnx 1.23 writes 14 by default)
@@ -60,7 +61,7 @@ class RuntimeGraph(nn.Module):
         )
         return (
             torch.softmax(logits, dim=1),
-            deltas3d.reshape(-1, NUM_OUTPUTS, BOX3D_SIZE),
+            deltas3d.reshape(-1, NUM_OUTPUTS, BOX_DIM),
             deltas2d.reshape(-1, NUM_OUTPUTS, BOX2D_SIZE),
         )
 

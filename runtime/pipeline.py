@@ -55,6 +55,7 @@ from a3d.runtime.postprocess.box_limits import bound_boxes, near_range
 from a3d.runtime.postprocess.select import decode_detections, select_detections
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.proposals_file import PrecomputedProposals
+from a3d.runtime.structures.boxes import BOX_DIM
 from a3d.runtime.structures.classes import NUM_OUTPUTS
 from a3d.runtime.structures.frame import Frame
 from a3d.runtime.structures.geometry import box_corners_camera, context_boxes
@@ -240,7 +241,7 @@ def infer(model: NetworkRunner, prepared: PreparedFrame) -> NetworkOutput:
     """Stage 2: one model call over all RoIs of the frame (skipped when there are none)."""
     clock = _Clock(prepared.timing)
     n, c = len(prepared.rois), NUM_OUTPUTS
-    shapes = {"class_probs": (n, c), "deltas3d": (n, c, 7), "deltas2d": (n, c, 4)}
+    shapes = {"class_probs": (n, c), "deltas3d": (n, c, BOX_DIM), "deltas2d": (n, c, 4)}
     if n == 0:
         outputs = [np.zeros(shape) for shape in shapes.values()]
     else:

@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from a3d.runtime.structures.boxes import boxes_array
 from a3d.runtime.structures.frame import GroundTruth
 from a3d.runtime.structures.geometry import (
     NYU_CROP_INTRINSICS,
@@ -341,7 +342,7 @@ def _ground_truth(
         names.append(cls)
         keep.append(i)
     n = len(names)
-    boxes3d = canonical_boxes(np.array(boxes).reshape(n, 7))
+    boxes3d = canonical_boxes(boxes_array(boxes, n))
     amodal = project_boxes_to_2d(boxes3d, pose.R_tilt, config.intrinsics, (H, W))
     ids = np.arange(1, n + 1)
     lut = np.zeros(len(placed) + 1, np.uint16)

@@ -31,6 +31,7 @@ from a3d.runtime.frontend.depth import fill_depth
 from a3d.runtime.network.network_input import frame_network_inputs, with_batch_index
 from a3d.runtime.postprocess.box_coder import encode_2d, encode_3d
 from a3d.runtime.sources.folder import read_frame
+from a3d.runtime.structures.boxes import BOX_DIM
 from a3d.runtime.structures.classes import NUM_OUTPUTS
 from a3d.runtime.structures.geometry import Intrinsics, flip_boxes_2d, flip_boxes_3d
 from a3d.train.augment import augment_frame, augment_rng
@@ -51,8 +52,8 @@ class TargetStats:
 
     @classmethod
     def identity(cls) -> TargetStats:
-        return cls(np.zeros((NUM_OUTPUTS, 7)), np.ones((NUM_OUTPUTS, 7)), np.zeros((NUM_OUTPUTS, 4)),
-                   np.ones((NUM_OUTPUTS, 4)))  # fmt: skip
+        zeros3d, ones3d = np.zeros((NUM_OUTPUTS, BOX_DIM)), np.ones((NUM_OUTPUTS, BOX_DIM))
+        return cls(zeros3d, ones3d, np.zeros((NUM_OUTPUTS, 4)), np.ones((NUM_OUTPUTS, 4)))
 
     def normalise_3d(self, labels: np.ndarray, targets: np.ndarray) -> np.ndarray:
         return (targets - self.mean3d[labels]) / self.std3d[labels]
@@ -84,7 +85,7 @@ def raw_targets(record: FrameRois, rows: np.ndarray, flip: bool) -> tuple[np.nda
     """
     rows = np.asarray(rows, np.int64)
     fg = np.flatnonzero(rows < record.num_fg)  # foreground RoIs are the record's first rows
-    t3d, t2d = np.zeros((len(rows), 7)), np.zeros((len(rows), 4))
+    t3d, t2d = np.zeros((len(rows), BOX_DIM)), np.zeros((len(rows), 4))
     has_3d = np.zeros(len(rows), bool)
     if len(fg) == 0:
         return t3d, t2d, has_3d

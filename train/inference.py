@@ -25,6 +25,7 @@ from a3d.runtime.evaluation.truth import load_truth
 from a3d.runtime.io.detections_io import FrameDetections, write_detections
 from a3d.runtime.pipeline import PipelineConfig, detect, detect_frames
 from a3d.runtime.sources.folder import FolderSource
+from a3d.runtime.structures.boxes import BOX_DIM
 from a3d.runtime.structures.classes import NUM_OUTPUTS
 from a3d.runtime.structures.frame import Frame
 from a3d.train.checkpoint import load_trained
@@ -59,7 +60,7 @@ class TorchNetwork:
         finally:
             self.model.train(was_training)
         probs = torch.softmax(logits.double(), dim=1).numpy()
-        raw3d = self.stats.denormalise_3d(deltas3d.double().numpy().reshape(-1, NUM_OUTPUTS, 7))
+        raw3d = self.stats.denormalise_3d(deltas3d.double().numpy().reshape(-1, NUM_OUTPUTS, BOX_DIM))
         raw2d = self.stats.denormalise_2d(deltas2d.double().numpy().reshape(-1, NUM_OUTPUTS, 4))
         return probs, raw3d if self.regress_3d else np.zeros_like(raw3d), raw2d
 

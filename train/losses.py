@@ -15,6 +15,8 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
+from a3d.runtime.structures.boxes import BOX_DIM
+
 
 @dataclass
 class LossTerms:
@@ -59,7 +61,7 @@ def detection_loss(
     num = max(len(labels), 1)
     cls = F.cross_entropy(class_logits, labels)
     fg = (labels > 0).to(class_logits.dtype)
-    reg3d = F.smooth_l1_loss(class_deltas(deltas3d, labels, 7), targets3d, reduction="none", beta=1.0)
+    reg3d = F.smooth_l1_loss(class_deltas(deltas3d, labels, BOX_DIM), targets3d, reduction="none", beta=1.0)
     reg2d = F.smooth_l1_loss(class_deltas(deltas2d, labels, 4), targets2d, reduction="none", beta=1.0)
     box3d = (reg3d.sum(dim=1) * weights3d * fg).sum() / num
     box2d = (reg2d.sum(dim=1) * fg).sum() / num

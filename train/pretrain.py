@@ -35,7 +35,7 @@ from a3d.runtime.errors import InputError
 from a3d.runtime.io.atomic import atomic_write_bytes
 from a3d.runtime.network.preprocess import COLOR_MEAN_BGR
 from a3d.runtime.sources.folder import list_frames, read_folder_intrinsics, read_frame, read_ground_truth
-from a3d.runtime.structures.classes import NUM_CLASSES
+from a3d.runtime.structures.classes import NUM_CLASSES, to_softmax
 from a3d.runtime.structures.geometry import iou_2d
 from a3d.train.checkpoint import atomic_torch_save
 from a3d.train.loop import param_groups
@@ -111,7 +111,7 @@ def frame_crops(bgr: np.ndarray, boxes: np.ndarray, class_ids: np.ndarray, size:
         if min(bw, bh) < MIN_BOX_PX:
             continue
         crops.append(_warp(bgr, box, size))
-        labels.append(int(cls) + 1)
+        labels.append(int(to_softmax(cls)))
         sides.append((bw, bh))
     for _ in range(int(rng.binomial(len(sides), BACKGROUND_SHARE)) if sides else 0):
         for _attempt in range(10):  # rejection sampling: a box of an object's size, off the objects

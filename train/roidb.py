@@ -52,7 +52,8 @@ from a3d.runtime.sources.folder import (
     read_ground_truth,
     read_instances,
 )
-from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES
+from a3d.runtime.structures.boxes import SIZE, boxes_array, empty_boxes
+from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES, from_softmax, to_softmax
 from a3d.runtime.structures.frame import GroundTruth
 from a3d.runtime.structures.geometry import Intrinsics, iou_2d
 
@@ -146,7 +147,7 @@ def class_mean_sizes(truths: Sequence[GroundTruth]) -> np.ndarray:
     none), so every class still has an initial box.
     """
     ids = np.concatenate([np.asarray(t.class_ids, np.int64) for t in truths] or [np.zeros(0, np.int64)])
-    sizes = np.concatenate([np.asarray(t.boxes3d, np.float64)[:, 3:6] for t in truths] or [np.zeros((0, 3))])
+    sizes = np.concatenate([boxes_array(t.boxes3d)[:, SIZE] for t in truths] or [np.zeros((0, 3))])
     fallback = sizes.mean(axis=0) if len(sizes) else np.ones(3)
     counts = np.bincount(ids, minlength=NUM_CLASSES)[:, None]
     sums = np.zeros((NUM_CLASSES, 3))
@@ -172,7 +173,7 @@ def label_rois(
     fg = overlaps >= fg_iou
     bg = (overlaps >= bg_iou_low) & ~fg
     labels = np.zeros(n, dtype=np.int64)
-    labels[fg] = np.asarray(gt.class_ids, np.int64)[gt_index[fg]] + 1
+    labels[fg] = to_softmax(np.asarray(gt.class_ids, np.int64)[gt_index[fg]])
     gt_index = np.where(fg, gt_index, -1)
     return fg | bg, labels.astype(np.int64), overlaps.astype(np.float32), gt_index.astype(np.int64)
 
@@ -199,7 +200,11 @@ def frame_rois(
     boxes, centers, valid = boxes[order], centers[order], valid[order]
     labels, overlaps, gt_index = labels[order], overlaps[order], gt_index[order]
     fg = int((labels > 0).sum())
-    init = initial_boxes(centers[:fg], mean_sizes)[np.arange(fg), labels[:fg] - 1] if fg else np.zeros((0, 7))
+    init = (
+        initial_boxes(centers[:fg], mean_sizes)[np.arange(fg), from_softmax(labels[:fg])]
+        if fg
+        else empty_boxes()
+    )
     return FrameRois(
         name=ref.name,
         ref=ref,
@@ -209,7 +214,7 @@ def frame_rois(
         labels=labels,
         overlaps=overlaps,
         init_boxes=init,
-        gt_boxes3d=np.asarray(gt.boxes3d, np.float64).reshape(-1, 7)[gt_index[:fg]],
+        gt_boxes3d=boxes_array(gt.boxes3d)[gt_index[:fg]],
         gt_boxes2d=np.asarray(gt.boxes2d_amodal, np.float64).reshape(-1, 4)[gt_index[:fg]],
         has_3d=valid[:fg].astype(bool),
     )
@@ -331,7 +336,7 @@ def describe(db: RoiDB) -> dict:
     """Counts for the log: frames, RoIs, foreground RoIs per class."""
     fg_per_class = np.zeros(NUM_CLASSES, dtype=np.int64)
     for r in db.records:
-        fg_per_class += np.bincount(r.labels[r.labels > 0] - 1, minlength=NUM_CLASSES)
+        fg_per_class += np.bincount(from_softmax(r.labels[r.labels > 0]), minlength=NUM_CLASSES)
     return {
         "frames": len(db.records),
         "rois": int(sum(len(r.labels) for r in db.records)),

@@ -23,6 +23,7 @@ from typing import Protocol
 import cv2
 import numpy as np
 
+from a3d.runtime.structures.boxes import BOX_DIM, CENTER, SIZE
 from a3d.runtime.structures.geometry import CameraLike, backproject
 
 
@@ -117,9 +118,9 @@ def initial_boxes(centers: np.ndarray, mean_sizes: np.ndarray) -> np.ndarray:
             f"initial_boxes: want (N, 3) centres, (C, 3) sizes, got {centers.shape} and {mean_sizes.shape}"
         )
     n, c = len(centers), len(mean_sizes)
-    boxes = np.zeros((n, c, 7))
-    boxes[:, :, :3] = centers[:, None, :]
-    boxes[:, :, 3:6] = mean_sizes[None, :, :]
+    boxes = np.zeros((n, c, BOX_DIM))
+    boxes[:, :, CENTER] = centers[:, None, :]
+    boxes[:, :, SIZE] = mean_sizes[None, :, :]
     return boxes
 
 

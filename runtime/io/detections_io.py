@@ -39,6 +39,7 @@ import numpy as np
 from a3d.runtime.errors import InputError
 from a3d.runtime.io.atomic import atomic_write_bytes
 from a3d.runtime.io.json_input import is_finite_number, parse_json
+from a3d.runtime.structures.boxes import BOX_DIM
 from a3d.runtime.structures.classes import CLASSES
 from a3d.runtime.structures.geometry import box_corners_camera, check_rotation
 
@@ -108,7 +109,7 @@ def format_line(det: FrameDetections) -> str:
             np.asarray(det.scores, dtype=np.float64).tolist(),
             _rounded(det.boxes2d, (-1, 4), PIXEL_DECIMALS),
             amodal,
-            _rounded(det.boxes3d, (-1, 7), METRE_DECIMALS),
+            _rounded(det.boxes3d, (-1, BOX_DIM), METRE_DECIMALS),
             _rounded(corners, (-1, 8, 3), METRE_DECIMALS),
             strict=True,
         )
@@ -187,7 +188,7 @@ def parse_line(text: str, where: str) -> FrameDetections:
         class_ids[i] = _CLASS_INDEX[d["class"]]
     scores = _array([d["score"] for d in dets], (len(dets),), where, "score")
     boxes2d = _array([d["box2d"] for d in dets], (len(dets), 4), where, "box2d")
-    boxes3d = _array([d["box3d"] for d in dets], (len(dets), 7), where, "box3d")
+    boxes3d = _array([d["box3d"] for d in dets], (len(dets), BOX_DIM), where, "box3d")
     for name, values in (("score", scores), ("box2d", boxes2d), ("box3d", boxes3d)):
         _require(np.isfinite(values), where, f"'{name}' is not finite")
     _require(boxes2d[:, 2:] >= boxes2d[:, :2], where, "box2d has x2 < x1 or y2 < y1")

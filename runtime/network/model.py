@@ -43,6 +43,7 @@ from a3d.runtime.frontend.proposals import ProposalConfig, proposal_config_from_
 from a3d.runtime.io.json_input import is_finite_number, parse_json
 from a3d.runtime.io.plain_config import plain_from_dataclass
 from a3d.runtime.network.preprocess import COLOR_MEAN_BGR, DEPTH_MEAN
+from a3d.runtime.structures.boxes import BOX_DIM
 from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES, NUM_OUTPUTS
 
 SCHEMA_VERSION = 2  # 2: min_score (was score_threshold), max_proposals only inside proposals
@@ -51,7 +52,7 @@ INPUT_NAMES = ("color", "depth", "rois", "context_rois")
 OUTPUT_NAMES = ("class_probs", "deltas3d", "deltas2d")
 # Contract shapes: an int is a fixed size, None a free (symbolic or fixed) one.
 _INPUT_SHAPES = ((1, 3, None, None), (1, 3, None, None), (None, 4), (None, 4))
-_OUTPUT_SHAPES = ((None, NUM_OUTPUTS), (None, NUM_OUTPUTS, 7), (None, NUM_OUTPUTS, 4))
+_OUTPUT_SHAPES = ((None, NUM_OUTPUTS), (None, NUM_OUTPUTS, BOX_DIM), (None, NUM_OUTPUTS, 4))
 _METADATA_PROPS_FIELD = 14  # ModelProto.metadata_props (repeated StringStringEntryProto {key=1, value=2})
 
 
@@ -228,7 +229,7 @@ class DetectorModel:
                 f"{self.path}: rois {rois.shape}, context_rois {context_rois.shape} must be (R, 4)"
             )
         if len(rois) == 0:
-            return (np.zeros((0, NUM_OUTPUTS), np.float32), np.zeros((0, NUM_OUTPUTS, 7), np.float32),
+            return (np.zeros((0, NUM_OUTPUTS), np.float32), np.zeros((0, NUM_OUTPUTS, BOX_DIM), np.float32),
                     np.zeros((0, NUM_OUTPUTS, 4), np.float32))  # fmt: skip
         feeds = dict(zip(INPUT_NAMES, (color, depth, rois, context_rois), strict=True))
         probs, deltas3d, deltas2d = self.session.run(list(OUTPUT_NAMES), feeds)

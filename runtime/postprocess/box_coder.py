@@ -26,6 +26,7 @@ from collections.abc import Callable
 import numpy as np
 
 from a3d.runtime.errors import InputError
+from a3d.runtime.structures.boxes import BOX_DIM, SIZE, THETA, H, L, W, X, Y, Z
 
 MAX_LOG_SCALE = float(np.log(1000.0 / 16.0))
 
@@ -62,19 +63,19 @@ def _positive(values: np.ndarray, what: str) -> None:
 @_overflow_checked
 def encode_3d(proposals: np.ndarray, gt: np.ndarray) -> np.ndarray:
     """Deltas (N, 7) that take each proposal box to its ground-truth box."""
-    p, g = _finite(proposals, 7, "proposals"), _finite(gt, 7, "gt boxes")
-    _positive(p[..., 3:6], "proposals")
-    _positive(g[..., 3:6], "gt boxes")
-    pl, pw, ph = p[..., 3], p[..., 4], p[..., 5]
+    p, g = _finite(proposals, BOX_DIM, "proposals"), _finite(gt, BOX_DIM, "gt boxes")
+    _positive(p[..., SIZE], "proposals")
+    _positive(g[..., SIZE], "gt boxes")
+    pl, pw, ph = p[..., L], p[..., W], p[..., H]
     return np.stack(
         [
-            (g[..., 0] - p[..., 0]) / pl,
-            (g[..., 1] - p[..., 1]) / ph,
-            (g[..., 2] - p[..., 2]) / pw,
-            np.log(g[..., 3] / pl),
-            np.log(g[..., 4] / pw),
-            np.log(g[..., 5] / ph),
-            np.broadcast_to(g[..., 6], np.broadcast_shapes(p.shape, g.shape)[:-1]),
+            (g[..., X] - p[..., X]) / pl,
+            (g[..., Y] - p[..., Y]) / ph,
+            (g[..., Z] - p[..., Z]) / pw,
+            np.log(g[..., L] / pl),
+            np.log(g[..., W] / pw),
+            np.log(g[..., H] / ph),
+            np.broadcast_to(g[..., THETA], np.broadcast_shapes(p.shape, g.shape)[:-1]),
         ],
         axis=-1,
     )
@@ -83,18 +84,18 @@ def encode_3d(proposals: np.ndarray, gt: np.ndarray) -> np.ndarray:
 @_overflow_checked
 def decode_3d(proposals: np.ndarray, deltas: np.ndarray) -> np.ndarray:
     """Boxes (..., 7) from proposals and deltas (broadcast, e.g. (R, 1, 7) with (R, C, 7))."""
-    p, d = _finite(proposals, 7, "proposals"), _finite(deltas, 7, "deltas3d")
-    pl, pw, ph = p[..., 3], p[..., 4], p[..., 5]
-    scale = np.exp(np.minimum(d[..., 3:6], MAX_LOG_SCALE))
+    p, d = _finite(proposals, BOX_DIM, "proposals"), _finite(deltas, BOX_DIM, "deltas3d")
+    pl, pw, ph = p[..., L], p[..., W], p[..., H]
+    scale = np.exp(np.minimum(d[..., SIZE], MAX_LOG_SCALE))
     return np.stack(
         [
-            p[..., 0] + d[..., 0] * pl,
-            p[..., 1] + d[..., 1] * ph,
-            p[..., 2] + d[..., 2] * pw,
+            p[..., X] + d[..., X] * pl,
+            p[..., Y] + d[..., Y] * ph,
+            p[..., Z] + d[..., Z] * pw,
             pl * scale[..., 0],
             pw * scale[..., 1],
             ph * scale[..., 2],
-            np.broadcast_to(d[..., 6], np.broadcast_shapes(p.shape, d.shape)[:-1]),
+            np.broadcast_to(d[..., THETA], np.broadcast_shapes(p.shape, d.shape)[:-1]),
         ],
         axis=-1,
     )

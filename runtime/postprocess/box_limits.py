@@ -26,6 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from a3d.runtime.structures.boxes import CENTER, SIZE, Z, boxes_array
 from a3d.runtime.structures.classes import CLASSES
 
 MIN_NEAR_M = 0.1
@@ -66,15 +67,15 @@ def near_range(depth: np.ndarray) -> float:
 
 def bound_boxes(boxes3d: np.ndarray, class_idx: np.ndarray, near_m: float) -> BoundedBoxes:
     """Clamp (K, 7) camera-frame boxes of 0-based classes ``class_idx``; see the module docstring."""
-    boxes = np.array(boxes3d, dtype=np.float64).reshape(-1, 7)
-    z = boxes[:, 2]
+    boxes = boxes_array(boxes3d).copy()
+    z = boxes[:, Z]
     behind = z < near_m
     ahead = behind & (z >= SLIDE_FROM * near_m)
-    boxes[ahead, :3] *= (near_m / z[ahead])[:, None]  # slide along the ray to depth near_m
-    boxes[behind & ~ahead, 2] = near_m
+    boxes[ahead, CENTER] *= (near_m / z[ahead])[:, None]  # slide along the ray to depth near_m
+    boxes[behind & ~ahead, Z] = near_m
     upper = CLASS_MAX_SIZE_M[np.asarray(class_idx, np.int64)][:, None]
-    sizes = boxes[:, 3:6]
+    sizes = boxes[:, SIZE]
     bounded = np.clip(sizes, MIN_SIZE_M, upper)
     resized = (bounded != sizes).any(axis=1)
-    boxes[:, 3:6] = bounded
+    boxes[:, SIZE] = bounded
     return BoundedBoxes(boxes, int(behind.sum()), int(resized.sum()))

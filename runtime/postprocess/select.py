@@ -17,6 +17,8 @@ import numpy as np
 
 from a3d.runtime.frontend.lifting import initial_boxes
 from a3d.runtime.postprocess.box_coder import decode_2d, decode_3d
+from a3d.runtime.structures.boxes import empty_boxes
+from a3d.runtime.structures.classes import to_softmax
 from a3d.runtime.structures.geometry import batched_nms_2d, canonical_boxes
 
 
@@ -66,11 +68,11 @@ def decode_detections(
     rows = np.asarray(rows, np.int64)
     class_idx = np.asarray(class_idx, np.int64)
     if len(rows) == 0:
-        return np.zeros((0, 7)), np.zeros((0, 4))
+        return empty_boxes(), np.zeros((0, 4))
     initial = initial_boxes(np.asarray(centers)[rows], mean_sizes)[np.arange(len(rows)), class_idx]
-    boxes3d = canonical_boxes(decode_3d(initial, np.asarray(deltas3d)[rows, class_idx + 1]))
+    boxes3d = canonical_boxes(decode_3d(initial, np.asarray(deltas3d)[rows, to_softmax(class_idx)]))
     proposals = np.asarray(proposal_boxes, np.float64)[rows]
-    amodal = decode_2d(proposals, np.asarray(deltas2d)[rows, class_idx + 1])
+    amodal = decode_2d(proposals, np.asarray(deltas2d)[rows, to_softmax(class_idx)])
     height, width = image_size
     limits = np.array([width - 0.5, height - 0.5, width - 0.5, height - 0.5])
     return boxes3d, np.clip(amodal, -0.5, limits)

@@ -54,6 +54,7 @@ from a3d.runtime.io.json_input import parse_json
 from a3d.runtime.io.npy import npy_header
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.proposals_file import read_precomputed_proposals
+from a3d.runtime.structures.boxes import BOX_DIM
 from a3d.runtime.structures.classes import CLASSES
 from a3d.runtime.structures.frame import Frame, GroundTruth
 from a3d.runtime.structures.geometry import Intrinsics, check_rotation
@@ -423,7 +424,7 @@ def _parse_object(obj: Any, path: Path, what: str) -> tuple[str, np.ndarray, np.
     name = obj["class"]
     if not isinstance(name, str) or name not in CLASSES:
         raise InputError(f"{path}: {what}.class {name!r} is not one of the 19 classes ({', '.join(CLASSES)})")
-    box3d = _numbers(obj["box3d"], (7,), path, f"{what}.box3d")
+    box3d = _numbers(obj["box3d"], (BOX_DIM,), path, f"{what}.box3d")
     if not (box3d[3:6] > 0).all():
         raise InputError(f"{path}: {what}.box3d sizes l, w, h must be positive, got {box3d[3:6].tolist()}")
     boxes2d = [_box2d(obj[key], path, f"{what}.{key}") for key in ("box2d_visible", "box2d_amodal")]

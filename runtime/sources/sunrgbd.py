@@ -57,6 +57,7 @@ from a3d.runtime.sources.sunrgbd_conventions import (
     nearest_rotation,
     rtilt_from_annotation,
 )
+from a3d.runtime.structures.boxes import boxes_array, empty_boxes
 from a3d.runtime.structures.frame import Frame, GroundTruth
 from a3d.runtime.structures.geometry import Intrinsics, project_boxes_to_2d
 
@@ -172,7 +173,7 @@ def _frame(
 def _truth(
     classes: list[str], boxes3d: np.ndarray, visible: np.ndarray | None, R_tilt, K, size
 ) -> GroundTruth:
-    boxes3d = np.asarray(boxes3d, dtype=np.float64).reshape(-1, 7)
+    boxes3d = boxes_array(boxes3d)
     amodal = project_boxes_to_2d(boxes3d, R_tilt, K, size) if len(boxes3d) else np.zeros((0, 4))
     return GroundTruth.from_classes(classes, boxes3d, amodal if visible is None else visible, amodal)
 
@@ -226,7 +227,7 @@ class ReleaseSource:
         if not self.options.with_truth or E is None or not index.is_file():
             return frame
         classes, footprints, heights = read_annotation(index, self.options.classes)
-        boxes = boxes_from_footprints(footprints, heights, E, R_tilt) if classes else np.zeros((0, 7))
+        boxes = boxes_from_footprints(footprints, heights, E, R_tilt) if classes else empty_boxes()
         return replace(frame, truth=_truth(classes, boxes, None, R_tilt, K, bgr.shape[:2]))
 
     @staticmethod
@@ -403,7 +404,7 @@ class VotenetSource:
         boxes = (
             boxes_from_labels(rows[:, :3], rows[:, 3:6], rows[:, 6:8], Rtilt_sun, R_tilt)
             if classes
-            else np.zeros((0, 7))
+            else empty_boxes()
         )
         return replace(frame, truth=_truth(classes, boxes, boxes2d, R_tilt, K, bgr.shape[:2]))
 

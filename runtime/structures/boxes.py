@@ -16,7 +16,7 @@ import numpy as np
 BOX_DIM = 7
 CENTER = slice(0, 3)  # x, y, z
 SIZE = slice(3, 6)  # l, w, h
-L, W, H, THETA = 3, 4, 5, 6
+X, Y, Z, L, W, H, THETA = 0, 1, 2, 3, 4, 5, 6
 LOCAL_XYZ_EXTENTS = [L, H, W]  # the box's own (x, y, z) extents before its yaw: x along l, y along gravity
 
 

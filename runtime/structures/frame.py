@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from a3d.runtime.structures.boxes import boxes_array
 from a3d.runtime.structures.classes import class_index
 from a3d.runtime.structures.geometry import Intrinsics
 
@@ -55,7 +56,7 @@ class GroundTruth:
         return cls(
             classes=list(classes),
             class_ids=np.array([class_index(name) for name in classes], dtype=np.int64),
-            boxes3d=np.asarray(boxes3d, dtype=np.float64).reshape(n, 7),
+            boxes3d=boxes_array(boxes3d, n),
             boxes2d_visible=np.asarray(boxes2d_visible, dtype=np.float64).reshape(n, 4),
             boxes2d_amodal=np.asarray(boxes2d_amodal, dtype=np.float64).reshape(n, 4),
             instance_ids=(

@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from a3d.runtime.errors import InputError
+from a3d.runtime.structures.boxes import BOX_DIM, CENTER, SIZE, THETA, H, L, W, X, local_half_sizes
 
 NEAR_PLANE_M = 0.05  # box edges are clipped at z = 0.05 m before projection
 _MAX_ABS_METRES = 1e6  # 3D box values beyond this are corrupt data (see _boxes)
@@ -227,9 +228,9 @@ def _boxes2d(boxes: np.ndarray, what: str = "boxes2d") -> np.ndarray:
 
 
 def _boxes3d(boxes: np.ndarray, what: str = "boxes3d") -> np.ndarray:
-    arr = _boxes(boxes, 7, what, _MAX_ABS_METRES)
-    if np.any(arr[:, 3:6] < 0):
-        bad = int(np.sum((arr[:, 3:6] < 0).any(axis=1)))
+    arr = _boxes(boxes, BOX_DIM, what, _MAX_ABS_METRES)
+    if np.any(arr[:, SIZE] < 0):
+        bad = int(np.sum((arr[:, SIZE] < 0).any(axis=1)))
         raise InputError(f"{what}: negative size (l, w, h) in {bad} box(es)")
     return arr
 
@@ -245,10 +246,10 @@ def wrap_half_pi(theta: np.ndarray | float) -> np.ndarray:
 def canonical_boxes(boxes: np.ndarray) -> np.ndarray:
     """The same boxes with l >= w (swapping l and w turns theta by pi/2) and theta in [-pi/2, pi/2]."""
     out = _boxes3d(boxes).copy()
-    swap = out[:, 3] < out[:, 4]
-    out[swap, 3:5] = out[swap][:, [4, 3]]
+    swap = out[:, L] < out[:, W]
+    out[swap, L], out[swap, W] = out[swap, W], out[swap, L]
     out[swap, 6] += np.pi / 2
-    out[:, 6] = wrap_half_pi(out[:, 6])
+    out[:, THETA] = wrap_half_pi(out[:, THETA])
     return out
 
 
@@ -256,11 +257,11 @@ def box_corners_tilt(boxes: np.ndarray, R_tilt: np.ndarray) -> np.ndarray:
     """Corners (N, 8, 3) in the tilt frame, in the module's corner order."""
     b = _boxes3d(boxes)
     R = check_rotation(R_tilt, "R_tilt")
-    local = _CORNER_SIGNS[None] * (b[:, None, [3, 5, 4]] / 2.0)  # (N, 8, 3): (x, y, z) = (l, h, w)
-    c, s = np.cos(b[:, 6])[:, None], np.sin(b[:, 6])[:, None]
+    local = _CORNER_SIGNS[None] * local_half_sizes(b)[:, None, :]  # (N, 8, 3): (x, y, z) = (l, h, w) / 2
+    c, s = np.cos(b[:, THETA])[:, None], np.sin(b[:, THETA])[:, None]
     x, y, z = local[..., 0], local[..., 1], local[..., 2]
     rotated = np.stack([c * x + s * z, y, -s * x + c * z], axis=-1)
-    return rotated + (b[:, :3] @ R.T)[:, None, :]
+    return rotated + (b[:, CENTER] @ R.T)[:, None, :]
 
 
 def box_corners_camera(boxes: np.ndarray, R_tilt: np.ndarray) -> np.ndarray:
@@ -302,8 +303,8 @@ def boxes_from_corners_tilt(corners: np.ndarray, R_tilt: np.ndarray) -> np.ndarr
 def flip_boxes_3d(boxes: np.ndarray) -> np.ndarray:
     """Mirror 3D boxes for a horizontal image flip: camera x -> -x, theta -> -theta."""
     out = _boxes3d(boxes).copy()
-    out[:, 0] = -out[:, 0]
-    out[:, 6] = -out[:, 6]
+    out[:, X] = -out[:, X]
+    out[:, THETA] = -out[:, THETA]
     return out
 
 
@@ -513,12 +514,12 @@ def batched_nms_2d(
 
 def _footprints(boxes: np.ndarray, R: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Tilt-frame footprint centres (N, 2) and corners (N, 4, 2) in (x, z), and y ranges (N, 2)."""
-    centre = boxes[:, :3] @ R.T
-    c, s = np.cos(boxes[:, 6])[:, None], np.sin(boxes[:, 6])[:, None]
-    lx = _CORNER_SIGNS[None, :4, 0] * boxes[:, 3:4] / 2.0
-    lz = _CORNER_SIGNS[None, :4, 2] * boxes[:, 4:5] / 2.0
+    centre = boxes[:, CENTER] @ R.T
+    c, s = np.cos(boxes[:, THETA])[:, None], np.sin(boxes[:, THETA])[:, None]
+    lx = _CORNER_SIGNS[None, :4, 0] * boxes[:, L, None] / 2.0
+    lz = _CORNER_SIGNS[None, :4, 2] * boxes[:, W, None] / 2.0
     foot = np.stack([c * lx + s * lz, -s * lx + c * lz], axis=-1) + centre[:, None, [0, 2]]
-    half_h = boxes[:, 5:6] / 2.0
+    half_h = boxes[:, H, None] / 2.0
     return centre[:, [0, 2]], foot, centre[:, 1:2] + np.hstack([-half_h, half_h]), np.hstack([c, s])
 
 

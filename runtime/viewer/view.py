@@ -24,7 +24,8 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from a3d.runtime.structures.classes import CLASS_COLORS_RGB, CLASSES
+from a3d.runtime.structures.boxes import CENTER, THETA, boxes_array, local_half_sizes
+from a3d.runtime.structures.classes import CLASS_COLORS_RGB, CLASSES, to_softmax
 from a3d.runtime.structures.geometry import (
     BOX_EDGES,
     Intrinsics,
@@ -102,7 +103,7 @@ def log_static(rec: rr.RecordingStream) -> None:
         "world",
         rr.AnnotationContext(
             [
-                rr.AnnotationInfo(id=i + 1, label=name, color=CLASS_COLORS_RGB[i])
+                rr.AnnotationInfo(id=int(to_softmax(i)), label=name, color=CLASS_COLORS_RGB[i])
                 for i, name in enumerate(CLASSES)
             ]
         ),
@@ -123,14 +124,14 @@ def boxes3d_archetype(
 
     Drawn as thin wireframes (never solid or translucent faces), so the point cloud inside and
     behind every box stays visible."""
-    boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 7)
+    boxes = boxes_array(boxes)
     return rr.Boxes3D(
         fill_mode=rr.components.FillMode.MajorWireframe,
         radii=BOX_LINE_RADIUS_M,
-        centers=boxes[:, :3] @ np.asarray(R_tilt).T,
-        half_sizes=boxes[:, [3, 5, 4]] / 2.0,
-        rotation_axis_angles=_yaw_rotations(boxes[:, 6]),
-        class_ids=np.asarray(class_ids, dtype=np.uint16) + 1,
+        centers=boxes[:, CENTER] @ np.asarray(R_tilt).T,
+        half_sizes=local_half_sizes(boxes),
+        rotation_axis_angles=_yaw_rotations(boxes[:, THETA]),
+        class_ids=to_softmax(np.asarray(class_ids, dtype=np.uint16)),
         labels=labels,
         show_labels=True,
     )
@@ -144,7 +145,7 @@ def projected_box_edges(
 
     Edges wholly behind the near plane or outside the image come back as NaN segments.
     """
-    seg, valid = box_edges_clipped(np.asarray(boxes, dtype=np.float64).reshape(-1, 7), R_tilt)
+    seg, valid = box_edges_clipped(boxes_array(boxes), R_tilt)
     uv = project_points(seg, K).reshape(-1, 2, 2)
     uv[~valid.reshape(-1)] = np.nan
     return uv if image_size is None else clip_segments(uv, image_size)
@@ -222,7 +223,7 @@ def log_frame(
     shown = np.asarray(scores).reshape(-1) >= options.min_score
     class_ids, scores = class_ids[shown], np.asarray(scores).reshape(-1)[shown]
     boxes2d = np.asarray(boxes2d, dtype=np.float64).reshape(-1, 4)[shown]
-    boxes3d = np.asarray(boxes3d, dtype=np.float64).reshape(-1, 7)[shown]
+    boxes3d = boxes_array(boxes3d)[shown]
     labels = _box_labels(class_ids, scores)
     rec.log("world/detections", boxes3d_archetype(boxes3d, R_tilt, class_ids, labels))
     rec.log(
@@ -230,7 +231,7 @@ def log_frame(
         rr.Boxes2D(
             array=boxes2d,
             array_format=rr.Box2DFormat.XYXY,
-            class_ids=class_ids + 1,
+            class_ids=to_softmax(class_ids),
             labels=labels,
         ),
     )
@@ -238,7 +239,7 @@ def log_frame(
     keep = np.isfinite(segments).all(axis=(1, 2))
     rec.log(
         "world/camera/image/boxes3d",
-        rr.LineStrips2D(segments[keep], class_ids=np.repeat(class_ids + 1, len(BOX_EDGES))[keep]),
+        rr.LineStrips2D(segments[keep], class_ids=np.repeat(to_softmax(class_ids), len(BOX_EDGES))[keep]),
     )
     if options.show_ground_truth and gt_boxes3d is not None and gt_class_ids is not None:
         gt_ids = np.asarray(gt_class_ids, dtype=np.int64).reshape(-1)

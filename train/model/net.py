@@ -29,12 +29,12 @@ from functools import partial
 import torch
 from torch import nn
 
+from a3d.runtime.structures.boxes import BOX_DIM
 from a3d.runtime.structures.classes import NUM_OUTPUTS
 from a3d.train.model.config import NetConfig
 from a3d.train.model.roi_pool import roi_align, roi_max_pool
 from a3d.train.model.vgg import FEATURE_STRIDE, VGG16Trunk
 
-BOX3D_SIZE = 7
 BOX2D_SIZE = 4
 
 
@@ -73,7 +73,7 @@ class A3DNet(nn.Module):
         self.bn7 = nn.BatchNorm1d(config.fc7)
         self.dropout = nn.Dropout(config.dropout)
         self.cls_score = nn.Linear(config.fc7, NUM_OUTPUTS)
-        self.bbox_pred_3d = nn.Linear(config.fc7, NUM_OUTPUTS * BOX3D_SIZE)
+        self.bbox_pred_3d = nn.Linear(config.fc7, NUM_OUTPUTS * BOX_DIM)
         self.bbox_pred_2d = nn.Linear(config.fc7, NUM_OUTPUTS * BOX2D_SIZE)
         # torchvision's VGG classifier init for fc6/fc7, Fast R-CNN's for the heads.
         for layer, std in ((self.fc6, 0.01), (self.fc7, 0.01), (self.cls_score, 0.01),
