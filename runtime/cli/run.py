@@ -61,6 +61,8 @@ def _parser() -> argparse.ArgumentParser:
         "--source-format", choices=kinds(), help="the kind of SOURCE (default: recognised from it)"
     )
     p.add_argument("--model", type=Path, help=f"model file (default: FOLDER/{DEFAULT_MODEL})")
+    p.add_argument("--color-topic", metavar="TOPIC", help="bag: the colour topic (default: the only one)")
+    p.add_argument("--depth-topic", metavar="TOPIC", help="bag: the depth topic (default: the only one)")
     p.add_argument("--output", default=DEFAULT_OUTPUT, help="JSON lines file, '-': stdout (%(default)s)")
     p.add_argument("--threads", type=int, default=2, help="CPU threads, OpenCV and ONNX Runtime (default: 2)")
     p.add_argument(
@@ -121,8 +123,11 @@ class _Job:
 
 def _job(args: argparse.Namespace) -> _Job:
     """Open the source, load the model and read the output to resume (InputError / ModelError)."""
+    topics = {"color_topic": args.color_topic, "depth_topic": args.depth_topic}
     options = SourceOptions(
-        with_proposals=args.proposals != "compute", with_truth=viewer.viewer_requested(args)
+        with_proposals=args.proposals != "compute",
+        with_truth=viewer.viewer_requested(args),
+        extra={key: value for key, value in topics.items() if value is not None},
     )
     source = open_source(args.source, options, args.source_format)
     # With --overlap one thread prepares frames, so the network gets one fewer (no oversubscription).

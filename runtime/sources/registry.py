@@ -97,3 +97,25 @@ def _open_folder(spec: str, options: SourceOptions) -> FrameSource:
 register(
     SourceKind("a3d", _is_frame_folder, _open_folder, "a folder of NAME.color.png + NAME.depth.png frames")
 )
+
+
+def _is_bag(spec: str) -> bool:
+    from a3d.runtime.sources.bag import claims  # no optional import: claims only looks at paths
+
+    return claims(spec)
+
+
+def _open_bag(spec: str, options: SourceOptions) -> FrameSource:
+    from a3d.runtime.sources.bag import open_bag
+
+    return open_bag(spec, options)
+
+
+register(
+    SourceKind(
+        "bag",
+        _is_bag,
+        _open_bag,
+        "a ROS 1 .bag, a ROS 2 bag folder or a RealSense SDK .bag recording (needs: pip install 'a3d[bag]')",
+    )
+)
