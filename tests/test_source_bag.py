@@ -16,13 +16,11 @@ pytest.importorskip("rosbags")
 
 from a3d.runtime.cli import run as run_cli
 from a3d.runtime.errors import InputError
-from a3d.runtime.io.detections_io import parse_line
 from a3d.runtime.sources.bag import BagSource
 from a3d.runtime.sources.folder import FolderSource, write_frame, write_intrinsics
 from a3d.runtime.sources.registry import SourceOptions, open_source
-from a3d.synth.cli import scaled_intrinsics
 from a3d.synth.depth_camera import render_depth_from
-from a3d.synth.scene import SceneConfig, generate_frame
+from a3d.synth.scene import generate_frame
 from tests.bag_files import (
     ALIGNED,
     COLOR,
@@ -33,34 +31,21 @@ from tests.bag_files import (
     write_driver_bag,
     write_sdk_bag,
 )
+from tests.synth_frames import (
+    CONFIG,
+    SEEDS,
+    SIZE,
+    K,
+    assert_same_detections,
+    folder_frames,
+    write_synth_folder,
+)
 from tests.test_registration import offset_depth_camera
-
-SIZE = (120, 160)
-K = scaled_intrinsics(SIZE)
-CONFIG = replace(SceneConfig(), image_size=SIZE, intrinsics=K)
-SEEDS = (0, 1, 2)
 
 
 @pytest.fixture(scope="module")
 def folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """Three a3d-synth frames as an a3d frame folder, without R_tilt (a bag has none either)."""
-    root = tmp_path_factory.mktemp("frames")
-    write_intrinsics(root, K)
-    for seed in SEEDS:
-        frame = generate_frame(seed, CONFIG)
-        write_frame(root, f"f{seed}", frame.color, frame.depth)
-    return root
-
-
-def folder_frames(folder: Path) -> list[tuple[np.ndarray, np.ndarray]]:
-    """(colour BGR, depth uint16 mm) exactly as the folder stores them."""
-    return [
-        (
-            cv2.imread(str(folder / f"f{s}.color.png"), cv2.IMREAD_COLOR),
-            cv2.imread(str(folder / f"f{s}.depth.png"), cv2.IMREAD_UNCHANGED),
-        )
-        for s in SEEDS
-    ]
+    return write_synth_folder(tmp_path_factory.mktemp("frames"))
 
 
 def frames_of(source) -> list:
@@ -89,19 +74,6 @@ def test_driver_bag_frames_equal_the_folders(
 
 def run(source: Path, model: Path, output: Path, *flags: str) -> int:
     return run_cli.main([str(source), "--model", str(model), "--output", str(output), "--headless", *flags])
-
-
-def lines(path: Path) -> list:
-    return [parse_line(text, f"{path}:{i}") for i, text in enumerate(path.read_text().splitlines(), 1)]
-
-
-def assert_same_detections(got: Path, want: Path) -> None:
-    a, b = lines(got), lines(want)
-    assert len(a) == len(b) == 3
-    for x, y in zip(a, b, strict=True):
-        assert list(x.class_ids) == list(y.class_ids) and len(x.class_ids) > 0
-        for field in ("R_tilt", "scores", "boxes2d", "boxes3d"):
-            np.testing.assert_allclose(getattr(x, field), getattr(y, field), rtol=0, atol=1e-6)
 
 
 @pytest.mark.parametrize("ros2", [False, True], ids=["ros1", "ros2"])

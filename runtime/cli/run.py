@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import itertools
 import logging
 import os
 import sys
@@ -75,6 +76,7 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--max-proposals", type=int, metavar="N", help="proposals per frame (default: model)")
     p.add_argument("--score-threshold", type=float, metavar="S", help="drop scores below S (default: model)")
     p.add_argument("--resume", action="store_true", help="skip the frames the output already has")
+    p.add_argument("--max-frames", type=int, metavar="N", help="stop after the first N frames of the source")
     p.add_argument(
         "--view-min-score",
         type=float,
@@ -98,6 +100,8 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     if args.threads < 1:
         parser.error("--threads must be at least 1")
+    if args.max_frames is not None and args.max_frames < 1:
+        parser.error("--max-frames must be at least 1")
     if args.max_proposals is not None and args.max_proposals < 1:
         parser.error("--max-proposals must be at least 1")
     if args.score_threshold is not None and not 0.0 <= args.score_threshold <= 1.0:
@@ -142,13 +146,23 @@ def _job(args: argparse.Namespace) -> _Job:
     return _Job(source, done, model, config)
 
 
-def _frames_to_do(source: FrameSource, done: set[str], index: dict[str, int]) -> Iterator[FrameLoader]:
-    """The source's frames, lazily, less those already done; ``index`` learns each frame's
-    position as it goes (so a live source is never drained ahead of the run)."""
-    for position, loader in enumerate(source):
-        index[loader.name] = position
-        if loader.name not in done:
-            yield loader
+def _frames_to_do(
+    source: FrameSource, done: set[str], index: dict[str, int], limit: int | None
+) -> Iterator[FrameLoader]:
+    """The source's first ``limit`` frames (all for None), lazily, less those already done;
+    ``index`` learns each frame's position as it goes (so a live source is never drained ahead
+    of the run). The source's iterator is closed when this one is, so a camera is stopped
+    however the run ends."""
+    frames = iter(source)
+    try:
+        for position, loader in enumerate(itertools.islice(frames, limit)):
+            index[loader.name] = position
+            if loader.name not in done:
+                yield loader
+    finally:
+        close = getattr(frames, "close", None)
+        if close is not None:
+            close()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -166,8 +180,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{PROG}: {problem}", file=sys.stderr)
     written = 0
     index: dict[str, int] = {}  # frame name -> its position in the source (the rerun timeline)
-    todo = _frames_to_do(job.source, job.done, index)
+    todo = _frames_to_do(job.source, job.done, index, args.max_frames)
     total = len(job.source) - len(job.done) if hasattr(job.source, "__len__") else None
+    if args.max_frames is not None:
+        total = args.max_frames if total is None else min(total, args.max_frames)
     bar = tqdm(total=total, desc=PROG, unit="frame", file=sys.stderr, disable=None)
     try:
         with _threads(1 if args.overlap else args.threads), _warnings_to_stderr():
@@ -188,6 +204,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{PROG}: error: {args.output}: cannot write ({e.strerror or e}); stopped", file=sys.stderr)
         return 1
     finally:
+        todo.close()
         bar.close()
         output.close()
         if recording is not None:

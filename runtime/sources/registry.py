@@ -119,3 +119,26 @@ register(
         "a ROS 1 .bag, a ROS 2 bag folder or a RealSense SDK .bag recording (needs: pip install 'a3d[bag]')",
     )
 )
+
+
+def _is_realsense(spec: str) -> bool:
+    from a3d.runtime.sources.realsense import claims
+
+    return claims(spec)
+
+
+def _open_realsense(spec: str, options: SourceOptions) -> FrameSource:
+    from a3d.runtime.sources.realsense import open_realsense
+
+    return open_realsense(spec, options)
+
+
+register(
+    SourceKind(
+        "realsense",
+        _is_realsense,
+        _open_realsense,
+        "realsense, realsense:SERIAL or realsense:RECORDING for an Intel RealSense camera "
+        "(needs: pip install 'a3d[realsense]')",
+    )
+)

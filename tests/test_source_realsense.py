@@ -1,0 +1,203 @@
+"""The RealSense source (a3d.runtime.sources.realsense) without a camera.
+
+Mostly through a fake ``pyrealsense2`` at the SDK boundary (the calls a3d makes, with the SDK's
+shapes: pipeline, config, align, framesets, stream profiles, the depth sensor's scale) that
+serves a3d-synth frames: a3d-run's detections equal those of the same frames as a frame folder,
+``--max-frames`` and Ctrl-C stop the run with whole lines and the pipeline stopped, and a missing
+SDK or camera is one line. Where the real pyrealsense2 imports, the SDK also records those
+frames from a software device and plays the recording back through the same source.
+"""
+
+from __future__ import annotations
+
+import sys
+import types
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from a3d.runtime.cli import run as run_cli
+from a3d.runtime.io.detections_io import parse_line
+from tests.synth_frames import K, assert_same_detections, folder_frames, write_synth_folder
+
+DEPTH_SCALE = 0.001
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_synth_folder(tmp_path_factory.mktemp("frames"))
+
+
+class _Frame:
+    def __init__(self, pixels: np.ndarray, layout: str) -> None:
+        self.pixels, self.layout = pixels, layout
+
+    def get_data(self) -> np.ndarray:
+        return self.pixels
+
+    def get_profile(self) -> types.SimpleNamespace:
+        return types.SimpleNamespace(format=lambda: self.layout)
+
+    def __bool__(self) -> bool:
+        return True
+
+
+class _Frameset:
+    def __init__(self, color: _Frame, depth: _Frame, ms: float) -> None:
+        self.color, self.depth, self.ms = color, depth, ms
+
+    def get_color_frame(self) -> _Frame:
+        return self.color
+
+    def get_depth_frame(self) -> _Frame:
+        return self.depth
+
+    def get_timestamp(self) -> float:
+        return self.ms
+
+
+def fake_sdk(frames: list, serials: tuple[str, ...] = ("123",), interrupt_at: int | None = None):
+    """A ``pyrealsense2`` stand-in serving ``frames`` ((BGR, uint16 depth) pairs, depth already
+    aligned); ``log`` records the calls a3d made. ``interrupt_at``: raise KeyboardInterrupt (as
+    Ctrl-C does) when that frame is waited for."""
+    rs = types.ModuleType("pyrealsense2")
+    rs.log = log = []
+    rs.stream = types.SimpleNamespace(depth="depth", color="color")
+    rs.format = types.SimpleNamespace(rgb8="rgb8", bgr8="bgr8", z16="z16")
+    rs.camera_info = types.SimpleNamespace(serial_number="serial_number")
+
+    class Device:
+        def __init__(self, serial: str) -> None:
+            self.serial = serial
+
+        def get_info(self, what: str) -> str:
+            assert what == "serial_number"
+            return self.serial
+
+        def first_depth_sensor(self) -> types.SimpleNamespace:
+            return types.SimpleNamespace(get_depth_scale=lambda: DEPTH_SCALE)
+
+    class Config:
+        def enable_device(self, serial: str) -> None:
+            log.append(("enable_device", serial))
+
+        def enable_stream(self, stream: str, *layout: str) -> None:
+            log.append(("enable_stream", stream, *layout))
+
+    class Pipeline:
+        def __init__(self) -> None:
+            self.served = 0
+
+        def start(self, config: Config) -> types.SimpleNamespace:
+            log.append(("start",))
+            intr = types.SimpleNamespace(width=160, height=120, fx=K.fx, fy=K.fy, ppx=K.cx, ppy=K.cy)
+            video = types.SimpleNamespace(get_intrinsics=lambda: intr)
+            stream = types.SimpleNamespace(as_video_stream_profile=lambda: video)
+            return types.SimpleNamespace(get_device=lambda: Device(serials[0]), get_stream=lambda s: stream)
+
+        def try_wait_for_frames(self, timeout_ms: int) -> tuple[bool, _Frameset | None]:
+            if self.served == interrupt_at:
+                raise KeyboardInterrupt
+            if self.served >= len(frames):
+                return False, None  # a live camera that stalled
+            color, depth = frames[self.served]
+            self.served += 1
+            return True, _Frameset(_Frame(color, "bgr8"), _Frame(depth, "z16"), 1000.0 * self.served)
+
+        def stop(self) -> None:
+            log.append(("stop",))
+
+    class Align:
+        def __init__(self, to: str) -> None:
+            assert to == "color"  # depth aligned to colour, as a3d needs
+
+        def process(self, frameset: _Frameset) -> _Frameset:
+            log.append(("align",))
+            return frameset
+
+    rs.context = lambda: types.SimpleNamespace(query_devices=lambda: [Device(s) for s in serials])
+    rs.config, rs.pipeline, rs.align = Config, Pipeline, Align
+    return rs
+
+
+def run(source: str, model: Path, output: Path, *flags: str) -> int:
+    return run_cli.main([source, "--model", str(model), "--output", str(output), "--headless", *flags])
+
+
+def test_live_frames_give_the_folders_detections(
+    folder: Path, tmp_path: Path, tiny_model: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    rs = fake_sdk(folder_frames(folder), serials=("111", "123"))
+    monkeypatch.setitem(sys.modules, "pyrealsense2", rs)
+    assert run(str(folder), tiny_model, tmp_path / "folder.jsonl") == 0
+    # The fake camera stalls after the three frames: reported as one failed frame, exit 1.
+    assert run("realsense:123", tiny_model, tmp_path / "camera.jsonl") == 1
+    assert_same_detections(tmp_path / "camera.jsonl", tmp_path / "folder.jsonl")
+    assert ("enable_device", "123") in rs.log and ("enable_stream", "color", "rgb8") in rs.log
+    assert rs.log.count(("align",)) == 3 and rs.log[-1] == ("stop",)
+
+
+def test_max_frames_stops_the_camera(
+    folder: Path, tmp_path: Path, tiny_model: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    rs = fake_sdk(folder_frames(folder))
+    monkeypatch.setitem(sys.modules, "pyrealsense2", rs)
+    output = tmp_path / "camera.jsonl"
+    assert run("realsense", tiny_model, output, "--max-frames", "2") == 0
+    names = [parse_line(line, "out").frame for line in output.read_text().splitlines()]
+    assert names == ["realsense_000000", "realsense_000001"]
+    assert rs.log.count(("align",)) == 2 and rs.log[-1] == ("stop",)
+
+
+def test_ctrl_c_leaves_whole_lines_and_a_stopped_camera(
+    folder: Path,
+    tmp_path: Path,
+    tiny_model: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture,
+) -> None:
+    rs = fake_sdk(folder_frames(folder), interrupt_at=2)
+    monkeypatch.setitem(sys.modules, "pyrealsense2", rs)
+    output = tmp_path / "camera.jsonl"
+    assert run("realsense", tiny_model, output) == 130
+    data = output.read_text()
+    assert data.endswith("\n") and len(data.splitlines()) == 2
+    assert rs.log[-1] == ("stop",)
+    assert "interrupted after 2 frames" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("spec", "serials", "says"),
+    [
+        ("realsense", (), "realsense: no RealSense camera connected"),
+        ("realsense:999", ("123", "456"), "realsense:999: no camera with serial 999 (connected: 123, 456)"),
+    ],
+)
+def test_camera_absent_is_one_line_exit_2_nothing_written(
+    tmp_path: Path,
+    tiny_model: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture,
+    spec: str,
+    serials: tuple,
+    says: str,
+) -> None:
+    monkeypatch.setitem(sys.modules, "pyrealsense2", fake_sdk([], serials=serials))
+    output = tmp_path / "camera.jsonl"
+    assert run(spec, tiny_model, output) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [f"a3d-run: error: {says}"]
+    assert not output.exists()
+
+
+def test_missing_sdk_names_the_extra(
+    tmp_path: Path, tiny_model: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+) -> None:
+    monkeypatch.setitem(sys.modules, "pyrealsense2", None)  # import fails as if not installed
+    output = tmp_path / "camera.jsonl"
+    assert run("realsense", tiny_model, output) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert err[0].startswith("a3d-run: error: realsense: the RealSense source needs pyrealsense2: ")
+    assert "pip install 'a3d[realsense]'" in err[0]
+    assert not output.exists()
