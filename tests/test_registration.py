@@ -12,7 +12,7 @@ from a3d.runtime.errors import InputError
 from a3d.runtime.frontend.registration import DepthToColor, register_depth
 from a3d.runtime.structures.geometry import Intrinsics
 from a3d.synth.cli import scaled_intrinsics
-from a3d.synth.depth_camera import render_depth_from
+from a3d.synth.depth_camera import offset_depth_camera, render_depth_from
 from a3d.synth.scene import SceneConfig, generate_frame
 
 K = Intrinsics(100.0, 100.0, 39.5, 29.5)
@@ -61,24 +61,6 @@ def test_calibration_is_checked():
         DepthToColor(K, np.eye(3) * 2, [0, 0, 0])
     with pytest.raises(InputError, match="extrinsics translation"):
         DepthToColor(K, np.eye(3), [0, 0])
-
-
-def _rotation_y(degrees: float) -> np.ndarray:
-    a = np.radians(degrees)
-    return np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]])
-
-
-def offset_depth_camera(size: tuple[int, int]) -> tuple[DepthToColor, tuple[int, int]]:
-    """A depth camera 5 cm beside the colour camera, turned 2 degrees, with 1.5 times its
-    resolution and a slightly narrower view (like a RealSense D435's 848 x 480 depth beside
-    640 x 480 colour); returns the calibration and the depth image size."""
-    h, w = round(size[0] * 1.5), round(size[1] * 1.5)
-    k = scaled_intrinsics(size)
-    f = 1.5 * k.fx * 0.95
-    return DepthToColor(Intrinsics(f, f, w / 2 - 0.5, h / 2 - 0.5), _rotation_y(2.0), [0.05, 0.005, 0.002]), (
-        h,
-        w,
-    )
 
 
 @pytest.mark.slow

@@ -19,7 +19,7 @@ from a3d.runtime.errors import InputError
 from a3d.runtime.sources.bag import BagSource
 from a3d.runtime.sources.folder import FolderSource, write_frame, write_intrinsics
 from a3d.runtime.sources.registry import SourceOptions, open_source
-from a3d.synth.depth_camera import render_depth_from
+from a3d.synth.depth_camera import offset_depth_camera, render_depth_from
 from a3d.synth.scene import generate_frame
 from tests.bag_files import (
     ALIGNED,
@@ -40,7 +40,6 @@ from tests.synth_frames import (
     folder_frames,
     write_synth_folder,
 )
-from tests.test_registration import offset_depth_camera
 
 
 @pytest.fixture(scope="module")
