@@ -45,10 +45,11 @@ def render_depth_from(
 def offset_depth_camera(size: tuple[int, int]) -> tuple[DepthToColor, tuple[int, int]]:
     """A depth camera for colour images of ``size`` (H, W) at a3d-synth's scaled NYUv2
     intrinsics: 5 cm beside the colour camera (and 5 mm below, 2 mm ahead), turned 2 degrees
-    about the vertical, with 1.5 times its resolution and a 5 % narrower view, like a RealSense
-    D435's 848 x 480 depth beside 640 x 480 colour; its calibration and depth image size."""
+    about the vertical, with 1.5 times its resolution and a 15 % wider view (like a RealSense
+    D435, whose depth camera sees more than its colour camera), so that it covers the colour
+    image; its calibration and depth image size."""
     h, w = round(size[0] * 1.5), round(size[1] * 1.5)
-    f = 1.5 * scaled_intrinsics(size).fx * 0.95
+    f = 1.5 * scaled_intrinsics(size).fx / 1.15
     a = np.radians(2.0)
     turn = np.array([[np.cos(a), 0.0, np.sin(a)], [0.0, 1.0, 0.0], [-np.sin(a), 0.0, np.cos(a)]])
     return DepthToColor(Intrinsics(f, f, w / 2 - 0.5, h / 2 - 0.5), turn, np.array([0.05, 0.005, 0.002])), (

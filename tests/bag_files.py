@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 from rosbags.rosbag1 import Writer as Writer1
 from rosbags.rosbag2 import Writer as Writer2
-from rosbags.typesys import Stores, get_typestore
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
 from a3d.runtime.frontend.registration import DepthToColor
 from a3d.runtime.structures.geometry import Intrinsics
@@ -155,33 +155,46 @@ def write_sdk_bag(
     K: Intrinsics,
     calibration: DepthToColor,
     depth_units: float = 0.001,
-    color_to_reference: tuple[np.ndarray, np.ndarray] | None = None,
+    reference_to_color: tuple[np.ndarray, np.ndarray] | None = None,
     with_extrinsics: bool = True,
     with_color: bool = True,
 ) -> None:
-    """A RealSense SDK recording (ROS 1, file version 3): ``frames`` hold colour and the depth
-    camera's own depth (uint16 in ``depth_units`` metres) of ``calibration``'s depth camera.
-    Extrinsics are written as the SDK does, each stream's transform to a reference stream
-    (``color_to_reference``; the depth stream's then follows from ``calibration``)."""
+    """A RealSense SDK recording (ROS 1, file version 3), complete enough for the SDK's own
+    playback: ``frames`` hold colour and the depth camera's own depth (uint16 in ``depth_units``
+    metres) of ``calibration``'s depth camera. Extrinsics are written as the SDK writes them,
+    each stream's from a reference stream (``p_stream = R p_ref + t``): ``reference_to_color``
+    for colour (default identity), the depth stream's following from ``calibration``."""
     with _Bag(path, ros2=False) as bag:
         m, t = bag.m, bag.m.t
-        bag.add("/file_version", t["std_msgs/msg/UInt32"](data=3), T0)
+        t0 = T0
+        bag.add("/file_version", t["std_msgs/msg/UInt32"](data=3), t0)
+        key_value = t["diagnostic_msgs/msg/KeyValue"]
+        for key, value in (("Name", "Intel RealSense D435"), ("Serial Number", "000000000000")):
+            bag.add("/device_0/info", key_value(key=key, value=value), t0)
+        bag.add("/device_0/sensor_0/info", key_value(key="Name", value="Stereo Module"), t0)
+        bag.add("/device_0/sensor_1/info", key_value(key="Name", value="RGB Camera"), t0)
         bag.add(
-            "/device_0/sensor_0/option/Depth Units/value", t["std_msgs/msg/Float32"](data=depth_units), T0
+            "/device_0/sensor_0/option/Depth Units/value", t["std_msgs/msg/Float32"](data=depth_units), t0
         )
         depth_prefix, color_prefix = "/device_0/sensor_0/Depth_0", "/device_0/sensor_1/Color_0"
-        depth_size = frames[0][1].shape
+        bag.m.store.register(get_types_from_msg(_STREAM_INFO, "realsense_msgs/msg/StreamInfo"))
+        info = bag.m.store.types["realsense_msgs/msg/StreamInfo"]
+        bag.add(f"{depth_prefix}/info", info(fps=30, encoding="mono16", is_recommended=True), t0)
+        bag.add(f"{color_prefix}/info", info(fps=30, encoding="rgb8", is_recommended=True), t0)
         kd = calibration.depth_intrinsics
-        bag.add(f"{depth_prefix}/info/camera_info", m.camera_info(T0, "0", kd, depth_size), T0)
-        bag.add(f"{color_prefix}/info/camera_info", m.camera_info(T0, "0", K, frames[0][0].shape[:2]), T0)
+        bag.add(f"{depth_prefix}/info/camera_info", m.camera_info(t0, "0", kd, frames[0][1].shape), t0)
+        bag.add(f"{color_prefix}/info/camera_info", m.camera_info(t0, "0", K, frames[0][0].shape[:2]), t0)
         if with_extrinsics:
-            Rc, tc = color_to_reference or (np.eye(3), np.zeros(3))
-            # p_ref = Rc p_color + tc and p_color = R p_depth + t give p_ref = Rc R p_depth + Rc t + tc.
-            Rd, td = Rc @ calibration.R, Rc @ calibration.t + tc
-            bag.add(f"{depth_prefix}/tf/0", m.transform(Rd, td), T0)
-            bag.add(f"{color_prefix}/tf/0", m.transform(Rc, tc), T0)
+            Rc, tc = reference_to_color or (np.eye(3), np.zeros(3))
+            # p_color = Rc p_ref + tc = R p_depth + t  =>  p_depth = R^T (Rc p_ref + tc - t)
+            Rd, td = calibration.R.T @ Rc, calibration.R.T @ (tc - calibration.t)
+            bag.add(f"{depth_prefix}/tf/0", m.transform(Rd, td), t0)
+            bag.add(f"{color_prefix}/tf/0", m.transform(Rc, tc), t0)
         for i, (color, depth) in enumerate(frames):
-            stamp = T0 + 0.5 + i * PERIOD
+            stamp = t0 + 0.5 + i * PERIOD
             bag.add(f"{depth_prefix}/image/data", m.image(stamp + 0.003, "0", depth, "mono16"), stamp + 0.003)
             if with_color:
                 bag.add(f"{color_prefix}/image/data", m.image(stamp, "0", color[..., ::-1], "rgb8"), stamp)
+
+
+_STREAM_INFO = "uint32 fps\nstring encoding\nbool is_recommended\n"  # realsense_msgs/StreamInfo

@@ -104,7 +104,7 @@ def test_realsense_sdk_bag_depth_is_registered_to_colour(folder: Path, tmp_path:
     path = tmp_path / "sdk.bag"
     turn = cv2.Rodrigues(np.array([0.01, -0.02, 0.005]))[0]
     write_sdk_bag(
-        path, frames, K, calibration, depth_units=0.0001, color_to_reference=(turn, np.array([0.01, 0, 0]))
+        path, frames, K, calibration, depth_units=0.0001, reference_to_color=(turn, np.array([0.01, 0, 0]))
     )
     source = open_source(path, SourceOptions())
     got = source.plan.calibration

@@ -283,3 +283,46 @@ def test_the_sdk_plays_its_own_recording_through_the_source(
     output = tmp_path / "recording.jsonl"
     assert run(f"realsense:{recording}", tiny_model, output) == 0
     assert 2 <= len(output.read_text().splitlines()) <= len(frames)  # the syncer's drop varies by run
+
+
+def test_the_sdk_reads_the_layout_of_the_sdk_bags_the_bag_tests_write(
+    real_sdk: types.ModuleType, folder: Path, tmp_path: Path
+) -> None:
+    """The RealSense-layout bag of tests/test_source_bag.py played by the SDK itself: the SDK
+    finds both streams with the intrinsics, and the depth-to-colour extrinsics, that a3d's bag
+    reader takes from it (the SDK is the authority on what its ``tf/0`` topics mean)."""
+    pytest.importorskip("rosbags")
+    import cv2
+
+    from a3d.runtime.sources.registry import SourceOptions, open_source
+    from a3d.synth.depth_camera import offset_depth_camera
+    from tests.bag_files import write_sdk_bag
+
+    rs = real_sdk
+    calibration, depth_size = offset_depth_camera(folder_frames(folder)[0][1].shape)
+    frames = [(color, np.full(depth_size, 2000, np.uint16)) for color, _ in folder_frames(folder)]
+    path = tmp_path / "sdk.bag"
+    turn = cv2.Rodrigues(np.array([0.01, -0.02, 0.005]))[0]
+    write_sdk_bag(path, frames, K, calibration, reference_to_color=(turn, np.array([0.01, 0.0, 0.0])))
+    plan = open_source(path, SourceOptions()).plan
+
+    config = rs.config()
+    config.enable_device_from_file(str(path), False)
+    pipeline = rs.pipeline()
+    profile = pipeline.start(config)
+    try:
+        depth = profile.get_stream(rs.stream.depth).as_video_stream_profile()
+        color = profile.get_stream(rs.stream.color).as_video_stream_profile()
+        extrinsics = depth.get_extrinsics_to(color)
+        R = np.array(extrinsics.rotation).reshape(3, 3).T  # the SDK's rotation is column-major
+        np.testing.assert_allclose(R, plan.calibration.R, atol=1e-6)
+        np.testing.assert_allclose(extrinsics.translation, plan.calibration.t, atol=1e-6)
+        for sdk, ours in (
+            (depth.get_intrinsics(), plan.calibration.depth_intrinsics),
+            (color.get_intrinsics(), K),
+        ):
+            assert (sdk.fx, sdk.fy, sdk.ppx, sdk.ppy) == pytest.approx(
+                (ours.fx, ours.fy, ours.cx, ours.cy), rel=1e-6
+            )
+    finally:
+        pipeline.stop()

@@ -17,7 +17,8 @@ Two layouts are recognised from the topics:
 * **RealSense SDK recordings** (``rs.recorder`` / the RealSense Viewer, ROS 1 format):
   ``/device_0/sensor_S/{Depth_0,Color_0}/image/data``, their ``info/camera_info``, the depth
   units in ``/device_0/sensor_S/option/Depth Units/value`` (``property`` in file version 2) and
-  each stream's extrinsics to the device's reference stream in ``.../tf/0``. The SDK records
+  each stream's extrinsics from the device's reference stream in ``.../tf/0`` (what the SDK's
+  own playback reads: ``p_stream = R p_reference + t``). The SDK records
   depth unregistered, so it always goes through registration.
 
 Colour and depth are paired by header stamp: each colour image takes the depth image nearest in
@@ -325,15 +326,15 @@ class BagSource:
         (depth, depth_sensor), (color, _) = streams["Depth"], streams["Color"]
         intrinsics = self._intrinsics(color, self._first(color.replace("/image/data", "/info/camera_info")))
         depth_info = self._first(depth.replace("/image/data", "/info/camera_info"))
-        to_reference = {}
+        from_reference = {}  # the SDK's tf/0: extrinsics from the reference stream, p_S = R p_ref + t
         for role, topic in (("Depth", depth), ("Color", color)):
             message = self._first(topic.replace("/image/data", "/tf/0"))
             if message is None or depth_info is None:
                 missing = "depth camera_info" if depth_info is None else f"{role}_0 extrinsics (tf/0)"
                 raise InputError(f"{self.path}: registration not possible: the recording has no {missing}")
-            to_reference[role] = np.eye(4)
-            to_reference[role][:3, :3], to_reference[role][:3, 3] = transform_of(message)
-        T = np.linalg.inv(to_reference["Color"]) @ to_reference["Depth"]  # p_color = T p_depth
+            from_reference[role] = np.eye(4)
+            from_reference[role][:3, :3], from_reference[role][:3, 3] = transform_of(message)
+        T = from_reference["Color"] @ np.linalg.inv(from_reference["Depth"])  # p_color = T p_depth
         calibration = DepthToColor(intrinsics_of(depth_info), T[:3, :3], T[:3, 3])
         return _Plan(color, depth, intrinsics, self._sdk_depth_units(depth_sensor), calibration)
 
