@@ -1,6 +1,6 @@
 """The paper's ablation (Table 2) on a data set: what depth, context and 3D regression contribute.
 
-    .venv/bin/python bench/ablation.py TRAIN_DIR TEST_DIR --out out/ablation [--config cpu-small]
+    .venv/bin/python -m bench.ablation TRAIN_DIR TEST_DIR --out out/ablation [--config cpu-small]
         [--iters N] [--set KEY=VALUE ...] [--only full,color,no-context,no-3dreg]
         [--full RUN_DIR] [--parallel N] [--bootstrap 100] [--reuse] [--per-class]
 
@@ -47,11 +47,11 @@ import time
 from pathlib import Path
 
 import numpy as np
-from int8_accuracy import bootstrap_maps, interval_90  # bench/ is the script's folder, first on sys.path
-from paper_table2 import PAPER_AP, PAPER_MAP
-from train_synth import BIN, detect_and_score, scores_of
 
 from a3d.runtime.structures.classes import CLASSES
+from bench.int8_accuracy import bootstrap_maps, interval_90
+from bench.paper_table2 import PAPER_AP, PAPER_MAP
+from bench.train_synth import BIN, detect_and_score, scores_of
 
 VARIANTS = {  # name: (training --set overrides, inference overrides)
     "full": ([], []),

@@ -6,8 +6,8 @@ over the Chrome DevTools protocol (plain ``chromium --screenshot`` only catches 
 screenshot is then judged by its pixels: a loader-only or blank page has almost one colour and none
 of the class colours of the boxes. Opt-in, slow (~1 min), not part of the test suite.
 
-    .venv/bin/python bench/browser_check.py RUN.rrd --out /tmp/a3d_screens/web.png [--wait 45]
-    .venv/bin/python bench/browser_check.py RUN.rrd --out /tmp/a3d_screens/native.png --native
+    .venv/bin/python -m bench.browser_check RUN.rrd --out /tmp/a3d_screens/web.png [--wait 45]
+    .venv/bin/python -m bench.browser_check RUN.rrd --out /tmp/a3d_screens/native.png --native
 
 ``--native`` is the faster second route: the native viewer headless on Mesa's lavapipe Vulkan
 (``apt-get install -y mesa-vulkan-drivers``), ``rerun FILE --headless --screenshot-to``.

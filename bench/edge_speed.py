@@ -9,7 +9,7 @@ frames, with
     preset (a3d.train.model.config): the trunk maps are fused by a 1x1 conv to 512 channels
     before pooling, so fc6 sees 2 x 512 x 7 x 7 inputs instead of the plain layout's
     4 x 512 x 7 x 7 (whose fc6 alone is 100352 x 4096 weights, 1.6 GB in fp32); it is the
-    layout PLATFORM.md measured. The checkpoint is written with a3d.train.checkpoint and
+    layout docs/platform.md measured. The checkpoint is written with a3d.train.checkpoint and
     exported with a3d-export twice: fp32 (no SVD), and ``--svd RANK --int8`` calibrated on the
     first ``--calib-frames`` frames;
 (b) the bundled small model (``--small-model``, default samples/model.onnx when it exists).
@@ -34,19 +34,18 @@ thread count). Times move between machines and with the load, so the targets are
 - peak resident memory of a3d-run with the int8 model <= 2 GiB.
 
     .venv/bin/a3d-synth /tmp/a3d_edge/synth --frames 24 --seed 11 --split test=0.5
-    .venv/bin/python bench/edge_speed.py /tmp/a3d_edge/synth/test --work /tmp/a3d_edge/work \\
+    .venv/bin/python -m bench.edge_speed /tmp/a3d_edge/synth/test --work /tmp/a3d_edge/work \\
         [--small-model samples/model.onnx] [--frames 8] [--max-proposals 500] [--svd 1024]
 
 The checkpoint and the exports are kept in ``--work`` and reused by later runs (``--rebuild``
 makes them again); building them takes about 10 minutes on 2 busy cores and up to 8.4 GB of
 memory (the int8 export). The first line says whether the CPU has VNNI: without it ONNX Runtime's
-int8 trunks gain 1.9-2.7x over fp32 (measured on an AVX2-only VM) instead of PLATFORM.md's 3.8x.
+int8 trunks gain 1.9-2.7x over fp32 (measured on an AVX2-only VM) instead of docs/platform.md's 3.8x.
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import os
 import resource
@@ -57,7 +56,6 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from unittest import mock
 
 import numpy as np
 
@@ -65,6 +63,7 @@ from a3d.runtime.pipeline import STAGES as PIPELINE_STAGES
 from a3d.runtime.pipeline import PreparedFrame
 
 BIN = Path(sys.executable).parent
+REPO = Path(__file__).resolve().parents[1]  # where ``python -m bench.NAME`` runs
 PAPER_SECONDS = 0.739  # Deng & Latecki 2017, Titan X, network only
 TARGET_E2E_OVER_NETWORK = 1.3
 TARGET_ORT_OVER_TORCH = 1.3
@@ -166,9 +165,12 @@ def measure_run(model: Path, frames: Path, *, max_proposals: int, threads: int =
                 rrd: Path | None = None) -> RunResult:  # fmt: skip
     """Run a3d-run's main on ``frames`` with ``model`` and time every stage of every frame.
 
-    The pipeline's own per-frame ``timing`` gives the stages up to NMS + decoding; a3d-run's
-    line formatting and writing and its rerun logging are timed by wrapping those functions, and
-    the frame period by the moments a3d-run's loop receives each frame's result.
+    The pipeline's own per-frame ``timing`` gives the stages up to NMS + decoding; a3d-run reports
+    its line writing and rerun logging per frame (``FrameReport``). The frame period is measured
+    between the moments a3d-run is done with consecutive frames (written and logged), so that the
+    period between the warm-up frame and the next holds exactly the next frame's stages: the
+    warm-up frame's own writing and first rerun logging (hundreds of ms) stay out of it as they
+    stay out of the stage means.
     """
     from a3d.runtime.cli import run as run_cli
     from a3d.runtime.io.detections_io import read_detections
@@ -180,56 +182,21 @@ def measure_run(model: Path, frames: Path, *, max_proposals: int, threads: int =
                 "--max-proposals", str(max_proposals), "--save", str(rrd)]  # fmt: skip
         if overlap:
             argv.append("--overlap")
-        ready: list[float] = []
-        rois: list[int] = []
-        spent: dict[str, list[float]] = {"output": [], "rerun": []}
-        original_frames = run_cli.detect_frames
-
-        def timed_frames(*args, **kwargs):
-            for outcome in original_frames(*args, **kwargs):
-                ready.append(time.perf_counter())
-                rois.append(len(outcome.prepared.rois) if outcome.prepared is not None else 0)
-                yield outcome
-
-        with contextlib.ExitStack() as patches:
-            patches.enter_context(mock.patch.object(run_cli, "detect_frames", timed_frames))
-            for owner, name, stage, new in (
-                (run_cli, "format_line", "output", True),
-                (run_cli._LineSink, "write", "output", False),
-                (run_cli, "_log", "rerun", True),
-            ):
-                wrapped = _timed(getattr(owner, name), spent, stage, new)
-                patches.enter_context(mock.patch.object(owner, name, wrapped))
-            code = run_cli.main(argv)
+        reports: list[tuple[float, run_cli.FrameReport]] = []
+        code = run_cli.main(argv, on_frame=lambda report: reports.append((time.perf_counter(), report)))
         if code != 0:
             raise RuntimeError(f"a3d-run {' '.join(argv)} exited with {code}")
         lines = read_detections(output)
-    if len(lines) != len(ready):
-        raise RuntimeError(f"a3d-run wrote {len(lines)} lines for {len(ready)} frames")
-    skip = 1 if len(lines) > 1 else 0  # the first frame warms up ONNX Runtime's memory arena
+    if len(lines) != len(reports):
+        raise RuntimeError(f"a3d-run wrote {len(lines)} lines for {len(reports)} frames")
+    skip = 1 if len(lines) > 1 else 0  # the first frame warms up ONNX Runtime's memory arena and rerun
     stages = {s: float(np.mean([line.timing.get(s, 0.0) for line in lines[skip:]])) for s in PIPELINE_STAGES}
-    for name, values in spent.items():
-        stages[name] = float(np.mean(values[skip:]))
-    period = (ready[-1] - ready[0]) / (len(ready) - 1) if len(ready) > 1 else lines[0].timing["total"]
+    stages["output"] = float(np.mean([r.output_seconds for _, r in reports[skip:]]))
+    stages["rerun"] = float(np.mean([r.log_seconds for _, r in reports[skip:]]))
+    done = [moment for moment, _ in reports]
+    period = (done[-1] - done[0]) / (len(done) - 1) if len(done) > 1 else lines[0].timing["total"]
+    rois = [len(r.outcome.prepared.rois) if r.outcome.prepared is not None else 0 for _, r in reports]
     return RunResult(model.name, overlap, len(lines), float(np.mean(rois)), stages, period)
-
-
-def _timed(function: Callable, spent: dict[str, list[float]], stage: str, new: bool = False) -> Callable:
-    """``function`` adding its seconds to the current frame's entry of ``spent[stage]``
-    (``new``: this call opens the frame's entry)."""
-
-    def wrapper(*args, **kwargs):
-        start = time.perf_counter()
-        try:
-            return function(*args, **kwargs)
-        finally:
-            seconds = time.perf_counter() - start
-            if new or not spent[stage]:
-                spent[stage].append(seconds)
-            else:
-                spent[stage][-1] += seconds
-
-    return wrapper
 
 
 # ----------------------------------------------------------------------------- the network alone
@@ -315,8 +282,11 @@ def in_child(kind: str, **kwargs) -> dict:
     child's peak resident memory (``peak_bytes``)."""
     with tempfile.TemporaryDirectory(prefix="a3d-edge-") as tmp:
         spec, result = Path(tmp) / "spec.json", Path(tmp) / "result.json"
-        spec.write_text(json.dumps({k: str(v) if isinstance(v, Path) else v for k, v in kwargs.items()}))
-        subprocess.run([sys.executable, __file__, "--worker", kind, str(spec), str(result)], check=True)
+        spec.write_text(
+            json.dumps({k: str(v.resolve()) if isinstance(v, Path) else v for k, v in kwargs.items()})
+        )
+        subprocess.run([sys.executable, "-m", "bench.edge_speed", "--worker", kind, str(spec), str(result)],
+                       check=True, cwd=REPO)  # fmt: skip
         return json.loads(result.read_text())
 
 
@@ -419,7 +389,7 @@ def load_average() -> str:
 
 def cpu_description() -> str:
     """The CPU model and whether it has the int8 dot-product instructions ONNX Runtime's int8 path
-    uses (VNNI); without them int8 gains far less over fp32 (PLATFORM.md measured with them)."""
+    uses (VNNI); without them int8 gains far less over fp32 (docs/platform.md measured with them)."""
     try:
         text = Path("/proc/cpuinfo").read_text()
     except OSError:

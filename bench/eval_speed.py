@@ -8,7 +8,7 @@ centres and sizes, so the 2D NMS has realistic overlaps. Then times ``evaluate``
 default 2D NMS (0.3) and without it. Target: < 30 s with NMS. Times are CPU seconds of this one
 thread (``time.process_time``), robust to a busy machine; wall time is printed beside them.
 
-    .venv/bin/python bench/eval_speed.py [--frames 654] [--per-class 100] [--seed 0] [--retilt] [--io]
+    .venv/bin/python -m bench.eval_speed [--frames 654] [--per-class 100] [--seed 0] [--retilt] [--io]
 
 ``--retilt`` gives the detections a perturbed R_tilt (every frame takes the re-expression path);
 ``--io`` also times writing and reading the detections file (detections_io) in a temp folder.

@@ -16,7 +16,7 @@ Targets (issue): recall@0.5 >= 90 % with 1000 proposals and >= 95 % with 2000; f
 proposals + lifting <= 0.25 s per 427 x 561 frame.
 
     .venv/bin/a3d-synth /tmp/synth_prop --frames 60 --seed 7
-    .venv/bin/python bench/frontend.py /tmp/synth_prop/test [--limit 20] [--max-proposals 2000]
+    .venv/bin/python -m bench.frontend /tmp/synth_prop/test [--limit 20] [--max-proposals 2000]
 """
 
 from __future__ import annotations

@@ -3,7 +3,7 @@
 Frames come from a folder in the frame format (e.g. a3d-synth's test split) or are rendered on
 the fly by a3d.synth.generate_frame from held-out seeds (`--synth FIRST COUNT`), which also
 gives each object's exact visible fraction. Per frame: hole filling, surface normals, gravity
-(R_tilt) estimation, lifting of the ground-truth instance masks to initial 3D boxes (SPEC.md
+(R_tilt) estimation, lifting of the ground-truth instance masks to initial 3D boxes (docs/conventions.md
 "Proposals and 3D box initialisation"), and the lifting of the frame's real proposals
 (a3d.runtime.frontend.proposals) for timing.
 
@@ -21,9 +21,9 @@ IoU as score, then per-class 2D NMS 0.3 and a3d.runtime.evaluation.metric's mAP@
 are those of the evaluated frames' own ground truth (an oracle too), so this bounds what the
 network's classifier could reach on these proposals without any 3D regression.
 
-    .venv/bin/python bench/gravity_lifting.py --synth 100000 30
-    .venv/bin/python bench/gravity_lifting.py --synth 100000 120 --per-class
-    .venv/bin/python bench/gravity_lifting.py --folder /tmp/synth_small/test [--limit 50]
+    .venv/bin/python -m bench.gravity_lifting --synth 100000 30
+    .venv/bin/python -m bench.gravity_lifting --synth 100000 120 --per-class
+    .venv/bin/python -m bench.gravity_lifting --folder /tmp/synth_small/test [--limit 50]
 """
 
 from __future__ import annotations
@@ -37,7 +37,6 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
-from paper_table2 import PAPER_AP  # bench/ is the script's folder, first on sys.path
 
 from a3d.runtime.evaluation.metric import FrameTruth, evaluate
 from a3d.runtime.frontend.depth import fill_depth
@@ -56,6 +55,7 @@ from a3d.runtime.sources.folder import (
 from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES
 from a3d.runtime.structures.frame import GroundTruth
 from a3d.runtime.structures.geometry import Intrinsics, iou_2d, iou_3d
+from bench.paper_table2 import PAPER_AP
 
 FULLY_VISIBLE = 0.95
 

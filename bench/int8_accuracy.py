@@ -17,11 +17,11 @@ same resample for fp32 and the variant). Target: svd+int8 costs <= 1.0 mAP point
 
 Calibrate on training frames, not on the held-out ones (the ranges would have seen the test set).
 
-    .venv/bin/python bench/int8_accuracy.py RUN_DIR/checkpoint.pt TEST_FRAMES --calib TRAIN_FRAMES \\
+    .venv/bin/python -m bench.int8_accuracy RUN_DIR/checkpoint.pt TEST_FRAMES --calib TRAIN_FRAMES \\
         --work /tmp/a3d_int8 [--svd RANK] [--calib-frames 16] [--limit 0] [--bootstrap 100] [--reuse]
 e.g., held-out frames from another generator seed than the training set's:
     .venv/bin/a3d-synth /tmp/a3d_heldout --frames 200 --seed 777 --split test=1.0
-    .venv/bin/python bench/int8_accuracy.py RUN_DIR/checkpoint.pt /tmp/a3d_heldout/test \\
+    .venv/bin/python -m bench.int8_accuracy RUN_DIR/checkpoint.pt /tmp/a3d_heldout/test \\
         --calib SYNTH/train --work /tmp/a3d_int8
 
 Time: each export and a3d-run takes a minute or two for a CPU preset on 200 frames; the
@@ -44,7 +44,8 @@ import time
 from pathlib import Path
 
 import numpy as np
-from edge_speed import BIN, export_model, frame_subset  # bench/ is the script's folder, first on sys.path
+
+from bench.edge_speed import BIN, export_model, frame_subset
 
 TARGET_POINTS = 1.0
 PRIMARY_IOU = 0.25
@@ -85,8 +86,8 @@ def bootstrap_maps(
     """mAP@0.25 (points) of every variant on each of ``resamples`` paired resamples of the annotated
     frames (drawn with replacement; all variants scored on the same draw with
     a3d.runtime.evaluation.metric, as a3d-eval scores): any difference of two variants is paired."""
-    from a3d.runtime.cli.eval import load_truth
     from a3d.runtime.evaluation.metric import EvalConfig, evaluate
+    from a3d.runtime.evaluation.truth import load_truth
     from a3d.runtime.io.detections_io import read_detections
 
     truth, _ = load_truth(frames)

@@ -4,7 +4,7 @@ A synthetic frame (a3d.synth) is logged as if it had been detected: its ground-t
 the detections (class ids, score 1.0, amodal 2D boxes), so the recording has exactly the entity
 tree and default blueprint that ``a3d-run --save`` writes.
 
-    .venv/bin/python bench/make_demo_recording.py /tmp/a3d_demo.rrd [--seed 1] [--frames 1]
+    .venv/bin/python -m bench.make_demo_recording /tmp/a3d_demo.rrd [--seed 1] [--frames 1]
 """
 
 from __future__ import annotations

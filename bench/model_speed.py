@@ -1,12 +1,12 @@
 """A3DNet size and CPU speed per preset: parameters, training step and forward time.
 
 Training step: forward + backward (softmax loss + smooth-L1 on random targets) on a mini-batch of
-2 images at 427 x 561 and 256 RoIs (SPEC.md "Training"); no optimiser update. Forward: eval mode,
+2 images at 427 x 561 and 256 RoIs (docs/conventions.md "Training"); no optimiser update. Forward: eval mode,
 one image, trunk and head timed separately, for each RoI count. Random weights and boxes. The
 fp32 GEMM rate printed before and after tells how busy the (shared) machine was.
 
-    .venv/bin/python bench/model_speed.py --presets vgg16 --iterations 2 --forward-rois 300
-    .venv/bin/python bench/model_speed.py --presets cpu-half cpu-quarter cpu-eighth
+    .venv/bin/python -m bench.model_speed --presets vgg16 --iterations 2 --forward-rois 300
+    .venv/bin/python -m bench.model_speed --presets cpu-half cpu-quarter cpu-eighth
 """
 
 from __future__ import annotations
@@ -97,7 +97,7 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     print(f"torch {torch.__version__}, {torch.get_num_threads()} threads, {args.height} x {args.width}")
-    print(f"fp32 GEMM now: {gemm_gflops():.0f} GFLOPS (PLATFORM.md: 190-200 on an idle machine)")
+    print(f"fp32 GEMM now: {gemm_gflops():.0f} GFLOPS (docs/platform.md: 190-200 on an idle machine)")
     for name in args.presets:
         bench(name, args)
     print(f"fp32 GEMM now: {gemm_gflops():.0f} GFLOPS")

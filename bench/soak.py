@@ -1,6 +1,6 @@
 """Soak: a3d-run over thousands of frames; its resident memory must not keep growing.
 
-    .venv/bin/python bench/soak.py MODEL [--frames 2000] [--distinct 8] [--size 427x561]
+    .venv/bin/python -m bench.soak MODEL [--frames 2000] [--distinct 8] [--size 427x561]
         [--work /tmp/a3d_soak] [--interval 2] [--warmup 100] [--threads 2] [--overlap]
         [--max-proposals N] [--save]
 

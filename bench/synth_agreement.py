@@ -6,7 +6,7 @@ processes) and reports, per depth band and overall: the annotated objects with a
 and the worst share; frames whose exact depth leaves a box, whose amodal 2D box misses its
 visible box, and the largest floor spread. Exits 1 when any of these fails.
 
-    .venv/bin/python bench/synth_agreement.py --frames 1000 --seed 3 --workers 2 [--sensor kinect-v1]
+    .venv/bin/python -m bench.synth_agreement --frames 1000 --seed 3 --workers 2 [--sensor kinect-v1]
 """
 
 import argparse

@@ -1,6 +1,6 @@
 """How much an object's colour alone says about its class, per a3d-synth appearance mode.
 
-    .venv/bin/python bench/synth_colour_cue.py [--frames 200] [--seed 11] [--workers 2]
+    .venv/bin/python -m bench.synth_colour_cue [--frames 200] [--seed 11] [--workers 2]
 
 Renders the same frames with materials drawn independently of the class (the default) and with
 class-typical materials (``--appearance typical``), and for every annotated object with at least

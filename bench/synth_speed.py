@@ -4,7 +4,7 @@ Thread pools are limited to one thread before numpy and OpenCV load, then one wa
 ``--frames`` timed frames are rendered; prints frames/s, the mean and worst seconds per frame and
 the machine's load average (other processes on the machine slow the timing down).
 
-    .venv/bin/python bench/synth_speed.py [--frames 20] [--first-seed 0]
+    .venv/bin/python -m bench.synth_speed [--frames 20] [--first-seed 0]
 """
 
 import os

@@ -4,8 +4,8 @@ Either summarise a set written by ``a3d-synth`` (its ``synth_objects.jsonl``), o
 ``--frames N`` frames in memory (seeds as a3d-synth would use with ``--seed S``) and summarise:
 
     .venv/bin/a3d-synth /tmp/synth1000 --frames 1000 --seed 0 --workers 2
-    .venv/bin/python bench/synth_stats.py /tmp/synth1000
-    .venv/bin/python bench/synth_stats.py --frames 100 --seed 0
+    .venv/bin/python -m bench.synth_stats /tmp/synth1000
+    .venv/bin/python -m bench.synth_stats --frames 100 --seed 0
 """
 
 import argparse

@@ -1,6 +1,6 @@
 """Train a CPU configuration on a3d-synth data and score it on the held-out split with a3d-eval.
 
-    .venv/bin/python bench/train_synth.py --out out/bench_train_synth [--frames 300] [--config cpu-small]
+    .venv/bin/python -m bench.train_synth --out out/bench_train_synth [--frames 300] [--config cpu-small]
         [--iters N] [--set KEY=VALUE ...] [--val-frames 20] [--resume]
 
 Steps (each timed, wall clock): a3d-synth OUT/data --frames N --split test=T (skipped when
@@ -37,12 +37,15 @@ def run(command: list[str], log: Path | None = None) -> float:
     return time.perf_counter() - t0
 
 
-def synthesize(data: Path, frames: int, seed: int, test_share: float) -> float | None:
+def synthesize(
+    data: Path, frames: int, seed: int, test_share: float, options: list[str] = ()
+) -> float | None:
+    """a3d-synth DATA (with more a3d-synth ``options``) unless DATA/train exists; wall seconds or None."""
     if (data / "train").is_dir():
         print(f"using the existing {data}")
         return None
     return run([str(BIN / "a3d-synth"), str(data), "--frames", str(frames), "--seed", str(seed),
-                "--split", f"test={test_share}"])  # fmt: skip
+                "--split", f"test={test_share}", *options])  # fmt: skip
 
 
 def train(train_dir: Path, run_dir: Path, config: str | None, sets: list[str], iters: int | None,
@@ -134,9 +137,11 @@ def main() -> int:
     summary.update(detect_and_score(checkpoint, data / "test", args.out, device=args.device or "cpu"))
     (args.out / "summary.json").write_text(json.dumps(summary, indent=1))
     print(json.dumps({k: v for k, v in summary.items() if k != "ap25"}, indent=1))
-    print(f"mAP@0.25 over 19 classes: {100 * summary['map25_all']:.1f}   "
-          f"(present classes: {100 * summary['map25_present']:.1f}); "
-          f"train {summary['train_seconds'] / 60:.1f} min")
+    print(
+        f"mAP@0.25 over 19 classes: {100 * summary['map25_all']:.1f}   "
+        f"(present classes: {100 * summary['map25_present']:.1f}); "
+        f"train {summary['train_seconds'] / 60:.1f} min"
+    )
     return 0
 
 

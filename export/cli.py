@@ -51,7 +51,8 @@ from a3d.export.verify import (
     folder_inputs,
     synthetic_inputs,
 )
-from a3d.runtime.errors import InputError, ModelError
+from a3d.runtime.cli.common import EXIT_FAILED, command
+from a3d.runtime.cli.common import build_parser as command_parser
 from a3d.runtime.network.model import DetectorModel, ModelMetadata
 from a3d.runtime.pipeline import PipelineConfig
 from a3d.train.inference import TorchNetwork
@@ -62,7 +63,7 @@ CALIB_FRAMES = 16
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
+    p = command_parser(PROG, __doc__.split("\n\n")[0])
     p.add_argument("checkpoint", type=Path, help="a3d-train checkpoint (RUN_DIR/checkpoint.pt)")
     p.add_argument("-o", "--output", type=Path, required=True, help="the model file to write (model.onnx)")
     p.add_argument(
@@ -79,21 +80,20 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         default=CALIB_FRAMES,
         metavar="N",
-        help=f"calibration frames (default {CALIB_FRAMES})",
+        help="calibration frames",
     )
-    p.add_argument(
-        "--opset", type=int, default=MIN_OPSET, help=f"ONNX opset >= {MIN_OPSET} (default {MIN_OPSET})"
-    )
+    p.add_argument("--opset", type=int, default=MIN_OPSET, help=f"ONNX opset >= {MIN_OPSET}")
     p.add_argument(
         "--score-threshold",
         type=float,
         metavar="S",
         help="detections below S are dropped at run time (default: the training config's)",
     )
-    p.add_argument("--threads", type=int, default=2, help="ONNX Runtime threads for verification (default 2)")
+    p.add_argument("--threads", type=int, default=2, help="ONNX Runtime threads for verification")
     return p
 
 
+@command(PROG, errors=(ExportError, ValueError, OSError))
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -107,12 +107,10 @@ def main(argv: list[str] | None = None) -> int:
         path = export(args)
     except VerificationError as e:
         print(f"{PROG}: verification failed: {e}", file=sys.stderr)
-        return 1
-    except (ExportError, InputError, ModelError, ValueError, OSError) as e:
-        print(f"{PROG}: error: {e}", file=sys.stderr)
-        return 2
-    print(f"{PROG}: wrote {path}; run it with:", file=sys.stderr)
-    print(f"a3d-run FRAMES --model {shlex.quote(str(path.resolve()))} --output detections.jsonl")
+        return EXIT_FAILED
+    print(f"{PROG}: wrote {path}; run it with (add --save run.rrd to record the view, or drop --headless "
+          "to watch it live on a display):", file=sys.stderr)  # fmt: skip
+    print(f"a3d-run FRAMES --model {shlex.quote(str(path.resolve()))} --output detections.jsonl --headless")
     return 0
 
 

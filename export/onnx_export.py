@@ -3,12 +3,12 @@
 ``RuntimeGraph`` wraps a trained A3DNet into what the runtime runs: one image, (R, 4) RoIs (the
 batch index column of zeros is added inside), softmax inside, outputs reshaped to (R, 20, 7) and
 (R, 20, 4). The training target normalisation is folded into the box heads' weights
-(``fold_target_stats``), as the authors' release does at save time (SPEC.md "Regression
+(``fold_target_stats``), as the authors' release does at save time (docs/conventions.md "Regression
 targets"), so the graph answers raw deltas for box_coder.decode_3d / decode_2d.
 
 Export uses the torch.onnx dynamo exporter as tests/test_model_onnx.py does (weights inside the
 file: external_data=False; opset >= 18, the lowest it implements; IR version <= 13 for ONNX
-Runtime, PLATFORM.md "ONNX / ORT pitfalls"), with the image size and the RoI count dynamic.
+Runtime, docs/platform.md "ONNX / ONNX Runtime pitfalls"), with the image size and the RoI count dynamic.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ import onnx
 import torch
 from torch import nn
 
-from a3d.runtime.io.detections_io import atomic_write_bytes
+from a3d.runtime.io.atomic import atomic_write_bytes
 from a3d.runtime.network.model import INPUT_NAMES, METADATA_KEY, OUTPUT_NAMES, ModelMetadata, content_digest
 from a3d.runtime.structures.classes import NUM_OUTPUTS
 from a3d.train.checkpoint import load_checkpoint

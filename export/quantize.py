@@ -1,7 +1,7 @@
 """Static int8 quantisation of the exported graph (``a3d-export --int8 --calib FOLDER``).
 
 ONNX Runtime's ``quantize_static`` in QDQ format, per-channel int8 weights and uint8 activations
-(the U8S8 path of x86 VNNI, PLATFORM.md "Compute ceilings"), MinMax ranges calibrated on real
+(the U8S8 path of x86 VNNI, docs/platform.md "Compute ceilings"), MinMax ranges calibrated on real
 frames through the runtime's own front end (a3d.export.verify.folder_inputs), at most
 ``CALIB_ROIS`` RoIs per frame (the best-ranked proposals) to bound the calibration run's memory.
 Quantised: the convolutions and the fully connected layers (Gemm, and MatMul with a constant

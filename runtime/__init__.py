@@ -1,4 +1,4 @@
-"""a3d runtime: numpy + OpenCV + ONNX Runtime (+ rerun for the view). Never imports torch.
+"""a3d runtime: numpy + OpenCV + ONNX Runtime, and rerun for the view (optional). Never imports torch.
 
 ``from a3d.runtime import Detector`` is the Python API (a3d.runtime.detector).
 """

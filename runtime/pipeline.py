@@ -38,9 +38,10 @@ import numpy as np
 
 from a3d.runtime.errors import InputError, ModelError
 from a3d.runtime.frontend.depth import fill_depth
+from a3d.runtime.frontend.frame_proposals import frame_proposals
 from a3d.runtime.frontend.gravity import estimate_rtilt
 from a3d.runtime.frontend.lifting import lift
-from a3d.runtime.frontend.proposals import ProposalConfig, Proposals, proposal_config_from_dict, propose
+from a3d.runtime.frontend.proposals import ProposalConfig, Proposals, proposal_config_from_dict
 from a3d.runtime.io.detections_io import FrameDetections
 from a3d.runtime.network.network_input import network_inputs, scale_boxes
 from a3d.runtime.postprocess.select import decode_detections, select_detections
@@ -197,20 +198,10 @@ def _proposals(
     frame: Frame, filled: np.ndarray, config: PipelineConfig
 ) -> tuple[Proposals | PrecomputedProposals | np.ndarray, np.ndarray]:
     """(segments in a form ``lift`` takes, boxes (N, 4) float64), at most ``max_proposals``."""
-    pre = frame.proposals
-    if config.proposal_source == "precomputed" and pre is None:
+    if config.proposal_source == "precomputed" and frame.proposals is None:
         raise InputError(f"{frame.origin}: no precomputed proposals (--proposals precomputed)")
-    if pre is None or config.proposal_source == "compute":
-        computed = propose(frame.color, filled, frame.intrinsics, config.proposals)
-        return computed, np.asarray(computed.boxes, np.float64)
-    n = min(len(pre), config.max_proposals)
-    boxes = np.asarray(pre.boxes[:n], np.float64)
-    if pre.packed_masks is not None:
-        masks = np.unpackbits(pre.packed_masks[:n], axis=-1, count=frame.image_size[1]).view(bool)
-        return masks, boxes
-    assert pre.indptr is not None and pre.indices is not None
-    end = int(pre.indptr[n])
-    return replace(pre, boxes=pre.boxes[:n], indptr=pre.indptr[: n + 1], indices=pre.indices[:end]), boxes
+    precomputed = None if config.proposal_source == "compute" else frame.proposals
+    return frame_proposals(frame.color, filled, frame.intrinsics, config.proposals, precomputed)
 
 
 def infer(model: NetworkRunner, prepared: PreparedFrame) -> NetworkOutput:

@@ -18,7 +18,7 @@ from a3d.synth.scene import SynthFrame
 
 def box_local(points_cam: np.ndarray, box3d: np.ndarray, R_tilt: np.ndarray) -> np.ndarray:
     """Camera-frame points (N, 3) in the box's own axes (x along l, y along h, z along w), by
-    SPEC.md's box parametrisation: centre in the camera frame, yaw in the tilt frame."""
+    docs/conventions.md's box parametrisation: centre in the camera frame, yaw in the tilt frame."""
     p = points_cam @ R_tilt.T - R_tilt @ box3d[:3]
     c, s = math.cos(box3d[6]), math.sin(box3d[6])
     return np.stack([c * p[:, 0] - s * p[:, 2], p[:, 1], s * p[:, 0] + c * p[:, 2]], axis=1)

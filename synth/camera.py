@@ -1,8 +1,8 @@
 """The handheld Kinect-like camera: its pose in the room and the frame changes it implies.
 
 A pose is a position ``(x, z)`` on the room floor plan, a height above the floor, a heading
-``phi`` (room-frame yaw of the viewing direction, SPEC yaw convention), a pitch (negative =
-looking down) and a roll, all radians. Frames (all metres):
+``phi`` (room-frame yaw of the viewing direction, the yaw convention of docs/conventions.md
+"3D boxes"), a pitch (negative = looking down) and a roll, all radians. Frames (all metres):
 
 * tilt frame = the room turned by ``-phi`` about gravity and moved to the camera: x right,
   y down (along gravity), z along the horizontal heading; ``p_tilt = R_y(-phi) (p_room - cam)``

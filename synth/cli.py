@@ -1,13 +1,20 @@
-"""``a3d-synth``: write a synthetic RGB-D training and test set, or summarise one.
+"""a3d-synth: write a synthetic RGB-D training and test set, or summarise one.
 
     a3d-synth OUT --frames N --seed S [--split test=0.3] [--workers K] [--size HxW] [--sensor kinect-v1]
-        [--appearance typical]
+        [--appearance typical] [--world real] [--clutter N] [--camera-mix all|NAME,...] [--camera-scale S]
+        [--real-light | --no-real-light] [--empty-share F]
     a3d-synth --stats OUT
 
 Frame i of a run is rendered from ``frame_seed(S, i)``, so a set is the same whatever the number
 of workers. Frames go to OUT/train and OUT/test (a random ``test`` share, also fixed by S) as
 ``synth_NNNNNN`` in the README frame format, each folder with its ``intrinsics.json``; one
 statistics line per frame goes to OUT/synth_objects.jsonl (``a3d.synth.stats``).
+
+``--world real`` (docs/synthetic-world.md) renders the cluttered world: WORLDS["real"] objects
+of no class per room, a camera preset per frame from ``a3d.synth.devices`` (its size and
+intrinsics in the frame's meta.json), daylight and a consumer colour pipeline, and a share of
+rooms without any class object; each setting can be changed on its own. The default world
+(``--world a3d``) renders the same frames as before these options existed.
 """
 
 from __future__ import annotations
@@ -23,9 +30,11 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
-from a3d.runtime.errors import InputError
+from a3d.runtime.cli.common import build_parser as command_parser
+from a3d.runtime.cli.common import command
 from a3d.runtime.sources.folder import write_frame, write_intrinsics
 from a3d.runtime.structures.geometry import NYU_CROP_INTRINSICS, NYU_CROP_SIZE, Intrinsics
+from a3d.synth.devices import DEVICES
 from a3d.synth.scene import APPEARANCES, SceneConfig, generate_frame
 from a3d.synth.sensor import SENSORS
 from a3d.synth.stats import RECORDS_FILE, format_summary, frame_record, read_records, summarise
@@ -36,10 +45,34 @@ def frame_seed(seed: int, index: int) -> int:
     return int(np.random.SeedSequence([seed, index]).generate_state(1, np.uint64)[0] >> np.uint64(1))
 
 
-def held_out_indices(seed: int, n: int, share: float) -> set[int]:
-    """Which of frames 0..n-1 go to the test split (round(n * share) of them, fixed by seed)."""
-    order = np.random.default_rng(np.random.SeedSequence([seed, 0x7E57])).permutation(n)
+WORLDS: dict[str, dict] = {
+    "a3d": {"clutter": 0, "camera_mix": (), "real_light": False, "empty_share": 0.0},
+    "real": {"clutter": 30, "camera_mix": tuple(DEVICES), "real_light": True, "empty_share": 0.1},
+}
+"""The defaults of the world options per ``--world``."""
+
+
+def held_out_indices(seed: int, n: int, share: float, salt: int = 0x7E57) -> set[int]:
+    """Which of frames 0..n-1 go to the test split (round(n * share) of them, fixed by seed);
+    another ``salt`` draws another subset (the rooms without class objects)."""
+    order = np.random.default_rng(np.random.SeedSequence([seed, salt])).permutation(n)
     return {int(i) for i in order[: round(n * share)]}
+
+
+def frame_device(seed: int, index: int, mix: tuple[str, ...]) -> str:
+    """The camera preset of frame ``index`` of a run (uniform over ``mix``, fixed by seed)."""
+    rng = np.random.default_rng(np.random.SeedSequence([seed, index, 0xCA3]))
+    return mix[int(rng.integers(len(mix)))]
+
+
+def _parse_mix(text: str) -> tuple[str, ...]:
+    names = tuple(DEVICES) if text == "all" else tuple(n.strip() for n in text.split(",") if n.strip())
+    unknown = [n for n in names if n not in DEVICES]
+    if unknown:
+        raise argparse.ArgumentTypeError(
+            f"--camera-mix: unknown camera {unknown[0]!r} (known: all, {', '.join(DEVICES)})"
+        )
+    return names
 
 
 def scaled_intrinsics(size: tuple[int, int]) -> Intrinsics:
@@ -71,8 +104,8 @@ def _parse_size(text: str) -> tuple[int, int]:
     return h, w
 
 
-def _render_one(job: tuple[Path, str, str, int, SceneConfig, str]) -> dict:
-    folder, name, split, seed, config, depth_format = job
+def _render_one(job: tuple[Path, str, str, int, SceneConfig, str, bool]) -> dict:
+    folder, name, split, seed, config, depth_format, own_intrinsics = job
     frame = generate_frame(seed, config)
     write_frame(
         folder,
@@ -80,6 +113,7 @@ def _render_one(job: tuple[Path, str, str, int, SceneConfig, str]) -> dict:
         frame.color,
         frame.depth,
         R_tilt=frame.R_tilt,
+        intrinsics_override=config.intrinsics if own_intrinsics else None,
         gt=frame.gt,
         instances=frame.instances,
         depth_format=depth_format,
@@ -100,13 +134,36 @@ def generate(
     config: SceneConfig,
     depth_format: str = "png",
     progress: bool = True,
+    camera_mix: tuple[str, ...] = (),
+    camera_scale: float = 1.0,
+    empty_share: float = 0.0,
 ) -> list[dict]:
-    """Render and write a set (see the module docstring); returns its statistics records."""
+    """Render and write a set (see the module docstring); returns its statistics records.
+
+    Each frame takes a camera preset of ``camera_mix`` (none: ``config``'s size and intrinsics)
+    at ``camera_scale``; an ``empty_share`` of the frames show rooms without class objects."""
     test = held_out_indices(seed, frames, test_share)
+    empty = held_out_indices(seed, frames, empty_share, salt=0xE3)
     jobs = []
     for i in range(frames):
         split = "test" if i in test else "train"
-        jobs.append((out / split, f"synth_{i:06d}", split, frame_seed(seed, i), config, depth_format))
+        frame_config = replace(config, labelled=False) if i in empty else config
+        if camera_mix:
+            device = DEVICES[frame_device(seed, i, camera_mix)]
+            size, K = device.frame(camera_scale)
+            frame_config = replace(
+                frame_config, image_size=size, intrinsics=K, depth_sensor=device.depth, device=device.name
+            )
+        job = (
+            out / split,
+            f"synth_{i:06d}",
+            split,
+            frame_seed(seed, i),
+            frame_config,
+            depth_format,
+            bool(camera_mix),
+        )
+        jobs.append(job)
     for split in ("train", "test"):
         (out / split).mkdir(parents=True, exist_ok=True)
         write_intrinsics(out / split, config.intrinsics)
@@ -129,77 +186,123 @@ def generate(
     return records
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="a3d-synth", description=__doc__.split("\n\n")[0])
+PROG = "a3d-synth"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = command_parser(PROG, __doc__.split("\n\n")[0])
     parser.add_argument(
         "out", nargs="?", type=Path, help="output folder (gets train/, test/ and the statistics)"
     )
-    parser.add_argument("--frames", type=int, default=100, help="number of frames (default 100)")
-    parser.add_argument("--seed", type=int, default=0, help="run seed (default 0)")
+    parser.add_argument("--frames", type=int, default=100, help="number of frames")
+    parser.add_argument("--seed", type=int, default=0, help="run seed")
     parser.add_argument(
         "--split",
         type=_parse_split,
         default=0.3,
         metavar="test=SHARE",
-        help="share of frames in the test split (default test=0.3)",
+        help="share of frames in the test split (default: test=0.3)",
     )
-    parser.add_argument("--workers", type=int, default=1, help="worker processes (default 1)")
+    parser.add_argument("--workers", type=int, default=1, help="worker processes")
     parser.add_argument(
         "--size",
         type=_parse_size,
-        default=NYU_CROP_SIZE,
         metavar="HxW",
-        help="image size; the NYUv2 crop intrinsics are scaled to it (default 427x561)",
+        help="image size; the NYUv2 crop intrinsics are scaled to it (default: 427x561)",
     )
     parser.add_argument(
         "--min-visible-px",
         type=int,
         default=SceneConfig.min_visible_px,
-        help="objects with fewer visible pixels are not annotated (default %(default)s)",
+        help="objects with fewer visible pixels are not annotated",
     )
     parser.add_argument(
         "--sensor",
         choices=tuple(SENSORS),
         default="a3d",
-        help="depth error model (a3d.synth.sensor): a3d (default) or kinect-v1's full error",
+        help="depth error model (a3d.synth.sensor): a3d, or kinect-v1's full error",
     )
     parser.add_argument(
         "--appearance",
         choices=APPEARANCES,
         default="independent",
-        help="materials drawn whatever the class (default), or class-typical (a3d.synth.appearance)",
+        help="materials drawn whatever the class (independent), or class-typical (a3d.synth.appearance)",
     )
-    parser.add_argument("--depth-format", choices=("png", "npy"), default="png")
+    parser.add_argument(
+        "--depth-format",
+        choices=("png", "npy"),
+        default="png",
+        help="png: uint16 millimetres; npy: float32 metres (README 'Frame format')",
+    )
+    parser.add_argument(
+        "--world",
+        choices=tuple(WORLDS),
+        default="a3d",
+        help="a3d (the classes only) or real: clutter, camera mix, real light, empty rooms",
+    )
+    parser.add_argument(
+        "--clutter", type=int, help="objects of no class added per room (default: the world's)"
+    )
+    parser.add_argument(
+        "--camera-mix",
+        type=_parse_mix,
+        metavar="all|NAME,...",
+        help=f"camera presets drawn per frame, instead of --size ({', '.join(DEVICES)})",
+    )
+    parser.add_argument("--camera-scale", type=float, default=1.0, help="scale of the presets' frame size")
+    parser.add_argument(
+        "--real-light",
+        action=argparse.BooleanOptionalAction,
+        help="daylight, glowing windows and a consumer camera's colour pipeline (default: the world's)",
+    )
+    parser.add_argument(
+        "--empty-share", type=float, help="share of rooms without class objects (default: the world's)"
+    )
     parser.add_argument(
         "--stats", type=Path, metavar="FOLDER", help="print the statistics of a generated set and exit"
     )
+    return parser
+
+
+@command(PROG, errors=(OSError, ValueError))
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
     args = parser.parse_args(argv)
     if args.stats is not None:
-        try:
-            print(format_summary(summarise(read_records(args.stats))))
-        except (FileNotFoundError, ValueError) as e:
-            print(f"a3d-synth: {e}", file=sys.stderr)
-            return 2
+        print(format_summary(summarise(read_records(args.stats))))  # OSError, ValueError: exit 2
         return 0
     if args.out is None:
         parser.error("give an output folder, or --stats FOLDER")
     if args.frames < 1 or args.workers < 1 or args.min_visible_px < 1:
         parser.error("--frames, --workers and --min-visible-px must be >= 1")
+    world = {k: v if getattr(args, k) is None else getattr(args, k) for k, v in WORLDS[args.world].items()}
+    if world["clutter"] < 0 or not 0.0 <= world["empty_share"] <= 1.0 or not 0.05 <= args.camera_scale <= 4:
+        parser.error("--clutter must be >= 0, --empty-share in [0, 1] and --camera-scale in [0.05, 4]")
+    if world["camera_mix"] and args.size is not None:
+        parser.error("--size and a camera mix exclude each other (use --camera-scale, or --camera-mix '')")
+    size = args.size or NYU_CROP_SIZE
     config = replace(
         SceneConfig(),
-        image_size=args.size,
-        intrinsics=scaled_intrinsics(args.size),
+        image_size=size,
+        intrinsics=scaled_intrinsics(size),
         min_visible_px=args.min_visible_px,
         depth_sensor=SENSORS[args.sensor],
         appearance=args.appearance,
+        clutter=world["clutter"],
+        real_light=world["real_light"],
     )
-    try:
-        records = generate(
-            args.out, args.frames, args.seed, args.split, args.workers, config, args.depth_format
-        )
-    except (InputError, OSError) as e:
-        print(f"a3d-synth: {e}", file=sys.stderr)
-        return 1
+    records = generate(
+        args.out,
+        args.frames,
+        args.seed,
+        args.split,
+        args.workers,
+        config,
+        args.depth_format,
+        camera_mix=world["camera_mix"],
+        camera_scale=args.camera_scale,
+        empty_share=world["empty_share"],
+    )
     print(format_summary(summarise(records)))
     return 0
 

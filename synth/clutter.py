@@ -36,7 +36,7 @@ def window(rng: Rng) -> Furniture:
     if w > 1.0:
         parts.append(box(-f / 3, f / 3, 0, h, 0, 0.03, 1))
     parts.append(box(-w / 2 - 0.05, w / 2 + 0.05, -0.03, 0.0, 0, uniform(rng, 0.08, 0.2), 1))
-    return Furniture(None, parts)
+    return Furniture(None, parts, glow=0)
 
 
 def rug(rng: Rng) -> Furniture:

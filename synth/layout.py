@@ -2,7 +2,7 @@
 
 Room frame (metres): the floor is the rectangle x in [0, width], z in [0, depth]; ``h`` is the
 height above the floor. An object's pose is its origin ``(x, z)``, the height ``base`` of the
-surface it stands on, and its yaw (SPEC convention: the object's local +z points along
+surface it stands on, and its yaw (docs/conventions.md "3D boxes": the object's local +z points along
 ``(sin yaw, cos yaw)`` in (x, z)). Horizontal axes and yaw are those of the tilt frame, so a
 camera with heading ``phi`` sees an object of room yaw ``yaw`` at tilt yaw ``yaw - phi``.
 

@@ -3,7 +3,8 @@
 Object frame (metres): ``x`` lateral, ``z`` towards the object's front, ``h`` height up from the
 surface the object stands on; the origin is the middle of its base. Every primitive is upright
 (its axis along gravity) and may be turned about the vertical through its centre by ``yaw``
-(SPEC yaw convention: a local vector ``(x, z)`` becomes ``(cos t x + sin t z, -sin t x + cos t z)``).
+(the yaw convention of docs/conventions.md "3D boxes": a local vector ``(x, z)`` becomes
+``(cos t x + sin t z, -sin t x + cos t z)``).
 
 Two kinds: ``BOX`` (a cuboid, half sizes ``(hx, hh, hz)``) and ``CYL`` (a vertical elliptic
 cylinder, radii ``hx`` and ``hz``, half height ``hh``). Both are solids: what a camera sees of an
@@ -93,6 +94,7 @@ class Furniture:
     parts: list[Part]
     surfaces: list[Surface] = field(default_factory=list)
     collides: bool = True
+    glow: int = -1  # the part that emits light with real light (a window pane), -1 none
     lo: np.ndarray = field(init=False)
     hi: np.ndarray = field(init=False)
 

@@ -33,16 +33,18 @@ from a3d.runtime.structures.geometry import (
     NYU_CROP_INTRINSICS,
     NYU_CROP_SIZE,
     Intrinsics,
+    boxes_from_pixel_bounds,
     canonical_boxes,
     project_boxes_to_2d,
 )
-from a3d.synth import appearance, shading
+from a3d.synth import appearance, photo, shading
 from a3d.synth.camera import CameraPose, CameraRanges, choose_camera
+from a3d.synth.depth_families import sense
 from a3d.synth.layout import Placed
 from a3d.synth.parts import N_SLOTS
 from a3d.synth.raycast import PartArrays, RayGrid, cast, room_exit
-from a3d.synth.rooms import furnish
-from a3d.synth.sensor import DepthSensor, sense_colour, sense_depth
+from a3d.synth.sensor import DepthSensor, sense_colour
+from a3d.synth.world import furnish_world
 
 APPEARANCES = ("independent", "typical")
 PER_FAMILY = 2  # with "typical" appearance: materials of each family drawn per frame
@@ -54,7 +56,11 @@ TRUNCATED_FRACTION = 0.02  # share of the projection outside the image that make
 class SceneConfig:
     """What to render: image size (H, W) and intrinsics, camera pose ranges, annotation threshold,
     sensor models (``noise`` False gives exact depth and noise-free colour), room type (None: random),
-    and whether materials are drawn independently of the class or class-typical."""
+    and whether materials are drawn independently of the class or class-typical. The cluttered
+    world (``a3d.synth.world``, ``a3d.synth.photo``): ``clutter`` objects of no class added per
+    room, ``labelled`` False for rooms without class objects, ``real_light`` for daylight,
+    glowing windows and a consumer camera's colour pipeline; ``device`` names the camera preset
+    (``a3d.synth.devices``) that set the size, intrinsics and depth sensor, for the statistics."""
 
     image_size: tuple[int, int] = NYU_CROP_SIZE
     intrinsics: Intrinsics = NYU_CROP_INTRINSICS
@@ -66,12 +72,18 @@ class SceneConfig:
     room_type: str | None = None
     appearance: str = "independent"  # or "typical": class-typical materials (a3d.synth.appearance)
     typical_share: float = 0.7  # with "typical": the share of models in class-typical materials
+    clutter: int = 0
+    labelled: bool = True
+    real_light: bool = False
+    device: str = ""
 
     def __post_init__(self) -> None:
         if self.appearance not in APPEARANCES:
             raise ValueError(f"SceneConfig: appearance must be one of {APPEARANCES}, not {self.appearance!r}")
         if not 0.0 <= self.typical_share <= 1.0:
             raise ValueError(f"SceneConfig: typical_share must lie in [0, 1], not {self.typical_share}")
+        if self.clutter < 0:
+            raise ValueError(f"SceneConfig: clutter must be >= 0, not {self.clutter}")
 
 
 @dataclass(frozen=True)
@@ -93,7 +105,8 @@ class SynthFrame:
     """A rendered frame: ``color`` (H, W, 3) uint8 BGR, ``depth`` (H, W) float32 metres (0 =
     missing, sensor-like), ``depth_exact`` the noise-free z-depth, ``R_tilt`` (3, 3), intrinsics,
     ground truth, ``instances`` (H, W) uint16, ``floor`` (H, W) bool (visible floor pixels),
-    per-object statistics, room type and camera pose."""
+    per-object statistics, room type and camera pose; ``unlabelled``: objects of no class with at
+    least ``min_visible_px`` visible pixels; ``device``: the camera preset's name ("" none)."""
 
     color: np.ndarray
     depth: np.ndarray
@@ -106,13 +119,15 @@ class SynthFrame:
     objects: list[ObjectRecord]
     room_type: str
     camera: CameraPose
+    unlabelled: int
+    device: str
 
 
 def generate_frame(seed: int, config: SceneConfig = SceneConfig()) -> SynthFrame:
     """Render the frame of ``seed`` (the same seed always gives the same frame)."""
     rng = np.random.default_rng(seed)
     H, W = config.image_size
-    kind, layout = furnish(rng, config.room_type)
+    kind, layout = furnish_world(rng, config.room_type, config.clutter, config.labelled)
     pose = choose_camera(layout, rng, config.camera, config.intrinsics, config.image_size)
     R = pose.R_tilt
     K = config.intrinsics.matrix()
@@ -147,13 +162,17 @@ def generate_frame(seed: int, config: SceneConfig = SceneConfig()) -> SynthFrame
         np.array([0, room.width, room.width, 0.0]), np.zeros(4), np.array([0, 0, room.depth, room.depth])
     )
     lights = shading.draw_lights(rng, pose.height - room.height, corners)
+    if config.real_light:
+        lights = photo.add_daylight(rng, lights)
     lit = shading.shadow_factor(surf.point, lights.positions[0], parts, n_obj)
     radiance = shading.illuminate(surf, alb, gloss, lights, t, lit)
+    if config.real_light:
+        radiance = photo.glow(rng, radiance, np.isin(part, _glowing_parts(placed, parts)))
 
     lum = 0.2126 * alb[..., 0] + 0.7152 * alb[..., 1] + 0.0722 * alb[..., 2]
     if config.noise:
-        color = sense_colour(rng, radiance)
-        depth = sense_depth(rng, t, config.intrinsics.fx, lum, cos_inc, config.depth_sensor)
+        color = photo.sense_colour_real(rng, radiance) if config.real_light else sense_colour(rng, radiance)
+        depth = sense(rng, t, config.intrinsics.fx, lum, cos_inc, config.depth_sensor)
     else:
         img = np.clip(radiance * (0.7 / max(float(np.percentile(radiance, 95)), 1e-4)), 0, 1) ** (1 / 2.2)
         color = np.ascontiguousarray((img[..., ::-1] * 255 + 0.5).astype(np.uint8))
@@ -170,7 +189,20 @@ def generate_frame(seed: int, config: SceneConfig = SceneConfig()) -> SynthFrame
         records,
         kind,
         pose,
+        int(
+            sum(
+                p.item.cls is None and v >= config.min_visible_px
+                for p, v in zip(placed, visible, strict=True)
+            )
+        ),
+        config.device,
     )
+
+
+def _glowing_parts(placed: list[Placed], parts: PartArrays) -> np.ndarray:
+    """Indices of the light-emitting parts (``Furniture.glow``) among the rendered parts."""
+    first = np.searchsorted(parts.obj, np.arange(len(placed)))  # parts are grouped by object, in order
+    return np.array([first[i] + p.item.glow for i, p in enumerate(placed) if p.item.glow >= 0], np.int64)
 
 
 def build_parts(
@@ -298,7 +330,7 @@ def _ground_truth(
         size = hi - lo
         boxes.append([*(pose.R_tilt.T @ c_tilt), size[0], size[2], size[1], p.yaw - pose.heading])
         rows, cols = np.nonzero(obj_map == i)
-        vis_boxes.append([cols.min() - 0.5, rows.min() - 0.5, cols.max() + 0.5, rows.max() + 0.5])
+        vis_boxes.append(boxes_from_pixel_bounds([cols.min(), rows.min(), cols.max(), rows.max()]))
         names.append(cls)
         keep.append(i)
     n = len(names)

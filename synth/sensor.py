@@ -45,6 +45,13 @@ class DepthSensor:
     edge_drop: float = 0.5  # dropout probability in the band along depth discontinuities
     dark_albedo: float = 0.02  # albedo luminance below which IR return is unreliable
     glancing_cos: float = 0.12  # |cos incidence| below which depth is often lost
+    # Other families of depth camera (a3d.synth.depth_families); the defaults are structured light.
+    family: str = "structured-light"  # or "tof", "stereo", "lidar"
+    flying: float = 0.0  # tof: share of the depth-edge band given flying pixels (mixed depths)
+    multipath: float = 0.0  # tof: depth added (metres) in fully concave corners
+    textureless_drop: float = 0.0  # stereo: hole probability on far texture-less surfaces
+    native_size: tuple[int, int] = (0, 0)  # lidar: (H, W) of the native depth grid, upsampled
+    coverage: float = 1.0  # share of the image width the depth camera's narrower field covers
 
 
 SENSORS = {"a3d": DepthSensor(), "kinect-v1": DepthSensor(subpixel=8.0, sigma2=0.0019)}
@@ -64,7 +71,7 @@ def gaussian(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
     return out.reshape(shape)
 
 
-def _clumpy_uniform(rng: np.random.Generator, shape: tuple[int, int], sigma: float) -> np.ndarray:
+def clumpy_uniform(rng: np.random.Generator, shape: tuple[int, int], sigma: float) -> np.ndarray:
     """Spatially correlated noise with a roughly uniform [0, 1] marginal (logistic of a smooth field)."""
     g = cv2.GaussianBlur(gaussian(rng, shape), (0, 0), sigma)
     g *= 2.0 * sigma * np.sqrt(np.pi)  # unit variance again after the blur
@@ -102,8 +109,8 @@ def sense_depth(
     dark = np.clip((s.dark_albedo - albedo_lum) / s.dark_albedo, 0, 1) * 0.9
     glancing = np.clip((s.glancing_cos - np.abs(cos_inc)) / s.glancing_cos, 0, 1) * 0.8
     p = 1 - (1 - dark) * (1 - glancing)
-    drop |= _clumpy_uniform(rng, (H, W), 2.0) < p  # holes come in clumps, not as salt
-    drop |= _blobs(rng, H, W)
+    drop |= clumpy_uniform(rng, (H, W), 2.0) < p  # holes come in clumps, not as salt
+    drop |= blobs(rng, H, W)
     out[drop] = 0.0
     return out
 
@@ -122,7 +129,7 @@ def projector_shadow(z: np.ndarray, fb: float, max_shift: int = 64) -> np.ndarra
     return shadow
 
 
-def _blobs(rng: np.random.Generator, H: int, W: int) -> np.ndarray:
+def blobs(rng: np.random.Generator, H: int, W: int) -> np.ndarray:
     mask = np.zeros((H, W), np.uint8)
     for _ in range(int(rng.poisson(3))):
         c = (int(rng.integers(W)), int(rng.integers(H)))
@@ -132,10 +139,18 @@ def _blobs(rng: np.random.Generator, H: int, W: int) -> np.ndarray:
 
 
 @functools.cache
-def _vignette(H: int, W: int) -> np.ndarray:
+def vignette(H: int, W: int) -> np.ndarray:
     """(H, W) squared distance from the image centre, 1 at the corners."""
     yy, xx = np.mgrid[0:H, 0:W].astype(np.float32)
     return ((xx - W / 2) ** 2 + (yy - H / 2) ** 2) / (W * W / 4 + H * H / 4)
+
+
+def motion_kernel(rng: np.random.Generator, lo: int, hi: int) -> np.ndarray:
+    """A normalised straight-streak blur kernel of lo to hi - 1 pixels (hand shake)."""
+    n = int(rng.integers(lo, hi))
+    k = np.zeros((n, n), np.float32)
+    cv2.line(k, (0, int(rng.integers(n))), (n - 1, int(rng.integers(n))), 1.0, 1)
+    return k / k.sum()
 
 
 def sense_colour(rng: np.random.Generator, radiance: np.ndarray) -> np.ndarray:
@@ -144,13 +159,10 @@ def sense_colour(rng: np.random.Generator, radiance: np.ndarray) -> np.ndarray:
     lum = radiance[::4, ::4] @ np.array([0.2126, 0.7152, 0.0722], np.float32)
     exposure = float(rng.uniform(0.5, 0.8)) / max(float(np.percentile(lum, 95)), 1e-4)
     gain = (exposure * rng.uniform(0.9, 1.1, 3)).astype(np.float32)
-    img = radiance * gain * (1 - float(rng.uniform(0.1, 0.35)) * _vignette(H, W))[..., None]
+    img = radiance * gain * (1 - float(rng.uniform(0.1, 0.35)) * vignette(H, W))[..., None]
     img = np.clip(img, 0, 1) ** np.float32(1 / 2.2)
     if rng.random() < 0.3:  # hand shake
-        n = int(rng.integers(3, 8))
-        k = np.zeros((n, n), np.float32)
-        cv2.line(k, (0, int(rng.integers(n))), (n - 1, int(rng.integers(n))), 1.0, 1)
-        img = cv2.filter2D(img, -1, k / k.sum())
+        img = cv2.filter2D(img, -1, motion_kernel(rng, 3, 8))
     img = cv2.GaussianBlur(img, (0, 0), float(rng.uniform(0.5, 0.9)))
     sigma = np.float32(rng.uniform(0.004, 0.015))
     img += gaussian(rng, img.shape) * (sigma * np.sqrt(img + np.float32(0.02)))

@@ -344,7 +344,7 @@ def shadow_factor(points: np.ndarray, light: np.ndarray, parts: PartArrays, n_ob
     return np.where(ok, lit, np.float32(1))
 
 
-def _ssao(depth: np.ndarray) -> np.ndarray:
+def ambient_occlusion(depth: np.ndarray) -> np.ndarray:
     """(H, W) ambient-occlusion factor in [0.55, 1]: darker where a pixel lies behind its
     neighbourhood (unsharp-masked depth, computed at quarter resolution)."""
     H, W = depth.shape
@@ -383,7 +383,9 @@ def illuminate(
         d = lights.sun_dir.astype(f32)
         irradiance.append(np.maximum(-(d[0] * nx + d[1] * ny + d[2] * nz), f32(0)))
         powers = np.vstack([powers, lights.sun.astype(f32)])
-    sky = (f32(0.85) - f32(0.15) * ny) * _ssao(depth)  # surfaces facing up (n_y = -1) get more ambient light
+    sky = (f32(0.85) - f32(0.15) * ny) * ambient_occlusion(
+        depth
+    )  # surfaces facing up (n_y = -1) get more ambient light
     ambient = lights.ambient.astype(f32)
     light = [
         sum((p[c] * e for p, e in zip(powers, irradiance, strict=True)), sky * ambient[c]) for c in range(3)

@@ -10,6 +10,12 @@ below; ``format_summary`` prints them with the targets:
 * share of annotated objects less than 70% visible: >= 30%;
 * share of annotated objects cut by the image border: >= 15%;
 * chair the most frequent class, every class present.
+
+It also reports what the cluttered world (``--world real``) adds, without targets for the
+default world: objects of no class per frame (``SynthFrame.unlabelled``) and the share of
+frames with more of them than annotated objects, the frames without any annotated object, and
+the mix of camera presets and depth-sensor families. Records written before these keys existed
+count as default-camera, structured-light frames without an unlabelled count.
 """
 
 from __future__ import annotations
@@ -23,7 +29,10 @@ from pathlib import Path
 import numpy as np
 
 from a3d.runtime.structures.classes import CLASSES
+from a3d.synth.devices import DEVICES
 from a3d.synth.scene import SynthFrame
+
+DEFAULT_CAMERA = "nyu-crop"  # frames without a camera preset: NYUv2 crop intrinsics at --size
 
 RECORDS_FILE = "synth_objects.jsonl"
 
@@ -36,6 +45,9 @@ def frame_record(name: str, split: str, seed: int, frame: SynthFrame) -> dict:
         "seed": seed,
         "room": frame.room_type,
         "depth_missing": round(float(np.mean(frame.depth == 0)), 4),
+        "unlabelled": frame.unlabelled,
+        "camera": frame.device or DEFAULT_CAMERA,
+        "depth_family": DEVICES[frame.device].depth.family if frame.device else "structured-light",
         "objects": [
             {
                 "class": o.cls,
@@ -74,6 +86,12 @@ class Summary:
     rooms: dict[str, int]
     depth_missing: float  # mean share of pixels without depth
     unannotated_share: float  # rendered class objects below the visible-pixel threshold
+    unlabelled_per_frame: float | None  # objects of no class in view (None: not recorded)
+    more_unlabelled_share: float | None  # frames with more objects of no class than annotated ones
+    at_least_as_many_unlabelled_share: float | None
+    frames_without_annotations: int
+    cameras: dict[str, int]
+    depth_families: dict[str, int]
 
     @property
     def missing_classes(self) -> list[str]:
@@ -104,6 +122,7 @@ def summarise(records: Iterable[dict]) -> Summary:
     everything = [o for r in records for o in r["objects"]]
     n = max(len(ann), 1)
     counts = Counter(o["class"] for o in ann)
+    known = [(r["unlabelled"], k) for r, k in zip(records, per_frame, strict=True) if "unlabelled" in r]
     return Summary(
         frames=len(records),
         annotated_per_frame=float(np.mean(per_frame)),
@@ -115,6 +134,14 @@ def summarise(records: Iterable[dict]) -> Summary:
         rooms=dict(Counter(r["room"] for r in records).most_common()),
         depth_missing=float(np.mean([r["depth_missing"] for r in records])),
         unannotated_share=1 - len(ann) / max(len(everything), 1),
+        unlabelled_per_frame=float(np.mean([u for u, _ in known])) if known else None,
+        more_unlabelled_share=float(np.mean([u > k for u, k in known])) if known else None,
+        at_least_as_many_unlabelled_share=float(np.mean([u >= k for u, k in known])) if known else None,
+        frames_without_annotations=sum(k == 0 for k in per_frame),
+        cameras=dict(Counter(r.get("camera", DEFAULT_CAMERA) for r in records).most_common()),
+        depth_families=dict(
+            Counter(r.get("depth_family", "structured-light") for r in records).most_common()
+        ),
     )
 
 
@@ -130,6 +157,17 @@ def format_summary(s: Summary) -> str:
         f"rendered class objects left unannotated (too few visible pixels): {100 * s.unannotated_share:.1f}%",
         f"pixels without depth: {100 * s.depth_missing:.1f}%",
         "rooms: " + ", ".join(f"{k} {v}" for k, v in s.rooms.items()),
+        f"frames without annotated objects: {s.frames_without_annotations}",
+        "unlabelled objects (no class, in view) per frame: "
+        + (
+            "not recorded"
+            if s.unlabelled_per_frame is None
+            else f"mean {s.unlabelled_per_frame:.2f}; frames with more unlabelled than annotated objects "
+            f"{100 * s.more_unlabelled_share:.1f}%, with at least as many "
+            f"{100 * s.at_least_as_many_unlabelled_share:.1f}%"
+        ),
+        "cameras: " + ", ".join(f"{k} {v}" for k, v in s.cameras.items()),
+        "depth sensor families: " + ", ".join(f"{k} {v}" for k, v in s.depth_families.items()),
         "annotated objects per class:",
     ]
     for c, k in sorted(s.class_counts.items(), key=lambda kv: -kv[1]):

@@ -1,4 +1,4 @@
-"""Box coder: the SPEC.md 3D targets by hand, Fast R-CNN 2D deltas, round trips, broadcasting."""
+"""Box coder: the docs/conventions.md 3D targets by hand, Fast R-CNN 2D deltas, round trips, broadcasting."""
 
 from __future__ import annotations
 

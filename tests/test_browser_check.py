@@ -163,12 +163,14 @@ def _check(tmp_path: Path, *flags: str, timeout: float) -> tuple[bc.ScreenshotSt
     recording = tmp_path / "demo.rrd"
     out = tmp_path / "shot.png"
     subprocess.run(
-        [sys.executable, str(REPO / "bench" / "make_demo_recording.py"), str(recording), "--seed", "1"],
+        [sys.executable, "-m", "bench.make_demo_recording", str(recording), "--seed", "1"],
+        cwd=REPO,
         check=True,
         timeout=120,
     )
     run = subprocess.run(
-        [sys.executable, str(REPO / "bench" / "browser_check.py"), str(recording), "--out", str(out), *flags],
+        [sys.executable, "-m", "bench.browser_check", str(recording), "--out", str(out), *flags],
+        cwd=REPO,
         capture_output=True,
         text=True,
         timeout=timeout,

@@ -127,6 +127,8 @@ def test_cli_end_to_end_prints_the_table_and_writes_eval_json_and_the_png(scene,
     assert report["map"]["0.5"] == pytest.approx({"all_classes": 6 / 11 / 19, "present_classes": 6 / 11 / 3})
     assert report["present_classes"] == ["bed", "chair", "table"]
     assert report["protocol"]["iou_thresholds"] == [0.25, 0.5] and report["protocol"]["nms_iou"] == 0.3
+    assert report["protocol"]["name"] == "paper" and not report["protocol"]["nms_overridden"]
+    assert captured.out.splitlines()[1].startswith("protocol paper: 11-point AP (recall k/10)")
     assert report["inputs"]["frames_with_gt"] == 2 and report["inputs"]["skipped_frames_without_gt"] == ["f2"]
 
     png = cv2.imread(str(out / "pr_curves.png"))
@@ -145,8 +147,50 @@ def test_cli_thresholds_and_no_nms(scene, tmp_path) -> None:
         == 0
     )
     report = json.loads((out / "eval.json").read_text())
-    assert report["protocol"] == {**report["protocol"], "iou_thresholds": [0.3], "nms_iou": None}
+    assert report["protocol"] == {
+        **report["protocol"],
+        "iou_thresholds": [0.3],
+        "nms_iou": None,
+        "nms_overridden": True,
+    }
     assert report["classes"]["table"]["ap"] == {"0.3": 1.0}  # IoU 1/3 >= 0.3
+
+
+def test_cli_protocol_sunrgbd_and_all_side_by_side(scene, tmp_path, capsys) -> None:
+    folder, detections = scene
+    out = tmp_path / "out"
+    assert (
+        main([str(folder), "--detections", str(detections), "--protocol", "sunrgbd", "--out", str(out)]) == 0
+    )
+    text = capsys.readouterr().out
+    assert "protocol sunrgbd: AP = area under the interpolated PR curve; no 2D NMS; match IoU > t" in text
+    # chair under sunrgbd: ranked TP, FP, FP at recall 1/2 -> area = 1/2 * 1 = 50.0 (paper: 6/11 = 54.5)
+    lines = {line.split("  ")[0]: line.split() for line in text.splitlines()}
+    assert lines["chair"] == ["chair", "2", "3", "50.0", "50.0"]
+    assert "lamp" not in lines and "counter" not in lines  # not SUN RGB-D classes
+    report = json.loads((out / "eval.json").read_text())
+    assert report["protocol"]["name"] == "sunrgbd" and report["protocol"]["match"] == "IoU > threshold"
+    assert report["protocol"]["ap"] == "area" and report["protocol"]["nms_iou"] is None
+    assert len(report["classes"]) == 10
+    # present: bed 0, chair 1/2, table 1 (IoU 1/3 > 0.25) -> mAP (0 + 0.5 + 1) / 3 = 0.5 (float32)
+    assert report["map"]["0.25"]["present_classes"] == 0.5
+
+    both = tmp_path / "both"
+    assert main([str(folder), "--detections", str(detections), "--protocol", "all", "--out", str(both)]) == 0
+    text = capsys.readouterr().out
+    compared = text[text.index("AP@0.25 (percent) under each protocol") :]
+    rows = {line.split("  ")[0]: line.split() for line in compared.splitlines()}
+    assert rows["class"] == ["class", "#GT", "paper", "authors", "sunrgbd"]
+    assert rows["chair"] == ["chair", "2", "54.5", "54.5", "50.0"]
+    assert rows["lamp"] == ["lamp", "0", "-", "-", "-"]
+    assert rows["mAP, classes with GT"][-3:] == [f"{100 * (6 / 11 + 1) / 3:.1f}"] * 2 + ["50.0"]
+    for name in ("paper", "authors", "sunrgbd"):
+        assert json.loads((both / name / "eval.json").read_text())["protocol"]["name"] == name
+        assert (both / name / "pr_curves.png").is_file()
+    authors = json.loads((both / "authors" / "eval.json").read_text())["protocol"]
+    assert authors["recall_points"][3] == "0.30000000000000004" and authors["nms_box_convention"].startswith(
+        "x2 - x1 + 1"
+    )
 
 
 @pytest.mark.parametrize(

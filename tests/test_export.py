@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import shlex
 from dataclasses import replace
 from pathlib import Path
 from types import SimpleNamespace
@@ -24,11 +25,13 @@ from a3d.export import cli
 from a3d.export.onnx_export import load_trained
 from a3d.export.svd import svd_compress
 from a3d.export.verify import folder_inputs
+from a3d.runtime.cli import run as run_cli
 from a3d.runtime.network.model import DetectorModel
 from a3d.runtime.pipeline import PipelineConfig
 from a3d.runtime.sources.folder import write_frame, write_intrinsics
 from a3d.runtime.structures.classes import CLASSES
 from a3d.runtime.structures.geometry import Intrinsics
+from a3d.runtime.viewer.options import viewer_requested
 from a3d.train.checkpoint import load_checkpoint, save_checkpoint
 from a3d.train.config import TrainConfig
 from a3d.train.dataset import TargetStats
@@ -221,6 +224,8 @@ def test_cli_prints_the_run_command_and_refuses_bad_usage(run, capsys, tmp_path:
     assert not (tmp_path / "m.onnx").exists()
     command = run.stdout["float"].strip().splitlines()[-1]
     assert command.startswith("a3d-run FRAMES --model ") and str(run.float.resolve()) in command
+    suggested = run_cli.build_parser().parse_args(shlex.split(command)[1:])
+    assert not viewer_requested(suggested)  # runs on a machine without a display
 
 
 def test_max_roi_pooling_networks_are_refused(run, capsys, tmp_path: Path) -> None:
@@ -258,7 +263,6 @@ def test_a_graph_unlike_torch_fails_verification_and_writes_nothing(
 def test_a3d_run_on_samples_equals_the_pure_torch_reference(run, tmp_path: Path) -> None:
     """The product path (a3d-export -> a3d-run, ONNX Runtime) and the eager checkpoint
     (a3d.train.inference.TorchDetector) give the same detections on the bundled samples."""
-    from a3d.runtime.cli import run as run_cli
     from a3d.runtime.io.detections_io import read_detections
     from a3d.runtime.sources.folder import FolderSource
     from a3d.train.inference import TorchDetector

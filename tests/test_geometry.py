@@ -23,6 +23,7 @@ from a3d.runtime.structures.geometry import (
     box_corners_tilt,
     box_edges_clipped,
     boxes_from_corners_tilt,
+    boxes_from_pixel_bounds,
     canonical_boxes,
     check_rotation,
     context_boxes,
@@ -159,7 +160,7 @@ def test_canonical_boxes_swaps_length_and_width_with_a_quarter_turn():
 
 
 def _reference_corners_tilt(box: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """SPEC.md corners, one by one, in the order of the authors' calc_corners_tilt.m."""
+    """docs/conventions.md corners, one by one, in the order of the authors' calc_corners_tilt.m."""
     x, y, z, l, w, h, t = box
     rot = np.array([[math.cos(t), 0, math.sin(t)], [0, 1, 0], [-math.sin(t), 0, math.cos(t)]])
     signs = [(1, 1, 1), (-1, 1, 1), (-1, 1, -1), (1, 1, -1)]
@@ -314,8 +315,10 @@ def test_projection_of_a_box_straddling_the_camera_known_answer():
     got = project_boxes_to_2d(box, np.eye(3), K, (H, W))[0]
     near = NEAR_PLANE_M
     expected = [
-        K.cx + K.fx * 0.01, K.cy - K.fy * 0.01 / near,
-        K.cx + K.fx * 0.02 / near, K.cy + K.fy * 0.01 / near,
+        K.cx + K.fx * 0.01,
+        K.cy - K.fy * 0.01 / near,
+        K.cx + K.fx * 0.02 / near,
+        K.cy + K.fy * 0.01 / near,
     ]
     np.testing.assert_allclose(got, expected, atol=1e-9)
 
@@ -450,3 +453,13 @@ def test_batched_nms_only_suppresses_within_a_label():
     assert np.all(np.diff(scores[got]) <= 0)  # by descending score
     with pytest.raises(InputError, match="scores"):
         nms_2d(boxes, scores[:-1], 0.3)
+
+
+def test_boxes_from_pixel_bounds_run_along_the_outer_pixel_edges() -> None:
+    mask = np.zeros((6, 8), bool)
+    mask[2:5, 1:7] = True  # rows 2..4, columns 1..6
+    v, u = np.nonzero(mask)
+    box = boxes_from_pixel_bounds([u.min(), v.min(), u.max(), v.max()])
+    np.testing.assert_array_equal(box, [0.5, 1.5, 6.5, 4.5])
+    assert (box[2] - box[0], box[3] - box[1]) == (6.0, 3.0)  # width and height count the pixels
+    np.testing.assert_array_equal(boxes_from_pixel_bounds(np.zeros((0, 4), int)).shape, (0, 4))

@@ -178,7 +178,7 @@ def test_many_pairs_are_chunked_without_changing_the_result():
 
 
 def _reference_corners_camera(box: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """The 8 camera-frame corners straight from SPEC.md, one at a time (no shared code)."""
+    """The 8 camera-frame corners straight from docs/conventions.md, one at a time (no shared code)."""
     x, y, z, l, w, h, t = box
     rot_y = np.array([[math.cos(t), 0.0, math.sin(t)], [0.0, 1.0, 0.0], [-math.sin(t), 0.0, math.cos(t)]])
     centre_tilt = R @ np.array([x, y, z])

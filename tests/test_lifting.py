@@ -43,7 +43,7 @@ def _random_csr(rng: np.random.Generator, n: int, n_sp: int) -> tuple[np.ndarray
 
 
 def _reference(mask: np.ndarray, raw: np.ndarray, filled: np.ndarray) -> tuple[np.ndarray, bool]:
-    """SPEC.md "Proposals and 3D box initialisation", one mask at a time."""
+    """docs/conventions.md "Proposals and initial 3D boxes", one mask at a time."""
     d = raw[mask]
     from_filled = not (d > 0).any()
     z = float(np.median(filled[mask] if from_filled else d[d > 0]))

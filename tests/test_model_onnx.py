@@ -60,7 +60,7 @@ def exported(tmp_path_factory: pytest.TempPathFactory) -> tuple[A3DNet, Path]:
 def test_graph_is_plain_onnx_for_onnxruntime(exported: tuple[A3DNet, Path]) -> None:
     model = onnx.load(exported[1])
     onnx.checker.check_model(model)
-    assert model.ir_version <= 13  # ORT 1.31's limit (PLATFORM.md)
+    assert model.ir_version <= 13  # ORT 1.31's limit (docs/platform.md)
     assert {o.domain for o in model.opset_import} <= {"", "ai.onnx"}
     assert [i.name for i in model.graph.input] == list(INPUTS)
     assert [o.name for o in model.graph.output] == list(OUTPUTS)

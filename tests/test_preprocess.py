@@ -1,4 +1,4 @@
-"""Network input preprocessing: the exact constants of SPEC.md "Network"."""
+"""Network input preprocessing: the exact constants of docs/conventions.md "Network"."""
 
 from __future__ import annotations
 

@@ -95,7 +95,8 @@ def test_cli_errors_are_one_line(tmp_path, capsys, make):
         write_scenes(folder, 1, seed=2)
         for gt in folder.glob("*.gt.json"):
             gt.unlink()
-    code = main([str(folder), "--out", str(tmp_path / "w.pt"), "--set", "net.width=0.0625"])
+    out = tmp_path / "w.pt"
+    code = main([str(folder), "--out", str(out), "--config", "vgg16", "--set", "net.width=0.0625"])
     err = capsys.readouterr().err.strip()
     assert code == 2 and err.count("\n") == 0 and str(folder) in err
     assert not (tmp_path / "w.pt").exists()

@@ -70,6 +70,12 @@ def test_usage_errors_exit_2_before_any_frame(tmp_path: Path, capsys: pytest.Cap
     assert run([str(folder), "--threads", "0", "--headless"]) == 2
     assert run([str(folder), "--proposals", "mcg", "--headless"]) == 2
     assert run([str(tmp_path / "nowhere"), "--model", str(folder / "model.onnx"), "--headless"]) == 2
+    capsys.readouterr()
+    assert run([str(tmp_path / "nowhere"), "--headless"]) == 2  # the folder is named, not the model
+    assert (
+        capsys.readouterr().err.strip().splitlines()[-1]
+        == f"a3d-run: error: {tmp_path / 'nowhere'}: no such folder"
+    )
     assert not out.exists()
 
 
@@ -216,7 +222,7 @@ def test_saved_recording_holds_the_written_boxes(tmp_path: Path, fake_model: Fak
 
 def test_headless_without_a_sink_records_nothing(tmp_path: Path, fake_model: FakeModel, monkeypatch) -> None:
     folder = write_scene_folder(tmp_path / "frames", ["a"])
-    monkeypatch.setattr(run_cli.viewer, "open_recording", lambda args: pytest.fail("recording opened"))
+    monkeypatch.setattr(run_cli.viewer, "load_view", lambda: pytest.fail("rerun view loaded"))
     assert run([str(folder), "--model", "m.onnx", "--output", str(tmp_path / "d.jsonl"), "--headless"]) == 0
 
 

@@ -2,15 +2,25 @@
 
 from __future__ import annotations
 
+import shutil
+import sys
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
-import a3d.train.roidb as roidb_module
-from a3d.runtime.sources.folder import list_frames, read_ground_truth
+from a3d.runtime.frontend.depth import fill_depth
+from a3d.runtime.frontend.frame_proposals import frame_proposals
+from a3d.runtime.frontend.lifting import lift
+from a3d.runtime.frontend.proposals import propose
+from a3d.runtime.pipeline import PipelineConfig, prepare
+from a3d.runtime.sources.folder import list_frames, read_folder_intrinsics, read_frame, read_ground_truth
+from a3d.runtime.sources.proposals_file import PrecomputedProposals, write_precomputed_proposals
 from a3d.runtime.structures.classes import NUM_CLASSES, class_index
 from a3d.runtime.structures.frame import GroundTruth
 from a3d.train.config import apply_overrides, load_config
-from a3d.train.roidb import build_roidb, class_mean_sizes, label_rois
+from a3d.train.loop import train
+from a3d.train.roidb import build_roidb, class_mean_sizes, compute_front_end, label_rois
 from tests.test_train_scenes import TINY, write_scenes
 
 
@@ -89,23 +99,50 @@ def test_roidb_records(scenes, tmp_path):
         np.testing.assert_allclose(record.gt_boxes2d[:n], gt.boxes2d_amodal)
 
 
-def test_proposal_cache_hits_and_misses(scenes, tmp_path, monkeypatch):
-    config = apply_overrides(load_config("vgg16"), TINY)
+def _count_calls(monkeypatch, function) -> list[int]:
+    """Wrap ``function`` in every loaded a3d module that holds it; the list grows by one per call."""
+    calls: list[int] = []
+
+    def counted(*args, **kwargs):
+        calls.append(1)
+        return function(*args, **kwargs)
+
+    for module in list(sys.modules.values()):
+        if (
+            getattr(module, "__name__", "").startswith("a3d.")
+            and vars(module).get(function.__name__) is function
+        ):
+            monkeypatch.setattr(module, function.__name__, counted)
+    return calls
+
+
+def test_the_front_end_runs_once_per_frame_per_run_and_is_cached(scenes, tmp_path, monkeypatch):
+    """Hole filling, proposals and lifting run once per frame in a whole training run (RoI
+    database and every mini-batch), not at all in a run that finds them cached, and again for
+    another proposal configuration (another cache key)."""
+    fills = _count_calls(monkeypatch, fill_depth)
+    proposals = _count_calls(monkeypatch, frame_proposals)
+    lifts = _count_calls(monkeypatch, lift)
     cache = tmp_path / "cache"
+    config = apply_overrides(load_config("vgg16"), [*TINY, "solver.iterations=4", f"data.cache_dir={cache}"])
+    frames = len(list_frames(scenes))
+    train(scenes, tmp_path / "run", config, device="cpu")
+    assert (len(fills), len(proposals)) == (frames, frames)
+    assert len(lifts) == 2 * frames  # the proposals' segments and the ground-truth segments
+    assert len(list(cache.glob("*.filled.npy"))) == frames
+
     first = build_roidb(scenes, config, cache)
-    assert len(list(cache.glob("*.npz"))) == 4
-
-    def no_proposals(*args, **kwargs):
-        raise AssertionError("proposal stage ran despite a cached result")
-
-    monkeypatch.setattr(roidb_module, "prepare", no_proposals)  # the runtime front end
-    again = build_roidb(scenes, config, cache)
-    for a, b in zip(first.records, again.records, strict=True):
-        np.testing.assert_array_equal(a.boxes, b.boxes)
-        np.testing.assert_array_equal(a.init_boxes, b.init_boxes)
-    other = apply_overrides(config, ["proposals.min_area=30"])
-    with pytest.raises(AssertionError, match="proposal stage ran"):
-        build_roidb(scenes, other, cache)  # another proposal config: another cache key
+    assert (len(fills), len(proposals), len(lifts)) == (frames, frames, 2 * frames)  # all cached
+    train(scenes, tmp_path / "again", config, device="cpu")
+    assert (len(fills), len(proposals), len(lifts)) == (frames, frames, 2 * frames)
+    other = build_roidb(scenes, apply_overrides(config, ["proposals.min_area=30"]), cache)
+    assert (len(fills), len(proposals)) == (2 * frames, 2 * frames)
+    assert [r.name for r in other.records] == [r.name for r in first.records]
+    for record in first.records:
+        filled = np.load(record.filled_depth_path)
+        np.testing.assert_array_equal(
+            filled, fill_depth(read_frame(record.ref, read_folder_intrinsics(scenes)).depth)
+        )
 
 
 def test_front_end_worker_processes_give_the_serial_result(scenes, tmp_path):
@@ -117,3 +154,36 @@ def test_front_end_worker_processes_give_the_serial_result(scenes, tmp_path):
     for a, b in zip(serial.records, parallel.records, strict=True):
         np.testing.assert_array_equal(a.boxes, b.boxes)
         np.testing.assert_array_equal(a.init_boxes, b.init_boxes)
+
+
+@pytest.mark.parametrize("form", ["computed", "packed masks", "superpixels"])
+def test_the_training_front_end_equals_the_runtime_pipeline(scenes, tmp_path, form):
+    """Training lifts the proposals a3d-run lifts: computed ones, or the first max_proposals of a
+    NAME.proposals.npz in either segment form."""
+    folder = tmp_path / "frames"
+    shutil.copytree(scenes, folder)
+    config = apply_overrides(load_config("vgg16"), [*TINY, "proposals.max_proposals=5"]).proposals
+    intrinsics = read_folder_intrinsics(folder)
+    ref = list_frames(folder)[0]
+    if form != "computed":
+        frame = read_frame(ref, intrinsics)
+        computed = propose(
+            frame.color, fill_depth(frame.depth), frame.intrinsics, replace(config, max_proposals=9)
+        )
+        assert len(computed.boxes) > 5
+        masks = np.stack([computed.mask(i) for i in range(len(computed))])
+        pre = PrecomputedProposals.from_masks(computed.boxes, masks)
+        if form == "superpixels":
+            pre = PrecomputedProposals(
+                boxes=pre.boxes, image_size=pre.image_size, superpixels=computed.superpixels.astype(np.int32),
+                indptr=computed.indptr, indices=computed.indices.astype(np.int32),
+            )  # fmt: skip
+        write_precomputed_proposals(folder / f"{ref.name}.proposals.npz", pre)
+        ref = list_frames(folder)[0]
+    front, filled = compute_front_end(ref, read_ground_truth(ref), intrinsics, config)
+    pipeline = PipelineConfig(np.ones((NUM_CLASSES, 3)), proposals=config, max_proposals=config.max_proposals)
+    prepared = prepare(ref, intrinsics, pipeline)
+    assert 0 < len(front.proposal_boxes) <= 5
+    np.testing.assert_array_equal(front.proposal_boxes, prepared.boxes)
+    np.testing.assert_array_equal(front.proposal_centers, prepared.centers)
+    np.testing.assert_array_equal(filled, fill_depth(prepared.frame.depth))

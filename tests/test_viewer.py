@@ -14,6 +14,7 @@ from a3d.runtime.structures.geometry import (
     project_points,
     rtilt_from_pitch_roll,
 )
+from a3d.runtime.viewer import options as viewer_options
 from a3d.runtime.viewer import view as viewer
 from tests.rrd_reader import as_array, read_columns
 
@@ -115,8 +116,8 @@ def test_projected_edges_match_projected_corners_and_clip_behind_camera() -> Non
 
 def test_headless_without_sink_logs_nothing() -> None:
     none = argparse.Namespace(headless=True, connect=False, serve=False, url=None, save=None, stdout=False)
-    assert not viewer.viewer_requested(none)
-    assert viewer.viewer_requested(argparse.Namespace(**{**vars(none), "save": "x.rrd"}))
+    assert not viewer_options.viewer_requested(none)
+    assert viewer_options.viewer_requested(argparse.Namespace(**{**vars(none), "save": "x.rrd"}))
 
 
 def test_clip_segments_known_answers() -> None:

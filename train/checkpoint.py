@@ -8,9 +8,9 @@ and None, so loading one can never run code. The training loop stores (see ``a3d
     model (state dict), optimizer (state dict), target_stats {mean3d, std3d, mean2d, std2d},
     mean_sizes (19, 3) [l, w, h], classes (list of names)
 
-Writes go to a temporary file in the same folder (``.NAME.tmp-PID``), are fsync'ed, then
-``os.replace``'d over the old checkpoint (and the folder fsync'ed), so a crash or ``kill -9`` at
-any moment leaves either the previous checkpoint or the new one, never a torn file. The next save
+Writes are durable atomic writes (a3d.runtime.io.atomic: a temporary file in the same folder,
+fsync'ed, renamed over the old checkpoint, the folder fsync'ed), so a crash or ``kill -9`` at any
+moment leaves either the previous checkpoint or the new one, never a torn file. The next save
 removes temporary files that a killed writer left behind (one writer per run folder).
 """
 
@@ -28,6 +28,7 @@ from pathlib import Path
 import torch
 
 from a3d.runtime.errors import ModelError
+from a3d.runtime.io.atomic import atomic_write, remove_stale_temporaries
 
 FORMAT = "a3d-checkpoint"
 VERSION = 1
@@ -46,22 +47,10 @@ def save_checkpoint(path: str | os.PathLike, payload: dict) -> None:
 
 
 def atomic_torch_save(path: str | os.PathLike, obj: object) -> None:
-    """torch.save to a temporary file beside ``path``, fsync'ed, then renamed over it."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    for stale in path.parent.glob(f".{path.name}.tmp-*"):  # left by a writer that was killed
-        stale.unlink(missing_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        with open(tmp, "wb") as f:
-            torch.save(obj, f)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    _fsync_dir(path.parent)
+    """torch.save to a temporary file beside ``path``, fsync'ed, then renamed over it; clears the
+    temporary files of writers that were killed (one writer per run folder)."""
+    remove_stale_temporaries(path)
+    atomic_write(path, lambda f: torch.save(obj, f), durable=True)
 
 
 def load_checkpoint(path: str | os.PathLike) -> dict:
@@ -135,15 +124,3 @@ def _check_plain(obj, where: str) -> None:
             _check_plain(value, f"{where}[{i}]")
         return
     raise TypeError(f"{where}: {type(obj).__name__} cannot go in a weights-only checkpoint")
-
-
-def _fsync_dir(folder: Path) -> None:
-    """Make the rename itself durable (POSIX; a no-op where folders cannot be opened)."""
-    try:
-        fd = os.open(folder, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)

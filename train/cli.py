@@ -1,14 +1,16 @@
 """``a3d-train DATA --out RUN_DIR``: train A3DNet on a folder of annotated RGB-D frames.
 
     a3d-train data/train --out runs/small --config cpu-small --val data/test
-    a3d-train data/train --out runs/small --resume --iters 6000     # continue, or extend
+    a3d-train data/train --out runs/small --resume --iters 6000     # continue (after Ctrl-C too), or extend
     torchrun --nproc_per_node 2 -m a3d.train.cli data/train --out runs/ddp --config cpu-small
 
-``--config`` is a preset name (vgg16, cpu-small, ...) or a JSON/TOML file; ``--set a.b=v``
+``--config`` is a preset name (vgg16, cpu-small, cpu-tiny) or a JSON/TOML file (without it:
+vgg16 on a CUDA device, cpu-small otherwise, said on stderr); ``--set a.b=v``
 overrides single settings (``--set solver.lr=0.001 --set data.workers=2``). With ``--resume``
 the configuration comes from the run's checkpoint; ``--set`` and ``--iters`` still apply on top
 (changing anything but the schedule's length breaks bit-exact resumption).
-Writes RUN_DIR/checkpoint.pt, metrics.jsonl, loss.png and config.json.
+Writes RUN_DIR/checkpoint.pt, metrics.jsonl, loss.png and config.json, and prints the
+a3d-export command for the run.
 Bad input is reported as one line on stderr with exit status 2.
 """
 
@@ -16,34 +18,50 @@ from __future__ import annotations
 
 import argparse
 import logging
+import shlex
 import sys
 from pathlib import Path
 
-from a3d.runtime.errors import InputError, ModelError
+from a3d.runtime.cli.common import build_parser as command_parser
+from a3d.runtime.cli.common import command
 from a3d.train.checkpoint import load_checkpoint
-from a3d.train.config import PRESETS, TrainConfig, apply_overrides, load_config
-from a3d.train.loop import CHECKPOINT_NAME, train
+from a3d.train.config import CPU_PRESET, GPU_PRESET, PRESETS, TrainConfig, apply_overrides, load_config
+from a3d.train.loop import CHECKPOINT_NAME, resolve_device, train
+
+PROG = "a3d-train"
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="a3d-train", description="Train the amodal 3D detector (Deng & Latecki 2017) on RGB-D frames."
-    )
+    parser = command_parser(PROG, "Train the amodal 3D detector (Deng & Latecki 2017) on RGB-D frames.")
     parser.add_argument("data", type=Path, help="folder of training frames with NAME.gt.json")
     parser.add_argument("--out", type=Path, required=True, help="run folder (checkpoint, metrics, plots)")
     add_config_arguments(parser, "solver.lr=0.001")
-    parser.add_argument("--resume", action="store_true", help="continue from RUN_DIR/checkpoint.pt")
-    parser.add_argument("--iters", type=int, help="total iterations (overrides solver.iterations)")
-    parser.add_argument("--val", type=Path, help="annotated frames for periodic validation mAP")
+    existing = parser.add_mutually_exclusive_group()
+    existing.add_argument("--resume", action="store_true", help="continue the run in --out")
+    existing.add_argument("--force", action="store_true", help="start again over the run in --out")
+    parser.add_argument("--iters", type=int, help="total iterations (default: the preset's)")
+    parser.add_argument("--val", type=Path, help="annotated frames to validate on (default: none)")
     return parser
 
 
 def add_config_arguments(parser: argparse.ArgumentParser, example: str) -> None:
     """--config, --set (into ``overrides``) and --device, as a3d-train and a3d-pretrain take them."""
-    parser.add_argument("--config", help=f"preset ({', '.join(PRESETS)}) or JSON/TOML file; default vgg16")
+    parser.add_argument("--config", help=f"preset ({', '.join(PRESETS)}) or JSON/TOML file "
+                        f"(default: {GPU_PRESET} on CUDA, else {CPU_PRESET})")  # fmt: skip
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
                         help=f"override one setting, e.g. {example} (repeatable)")  # fmt: skip
     parser.add_argument("--device", help="cpu, cuda or cuda:N (default: cuda when available)")
+
+
+def config_source(args: argparse.Namespace, prog: str = PROG) -> str:
+    """--config, or the preset that fits the device (the paper's network needs a GPU), said on stderr."""
+    if args.config:
+        return args.config
+    device = resolve_device(args.device)
+    preset = GPU_PRESET if device.type == "cuda" else CPU_PRESET
+    why = "a CUDA device" if device.type == "cuda" else "no CUDA device"
+    print(f"{prog}: no --config: preset {preset} ({why}; --config picks another)", file=sys.stderr)
+    return preset
 
 
 def resolve_config(args: argparse.Namespace) -> TrainConfig:
@@ -55,7 +73,7 @@ def resolve_config(args: argparse.Namespace) -> TrainConfig:
                                        str(args.out / CHECKPOINT_NAME))  # fmt: skip
         config = apply_overrides(config, args.overrides)
     else:
-        config = load_config(args.config, args.overrides)
+        config = load_config(config_source(args), args.overrides)
     if args.iters is not None:
         if args.iters < 1:
             raise ValueError(f"--iters must be positive, got {args.iters}")
@@ -63,22 +81,30 @@ def resolve_config(args: argparse.Namespace) -> TrainConfig:
     return config
 
 
+@command(PROG, errors=(ValueError, FileNotFoundError))
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    logging.basicConfig(level=logging.INFO, format="a3d-train: %(message)s")
-    try:
-        config = resolve_config(args)
-        result = train(args.data, args.out, config, device=args.device, resume=args.resume, val_data=args.val)
-    except (InputError, ModelError, ValueError, FileNotFoundError) as e:
-        print(f"a3d-train: error: {e}", file=sys.stderr)
-        return 2
-    summary = f"a3d-train: {result.iteration} iterations in {result.run_dir}"
+    logging.basicConfig(level=logging.INFO, format=f"{PROG}: %(message)s")
+    config = resolve_config(args)
+    result = train(args.data, args.out, config, device=args.device, resume=args.resume, overwrite=args.force,
+                   val_data=args.val)  # fmt: skip
+    summary = f"{PROG}: {result.iteration} iterations in {result.run_dir}"
     if result.last_loss is not None:
         summary += f", last loss {result.last_loss:.4f}"
     if result.val_map is not None:
         summary += f", val mAP@0.25 {100 * result.val_map:.1f}"
     print(summary, file=sys.stderr)
+    print(f"{PROG}: export the model with:", file=sys.stderr)
+    print(export_command(result.run_dir, args.val))
     return 0
+
+
+def export_command(run_dir: Path, val: Path | None) -> str:
+    """The a3d-export command line that turns this run's checkpoint into RUN_DIR/model.onnx."""
+    words = ["a3d-export", str(run_dir / CHECKPOINT_NAME), "-o", str(run_dir / "model.onnx")]
+    if val is not None:
+        words += ["--verify-frames", str(val)]
+    return shlex.join(words)
 
 
 if __name__ == "__main__":

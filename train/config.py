@@ -30,7 +30,7 @@ from a3d.train.model import NetConfig
 
 @dataclass
 class DataConfig:
-    """RoI database, mini-batch sampling (SPEC.md "Training") and input preparation.
+    """RoI database, mini-batch sampling (docs/conventions.md "Training") and input preparation.
 
     ``input_scale`` resizes colour and depth (and every 2D box) before the network: 1.0 is the
     native frame size, as in the paper; CPU presets train at a reduced scale. Proposals, lifting
@@ -38,8 +38,9 @@ class DataConfig:
     """
 
     input_scale: float = 1.0
-    context_scale: float = 1.5  # context box = RoI scaled about its centre (SPEC.md), clipped
+    context_scale: float = 1.5  # context box = RoI scaled about its centre (docs/conventions.md), clipped
     flip: bool = True
+    augment: bool = False  # colour and depth augmentation per training image (a3d.train.augment)
     images_per_batch: int = 2
     rois_per_image: int = 128
     fg_fraction: float = 0.25
@@ -53,7 +54,7 @@ class DataConfig:
 
 @dataclass
 class SolverConfig:
-    """SGD with momentum and Caffe "step" decay (SPEC.md "Training")."""
+    """SGD with momentum and Caffe "step" decay (docs/conventions.md "Training")."""
 
     iterations: int = 40000
     lr: float = 0.005
@@ -81,7 +82,7 @@ class LogConfig:
 
 @dataclass
 class InferenceConfig:
-    """Post-processing (SPEC.md "Inference and post-processing")."""
+    """Post-processing (docs/conventions.md "Inference and post-processing")."""
 
     top_k: int = 100  # detections kept per class and image before NMS
     nms_iou: float = 0.3  # 2D NMS on the proposal boxes, per class
@@ -150,7 +151,27 @@ def _cpu_small() -> TrainConfig:
     )
 
 
-PRESETS: dict[str, Callable[[], TrainConfig]] = {"vgg16": _vgg16, "cpu-small": _cpu_small}
+def _cpu_tiny() -> TrainConfig:
+    """cpu-small's network on a schedule for the first hour: 1500 iterations (lr x0.1 at the same
+    0.76 of the run), checkpoints every 250, validation only at the end; about 10 minutes on 2
+    CPU cores from a few hundred a3d-synth frames (docs/first-hour.md)."""
+    return apply_values(
+        _cpu_small(),
+        {
+            "solver": {"iterations": 1500, "lr_steps": [1140]},
+            "log": {"checkpoint_every": 250, "val_every": 0},
+        },
+        "preset cpu-tiny",
+    )
+
+
+PRESETS: dict[str, Callable[[], TrainConfig]] = {
+    "vgg16": _vgg16,
+    "cpu-small": _cpu_small,
+    "cpu-tiny": _cpu_tiny,
+}
+GPU_PRESET = "vgg16"  # a3d-train's default on a CUDA device
+CPU_PRESET = "cpu-small"  # ... and without one
 
 
 def load_config(source: str | None = None, overrides: list[str] | tuple[str, ...] = ()) -> TrainConfig:

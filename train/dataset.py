@@ -3,10 +3,10 @@
 ``BatchDataset[iteration]`` is this rank's whole mini-batch of that iteration (the sampler's plan
 is a pure function of the seed and the iteration, see a3d.train.sampler), so the DataLoader
 iterates over iteration numbers and a resumed run simply starts at a later one. Per image:
-read the frame, fill the depth holes (a3d.runtime.frontend.depth), flip when the plan says so, compute
-the regression targets of the sampled foreground RoIs and normalise them per class, build the
-network inputs and RoIs at the configured input scale exactly as the runtime does
-(a3d.runtime.network.network_input).
+read the colour image and the hole-filled depth the RoI database cached (the front end ran once
+per frame there), flip when the plan says so, compute the regression targets of the sampled
+foreground RoIs and normalise them per class, build the network inputs and RoIs at the
+configured input scale with the runtime's own function (a3d.runtime.network.network_input).
 
 Flip (README "Pixels and 2D boxes"): image and depth columns reversed, 2D boxes through
 ``flip_boxes_2d`` (u -> W - 1 - u), 3D boxes through ``flip_boxes_3d`` (x -> -x, theta -> -theta),
@@ -20,6 +20,7 @@ saved in the checkpoint and undone at inference (``TargetStats.denormalise_*``).
 
 from __future__ import annotations
 
+import signal
 from dataclasses import dataclass, fields
 
 import cv2
@@ -27,11 +28,12 @@ import numpy as np
 import torch
 
 from a3d.runtime.frontend.depth import fill_depth
-from a3d.runtime.network.network_input import network_inputs, scale_boxes, with_batch_index
+from a3d.runtime.network.network_input import frame_network_inputs, with_batch_index
 from a3d.runtime.postprocess.box_coder import encode_2d, encode_3d
 from a3d.runtime.sources.folder import read_frame
 from a3d.runtime.structures.classes import NUM_OUTPUTS
-from a3d.runtime.structures.geometry import Intrinsics, context_boxes, flip_boxes_2d, flip_boxes_3d
+from a3d.runtime.structures.geometry import Intrinsics, flip_boxes_2d, flip_boxes_3d
+from a3d.train.augment import augment_frame, augment_rng
 from a3d.train.roidb import FrameRois
 from a3d.train.sampler import plan_batch
 
@@ -179,21 +181,25 @@ class BatchDataset(torch.utils.data.Dataset):
         for b, plan in enumerate(plans):
             record = self.records[plan.image]
             frame = read_frame(record.ref, self.intrinsics)
-            color, depth = frame.color, fill_depth(frame.depth)
+            if d.augment:  # a3d.train.augment: other light and sensors, same geometry (refilled)
+                rng = augment_rng(self.seed, int(iteration), b)
+                color, raw = augment_frame(rng, frame.color, frame.depth)
+                depth = fill_depth(raw)
+            else:
+                color, depth = frame.color, np.load(record.filled_depth_path)
             boxes = record.boxes[plan.rois].astype(np.float64)
             if plan.flip:
                 color, depth = color[:, ::-1], depth[:, ::-1]
                 boxes = flip_boxes_2d(boxes, record.image_size[1])
-            color_in, depth_in, (sx, sy) = network_inputs(
-                np.ascontiguousarray(color), np.ascontiguousarray(depth), d.input_scale, d.depth_truncation_m
+            color_in, depth_in, roi_boxes, context = frame_network_inputs(
+                color, depth, boxes, d.input_scale, d.depth_truncation_m, d.context_scale
             )
-            context = context_boxes(boxes, record.image_size, d.context_scale)
             t3d, t2d, has_3d = raw_targets(record, plan.rois, plan.flip)
             roi_labels = record.labels[plan.rois]
             colors.append(color_in)
             depths.append(depth_in)
-            rois.append(with_batch_index(scale_boxes(boxes, sx, sy), b))
-            contexts.append(with_batch_index(scale_boxes(context, sx, sy), b))
+            rois.append(with_batch_index(roi_boxes, b))
+            contexts.append(with_batch_index(context, b))
             labels.append(roi_labels)
             t3ds.append(np.where(has_3d[:, None], self.stats.normalise_3d(roi_labels, t3d), 0.0))
             t2ds.append(np.where(roi_labels[:, None] > 0, self.stats.normalise_2d(roi_labels, t2d), 0.0))
@@ -234,6 +240,9 @@ def batch_loader(dataset: BatchDataset, start: int, workers: int, pin_memory: bo
 
 
 def _single_threaded(_worker_id: int) -> None:
-    """Workers leave the cores to the training process: one thread each for OpenCV and torch."""
+    """Workers leave the cores to the training process: one thread each for OpenCV and torch.
+    They ignore Ctrl-C (which a terminal sends to the whole process group): the training process
+    finishes its iteration and saves a checkpoint, and needs its workers until then."""
     cv2.setNumThreads(1)
     torch.set_num_threads(1)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)

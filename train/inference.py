@@ -20,8 +20,8 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from a3d.runtime.cli.eval import load_truth
 from a3d.runtime.evaluation.metric import EvalConfig, EvalResult, evaluate
+from a3d.runtime.evaluation.truth import load_truth
 from a3d.runtime.io.detections_io import FrameDetections, write_detections
 from a3d.runtime.pipeline import PipelineConfig, detect, detect_frames
 from a3d.runtime.sources.folder import FolderSource

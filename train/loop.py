@@ -1,6 +1,6 @@
 """The SGD training loop: data, model, optimisation, metrics, checkpoints, validation, resume.
 
-SPEC.md "Training": SGD with momentum 0.9, weight decay 0.0005 (on weights; biases and
+docs/conventions.md "Training": SGD with momentum 0.9, weight decay 0.0005 (on weights; biases and
 BatchNorm parameters are not decayed, as in the Caffe VGG16 models), base lr 0.005, the lr
 times ``gamma`` at each of ``lr_steps`` (Caffe "multistep"); 2 images x 128 RoIs, 25% foreground.
 
@@ -25,6 +25,9 @@ from __future__ import annotations
 import json
 import logging
 import os
+import signal
+import sys
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,7 +36,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from a3d.runtime.io.detections_io import atomic_write_bytes
+from a3d.runtime.io.atomic import atomic_write_bytes
 from a3d.runtime.sources.folder import read_folder_intrinsics
 from a3d.runtime.structures.classes import CLASSES
 from a3d.train.checkpoint import load_checkpoint, save_checkpoint
@@ -71,6 +74,43 @@ class TrainResult:
     iteration: int
     last_loss: float | None
     val_map: float | None  # mAP@0.25 over the 19 classes at the last validation (None: none run)
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """Ctrl-C or SIGTERM stopped the loop after a whole iteration, whose checkpoint is saved."""
+
+
+class _StopRequest:
+    """While the loop runs, SIGINT and SIGTERM ask it to stop at the end of the iteration (a
+    checkpoint taken mid-step would hold half-updated weights); a second signal stops at once.
+
+    Only in a single process on the main thread: under DDP every rank would have to agree on the
+    iteration to stop at, so there the periodic checkpoints are what --resume continues from.
+    """
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self, enabled: bool) -> None:
+        self.enabled = enabled and threading.current_thread() is threading.main_thread()
+        self.requested = False
+        self._previous: dict[int, object] = {}
+
+    def __enter__(self) -> _StopRequest:
+        if self.enabled:
+            self._previous = {sig: signal.signal(sig, self._handle) for sig in self.SIGNALS}
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
+    def _handle(self, signum: int, _frame: object) -> None:
+        if self.requested:
+            raise KeyboardInterrupt
+        self.requested = True
+        name = signal.Signals(signum).name
+        print(f"\n{name}: stopping after this iteration to save a checkpoint (again: stop now, unsaved)",
+              file=sys.stderr)  # fmt: skip
 
 
 def resolve_device(name: str | None) -> torch.device:
@@ -156,8 +196,9 @@ def plot_losses(metrics_path: Path, png_path: Path) -> None:
         ax2.set_ylim(bottom=0)
         h2, l2 = ax2.get_legend_handles_labels()
         handles, labels = handles + h2, labels + l2
-    if handles:
-        ax.legend(handles, labels, loc="upper right", fontsize=8)
+    if handles:  # below the axes: inside, it hid the last validation marker (upper right)
+        ax.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=len(handles),
+                  fontsize=8, frameon=False)  # fmt: skip
     fig.tight_layout()
     tmp = png_path.with_name(f".{png_path.name}.tmp.png")
     fig.savefig(tmp, dpi=100)
@@ -176,18 +217,23 @@ def train(
     *,
     device: str | None = None,
     resume: bool = False,
+    overwrite: bool = False,
     val_data: str | os.PathLike | None = None,
 ) -> TrainResult:
     """Train on the annotated frames of ``data`` into ``run_dir`` (see the module docstring).
 
     ``resume``: continue from ``run_dir/checkpoint.pt`` (``config`` should be the checkpoint's,
-    see a3d.train.cli). Without it, an existing checkpoint in ``run_dir`` is an error.
+    see a3d.train.cli). Without it, a run in ``run_dir`` (a checkpoint or metrics) is an error,
+    unless ``overwrite``: then its checkpoint, metrics and plot are deleted first.
     ``val_data``: annotated frames scored every ``log.val_every`` iterations and at the end.
+    Ctrl-C or SIGTERM (single process) stops after the current iteration with its checkpoint
+    saved, raising ``TrainingInterrupted``.
     """
     dev = resolve_device(device)
     info = init_distributed(dev)
     try:
-        return _Run(Path(data), Path(run_dir), config, local_device(dev, info), info, resume, val_data).loop()
+        dev = local_device(dev, info)
+        return _Run(Path(data), Path(run_dir), config, dev, info, resume, overwrite, val_data).loop()
     finally:
         shutdown(info)
 
@@ -196,13 +242,20 @@ class _Run:
     """One training run: its state (model, optimizer, data) and the loop over iterations."""
 
     def __init__(self, data: Path, run: Path, config: TrainConfig, dev: torch.device, info: DistInfo,
-                 resume: bool, val_data) -> None:  # fmt: skip
+                 resume: bool, overwrite: bool, val_data) -> None:  # fmt: skip
         self.run, self.config, self.dev, self.info, self.val_data = run, config, dev, info, val_data
         solver = config.solver
         self.ckpt_path = run / CHECKPOINT_NAME
         state = load_checkpoint(self.ckpt_path) if resume else None
-        if state is None and self.ckpt_path.exists():
-            raise ValueError(f"{self.ckpt_path}: a run exists here; pass --resume or pick another --out")
+        earlier = [run / name for name in (CHECKPOINT_NAME, METRICS_NAME, PLOT_NAME)]
+        if state is None and any(path.exists() for path in earlier):
+            if not overwrite:
+                raise ValueError(f"{run}: a run exists here; pass --resume to continue it, --force to start "
+                                 "it again, or pick another --out")  # fmt: skip
+            if info.is_main:
+                for path in earlier:
+                    path.unlink(missing_ok=True)
+            barrier(info)
         if info.is_main:
             run.mkdir(parents=True, exist_ok=True)
             atomic_write_bytes(run / CONFIG_NAME, (config.to_json() + "\n").encode())
@@ -254,31 +307,38 @@ class _Run:
         window_n, window_start = 0, time.perf_counter()
         last_loss, val_map = None, None
         self.net.train()
-        for iteration, batch in zip(range(self.start, solver.iterations), self.loader, strict=False):
-            values = self.step(iteration, batch)
-            done = iteration + 1
-            final = done == solver.iterations
-            for key, value in values.items():
-                window[key] = window.get(key, 0.0) + value
-            window_n += 1
-            postfix.update({short: f"{values[key]:.3f}" for short, key in _POSTFIX})
-            if done % log.log_every == 0 or final:
-                means = mean_over_ranks({k: v / window_n for k, v in window.items()}, info, self.dev)
-                speed = window_n / (time.perf_counter() - window_start)
-                last_loss = means["loss"]
-                if self.metrics:
-                    lr = lr_at(iteration, solver)
-                    self.metrics.write({"kind": "train", "iter": done, "lr": lr, **means, "it_per_s": speed})
-                window, window_n, window_start = {}, 0, time.perf_counter()
-            if self.val_data is not None and ((log.val_every and done % log.val_every == 0) or final):
-                if info.is_main:
-                    val_map = self.validate(done)
-                    postfix["val_map25"] = f"{100 * val_map:.1f}"
-                barrier(info)
-            if done % log.checkpoint_every == 0 or final:
-                self.checkpoint(done)
-            bar.set_postfix(postfix, refresh=False)
-            bar.update(1)
+        with _StopRequest(enabled=not info.enabled) as stop:
+            for iteration, batch in zip(range(self.start, solver.iterations), self.loader, strict=False):
+                values = self.step(iteration, batch)
+                done = iteration + 1
+                final = done == solver.iterations
+                for key, value in values.items():
+                    window[key] = window.get(key, 0.0) + value
+                window_n += 1
+                postfix.update({short: f"{values[key]:.3f}" for short, key in _POSTFIX})
+                if done % log.log_every == 0 or final:
+                    means = mean_over_ranks({k: v / window_n for k, v in window.items()}, info, self.dev)
+                    speed = window_n / (time.perf_counter() - window_start)
+                    last_loss = means["loss"]
+                    if self.metrics:
+                        record = {"kind": "train", "iter": done, "lr": lr_at(iteration, solver), **means}
+                        self.metrics.write({**record, "it_per_s": speed})
+                    window, window_n, window_start = {}, 0, time.perf_counter()
+                if self.val_data is not None and ((log.val_every and done % log.val_every == 0) or final):
+                    if info.is_main:
+                        val_map = self.validate(done)
+                        postfix["val_map25"] = f"{100 * val_map:.1f}"
+                    barrier(info)
+                if done % log.checkpoint_every == 0 or final:
+                    self.checkpoint(done)
+                bar.set_postfix(postfix, refresh=False)
+                bar.update(1)
+                if stop.requested and not final:
+                    if done % log.checkpoint_every:
+                        self.checkpoint(done)
+                    bar.close()
+                    raise TrainingInterrupted(f"checkpoint of iteration {done} saved in {self.ckpt_path}; "
+                                              f"--resume continues")  # fmt: skip
         bar.close()
         return TrainResult(self.run, max(self.start, solver.iterations), last_loss, val_map)
 

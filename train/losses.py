@@ -1,4 +1,4 @@
-"""The multi-task loss (paper eq. 4, SPEC.md "Training").
+"""The multi-task loss (paper eq. 4, docs/conventions.md "Training").
 
     L = CE(p, c) + lambda_3d [c >= 1] smoothL1(t3d_c - v3d) + lambda_2d [c >= 1] smoothL1(t2d_c - v2d)
 

@@ -1,6 +1,6 @@
 """Colour-crop classification pretraining of a VGG16 trunk: a3d's stand-in for ImageNet weights.
 
-The paper starts both trunks from ImageNet VGG16 (SPEC.md "Network"). Nothing can be downloaded
+The paper starts both trunks from ImageNet VGG16 (docs/conventions.md "Network"). Nothing can be downloaded
 here, and a width-scaled trunk has no ImageNet weights anyway, so a3d-pretrain does what ImageNet
 pretraining does on data that exists: it trains the configuration's VGG16 trunk (width,
 BatchNorm) with VGG's classifier (fc6, fc7, output) to classify colour crops of the annotated
@@ -32,7 +32,7 @@ from torch import nn
 from tqdm import tqdm
 
 from a3d.runtime.errors import InputError
-from a3d.runtime.io.detections_io import atomic_write_bytes
+from a3d.runtime.io.atomic import atomic_write_bytes
 from a3d.runtime.network.preprocess import COLOR_MEAN_BGR
 from a3d.runtime.sources.folder import list_frames, read_folder_intrinsics, read_frame, read_ground_truth
 from a3d.runtime.structures.classes import NUM_CLASSES

@@ -1,6 +1,6 @@
 """The RoI database: per training frame, the labelled RoIs and the 3D boxes they regress from and to.
 
-Per frame (SPEC.md "Proposals and 3D box initialisation", "Training"):
+Per frame (docs/conventions.md "Proposals and initial 3D boxes", "Training"):
 
 - RoIs are the ground truth's visible boxes (``box2d_visible``, the paper's ``gt2d_sel``), added
   as in Fast R-CNN, followed by the runtime's class-agnostic segment proposals (or the frame's
@@ -8,16 +8,19 @@ Per frame (SPEC.md "Proposals and 3D box initialisation", "Training"):
 - Labels by 2D IoU with the visible boxes: foreground (the best box's class) at IoU >= fg_iou,
   background for IoU in [bg_iou_low, fg_iou); other proposals are dropped.
 - Each RoI's segment (a ground truth's instance mask, a proposal's segment) is lifted to a 3D
-  centre by the runtime (``a3d.runtime.frontend.lifting``; proposals through the runtime's own front end,
-  ``a3d.runtime.pipeline.prepare``, which drops proposals without any depth); a foreground
+  centre by the runtime's front end (hole filling, ``a3d.runtime.frontend.frame_proposals``,
+  ``a3d.runtime.frontend.lifting``; proposals without any depth are dropped, as a3d-run drops
+  them); a foreground
   RoI's initial 3D box is that centre with the mean size of its ground truth's class over the
   training set (theta 0). Its 3D target is the matched ground-truth box, its 2D target the
   ground truth's amodal 2D box.
 
-The expensive part, proposals and lifting, depends on the frame and the proposal configuration
-only: it is cached per frame as ``CACHE/NAME-KEY.npz`` where KEY hashes the proposal config and
-the frame files' sizes and modification times. Labels and initial boxes are cheap and rebuilt
-in memory on every run (they depend on the class mean sizes of the whole training set).
+The expensive part, the front end, depends on the frame and the proposal configuration only: it
+runs once per frame and is cached as ``CACHE/NAME-KEY.npz`` (proposal boxes, lifted centres)
+and ``CACHE/NAME-KEY.filled.npy`` (the hole-filled depth, which the mini-batches read instead of
+filling the holes again), where KEY hashes the proposal config and the frame files' sizes and
+modification times. Labels and initial boxes are cheap and rebuilt in memory on every run (they
+depend on the class mean sizes of the whole training set).
 """
 
 from __future__ import annotations
@@ -26,7 +29,6 @@ import hashlib
 import json
 import multiprocessing
 import os
-import tempfile
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
@@ -38,9 +40,10 @@ from tqdm import tqdm
 
 from a3d.runtime.errors import InputError
 from a3d.runtime.frontend.depth import fill_depth
+from a3d.runtime.frontend.frame_proposals import frame_proposals
 from a3d.runtime.frontend.lifting import initial_boxes, lift
 from a3d.runtime.frontend.proposals import ProposalConfig
-from a3d.runtime.pipeline import PipelineConfig, prepare
+from a3d.runtime.io.atomic import atomic_write
 from a3d.runtime.sources.folder import (
     FrameRef,
     list_frames,
@@ -53,7 +56,8 @@ from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES
 from a3d.runtime.structures.frame import GroundTruth
 from a3d.runtime.structures.geometry import Intrinsics, iou_2d
 
-CACHE_VERSION = 2
+CACHE_VERSION = 3
+FILLED_DEPTH_SUFFIX = ".filled.npy"
 MIN_VISIBLE_AREA = 1.0  # px^2: a ground truth with a smaller visible box has no RoI
 
 
@@ -85,20 +89,23 @@ def ground_truth_masks(ref: FrameRef, gt: GroundTruth, image_size: tuple[int, in
 
 def compute_front_end(
     ref: FrameRef, gt: GroundTruth, intrinsics: Intrinsics | None, config: ProposalConfig
-) -> FrontEnd:
-    """The runtime's own front end (a3d.runtime.pipeline.prepare: proposals or NAME.proposals.npz,
-    lifting), plus the lifted ground-truth segments."""
-    pipeline = PipelineConfig(mean_sizes=np.ones((NUM_CLASSES, 3)), proposals=config,
-                              max_proposals=config.max_proposals)  # fmt: skip
-    prepared = prepare(read_frame(ref, intrinsics, with_proposals=True), pipeline)
-    frame = prepared.frame
+) -> tuple[FrontEnd, np.ndarray]:
+    """The runtime's front end on one frame, as a3d-run runs it (hole filling, its proposals or
+    NAME.proposals.npz, lifting), plus the lifted ground-truth segments; and the filled depth."""
+    frame = read_frame(ref, intrinsics, with_proposals=True)
+    filled = fill_depth(frame.depth)
+    segments, boxes = frame_proposals(frame.color, filled, frame.intrinsics, config, frame.proposals)
+    centers = np.zeros((0, 3))
+    if len(boxes):
+        lifted = lift(segments, frame.depth, filled, frame.intrinsics)
+        boxes, centers = boxes[lifted.valid], lifted.centers[lifted.valid]
     if len(gt.class_ids):
         masks = ground_truth_masks(ref, gt, frame.image_size)
-        lifted = lift(masks, frame.depth, fill_depth(frame.depth), frame.intrinsics)
+        lifted = lift(masks, frame.depth, filled, frame.intrinsics)
         gt_centers, gt_valid = lifted.centers, lifted.valid
     else:
         gt_centers, gt_valid = np.zeros((0, 3)), np.zeros(0, dtype=bool)
-    return FrontEnd(frame.image_size, prepared.boxes, prepared.centers, gt_centers, gt_valid)
+    return FrontEnd(frame.image_size, boxes, centers, gt_centers, gt_valid), filled
 
 
 @dataclass
@@ -110,6 +117,7 @@ class FrameRois:
 
     name: str
     ref: FrameRef
+    filled_depth_path: Path  # the front end's hole-filled depth (H, W) float32, in the cache
     image_size: tuple[int, int]  # (H, W)
     boxes: np.ndarray  # (R, 4) float32 RoI boxes [x1, y1, x2, y2]
     labels: np.ndarray  # (R,) int64 softmax index: 0 background, 1 + class index foreground
@@ -170,7 +178,13 @@ def label_rois(
 
 
 def frame_rois(
-    ref: FrameRef, gt: GroundTruth, front: FrontEnd, mean_sizes: np.ndarray, fg_iou: float, bg_iou_low: float
+    ref: FrameRef,
+    gt: GroundTruth,
+    front: FrontEnd,
+    filled_depth_path: Path,
+    mean_sizes: np.ndarray,
+    fg_iou: float,
+    bg_iou_low: float,
 ) -> FrameRois:
     """One frame's record from its ground truth and its (cached) front-end results."""
     visible = np.asarray(gt.boxes2d_visible, np.float64)
@@ -189,6 +203,7 @@ def frame_rois(
     return FrameRois(
         name=ref.name,
         ref=ref,
+        filled_depth_path=filled_depth_path,
         image_size=front.image_size,
         boxes=boxes.astype(np.float32),
         labels=labels,
@@ -230,7 +245,8 @@ def build_roidb(
     for (ref, gt), front in zip(
         annotated, _front_ends(annotated, intrinsics, config, cache_dir, progress), strict=True
     ):
-        record = frame_rois(ref, gt, front, mean_sizes, config.data.fg_iou, config.data.bg_iou_low)
+        filled = _cache_path(ref, config.proposals, cache_dir, FILLED_DEPTH_SUFFIX)
+        record = frame_rois(ref, gt, front, filled, mean_sizes, config.data.fg_iou, config.data.bg_iou_low)
         if len(record.labels):
             records.append(record)
         else:
@@ -252,7 +268,7 @@ def _front_ends(
                       cache_dir=cache_dir)  # fmt: skip
     refs, truths = [ref for ref, _ in annotated], [gt for _, gt in annotated]
     workers = config.data.front_end_workers or os.cpu_count() or 1
-    missing = sum(not _cache_path(ref, config.proposals, cache_dir).is_file() for ref in refs)
+    missing = sum(not _is_cached(ref, config.proposals, cache_dir) for ref in refs)
     bar = partial(tqdm, total=len(annotated), desc="RoI database", disable=not progress, unit="frame")
     if workers == 1 or missing < 2 * workers:
         yield from bar(map(compute, refs, truths))
@@ -263,8 +279,16 @@ def _front_ends(
         yield from bar(pool.map(compute, refs, truths, chunksize=4))
 
 
-def _cache_path(ref: FrameRef, proposal_config: ProposalConfig, cache_dir: str | os.PathLike) -> Path:
-    return Path(cache_dir) / f"{ref.name}-{cache_key(ref, proposal_config)}.npz"
+def _cache_path(
+    ref: FrameRef, proposal_config: ProposalConfig, cache_dir: str | os.PathLike, suffix: str = ".npz"
+) -> Path:
+    return Path(cache_dir) / f"{ref.name}-{cache_key(ref, proposal_config)}{suffix}"
+
+
+def _is_cached(ref: FrameRef, proposal_config: ProposalConfig, cache_dir: str | os.PathLike) -> bool:
+    return all(
+        _cache_path(ref, proposal_config, cache_dir, s).is_file() for s in (".npz", FILLED_DEPTH_SUFFIX)
+    )
 
 
 def cache_key(ref: FrameRef, proposal_config) -> str:
@@ -283,9 +307,10 @@ def cached_front_end(
     proposal_config: ProposalConfig,
     cache_dir: str | os.PathLike,
 ) -> FrontEnd:
-    """Proposals and lifted centres of one frame (and of its ground-truth segments), cached on disk."""
+    """Proposals and lifted centres of one frame (and of its ground-truth segments), cached on disk
+    with the frame's filled depth; computed only when either file is missing or unreadable."""
     path = _cache_path(ref, proposal_config, cache_dir)
-    if path.is_file():
+    if _is_cached(ref, proposal_config, cache_dir):
         try:
             with np.load(path) as z:
                 arrays = {k: z[k] for k in z.files}
@@ -293,21 +318,13 @@ def cached_front_end(
             return FrontEnd(**arrays)
         except (OSError, ValueError, KeyError, TypeError):
             pass  # unreadable (a file from another version): recompute
-    front = compute_front_end(ref, gt, intrinsics, proposal_config)
-    _atomic_savez(path, front)
+    front, filled = compute_front_end(ref, gt, intrinsics, proposal_config)
+    atomic_write(
+        _cache_path(ref, proposal_config, cache_dir, FILLED_DEPTH_SUFFIX), lambda f: np.save(f, filled)
+    )
+    arrays = {k: np.asarray(v) for k, v in asdict(front).items()}
+    atomic_write(path, lambda f: np.savez(f, **arrays))  # last: it marks the frame as cached
     return front
-
-
-def _atomic_savez(path: Path, front: FrontEnd) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".npz", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, **{k: np.asarray(v) for k, v in asdict(front).items()})
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def describe(db: RoiDB) -> dict:

@@ -1,4 +1,4 @@
-"""Mini-batch plans: which images, flipped or not, and which RoIs (SPEC.md "Training").
+"""Mini-batch plans: which images, flipped or not, and which RoIs (docs/conventions.md "Training").
 
 Every choice is a pure function of ``(seed, iteration, rank)``: no random state is carried from
 one iteration to the next, so a resumed run (or a worker process) recomputes exactly the batches

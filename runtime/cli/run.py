@@ -31,22 +31,28 @@ import itertools
 import logging
 import os
 import sys
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
-import rerun as rr
 from tqdm import tqdm
 
-from a3d.runtime.errors import InputError, ModelError
+from a3d.runtime.cli.common import build_parser as command_parser
+from a3d.runtime.cli.common import command
+from a3d.runtime.errors import InputError
 from a3d.runtime.io.detections_io import format_line, parse_line
 from a3d.runtime.network.model import DetectorModel
 from a3d.runtime.pipeline import PROPOSAL_SOURCES, FrameOutcome, PipelineConfig, detect_frames
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.folder import MODEL_FILE
 from a3d.runtime.sources.registry import FrameSource, SourceOptions, kinds, open_source
-from a3d.runtime.viewer import view as viewer
+from a3d.runtime.viewer import options as viewer
+
+if TYPE_CHECKING:
+    import rerun as rr
 
 PROG = "a3d-run"
 DEFAULT_MODEL = MODEL_FILE
@@ -55,23 +61,21 @@ DEFAULT_OUTPUT = "detections.jsonl"
 load_model = DetectorModel.load  # the model loader (tests substitute a fake model here)
 
 
-def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog=PROG, description=__doc__.split("\n\n")[0])
-    p.add_argument("source", type=Path, help="frame source: an a3d frame folder, or another registered kind")
-    p.add_argument(
-        "--source-format", choices=kinds(), help="the kind of SOURCE (default: recognised from it)"
-    )
+def build_parser() -> argparse.ArgumentParser:
+    p = command_parser(PROG, __doc__.split("\n\n")[0])
+    p.add_argument("source", type=Path, help="frame source: an a3d frame folder or another registered kind")
+    p.add_argument("--source-format", choices=kinds(), help="the kind of SOURCE (default: recognised)")
     p.add_argument("--model", type=Path, help=f"model file (default: FOLDER/{DEFAULT_MODEL})")
     p.add_argument("--color-topic", metavar="TOPIC", help="bag: the colour topic (default: the only one)")
     p.add_argument("--depth-topic", metavar="TOPIC", help="bag: the depth topic (default: the only one)")
-    p.add_argument("--output", default=DEFAULT_OUTPUT, help="JSON lines file, '-': stdout (%(default)s)")
-    p.add_argument("--threads", type=int, default=2, help="CPU threads, OpenCV and ONNX Runtime (default: 2)")
+    p.add_argument("--output", default=DEFAULT_OUTPUT, help="JSON lines file, '-': stdout")
+    p.add_argument("--threads", type=int, default=2, help="CPU threads, OpenCV and ONNX Runtime")
     p.add_argument(
         "--proposals",
         choices=PROPOSAL_SOURCES,
         default="auto",
         help="auto: NAME.proposals.npz where present, else computed; compute: always computed; "
-        "precomputed: NAME.proposals.npz required (default: auto)",
+        "precomputed: NAME.proposals.npz required",
     )
     p.add_argument("--max-proposals", type=int, metavar="N", help="proposals per frame (default: model)")
     p.add_argument("--score-threshold", type=float, metavar="S", help="drop scores below S (default: model)")
@@ -82,7 +86,7 @@ def _parser() -> argparse.ArgumentParser:
         type=float,
         default=0.3,
         metavar="S",
-        help="rerun view: draw detections scoring >= S (all are written to the output; default: %(default)s)",
+        help="rerun view: draw detections scoring >= S (all are written to the output)",
     )
     p.add_argument(
         "--overlap",
@@ -96,7 +100,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def _arguments(argv: list[str] | None) -> argparse.Namespace:
     """Parsed and checked flags (argparse exits with status 2 on a usage error)."""
-    parser = _parser()
+    parser = build_parser()
     args = parser.parse_args(argv)
     if args.threads < 1:
         parser.error("--threads must be at least 1")
@@ -108,6 +112,8 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
         parser.error("--score-threshold must be in [0, 1]")
     if args.output == "-" and (args.resume or args.stdout):
         parser.error("--output - cannot be combined with --resume or --stdout")
+    if not args.source.exists() and ":" not in str(args.source):  # "realsense:SERIAL" names no file
+        parser.error(f"{args.source}: no such file or folder")
     if args.model is None:
         args.model = args.source / DEFAULT_MODEL
         if not args.model.is_file():
@@ -165,16 +171,24 @@ def _frames_to_do(
             close()
 
 
-def main(argv: list[str] | None = None) -> int:
+@dataclass(frozen=True)
+class FrameReport:
+    """What a run did with one frame, handed to ``main``'s ``on_frame`` once the frame is written and
+    logged: for callers that time a3d-run's own loop (bench/edge_speed.py) without patching it.
+    ``output_seconds``: formatting + writing the line; ``log_seconds``: the synchronous rerun logging."""
+
+    outcome: FrameOutcome
+    output_seconds: float
+    log_seconds: float
+
+
+@command(PROG)
+def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] | None = None) -> int:
     args = _arguments(argv)
-    try:
-        job = _job(args)
-        recording = _open_recording(args)
-        view = viewer.ViewOptions(min_score=args.view_min_score)
-        output = _open_output(args.output, append=args.resume)
-    except (InputError, ModelError) as e:
-        print(f"{PROG}: error: {e}", file=sys.stderr)
-        return 2
+    job = _job(args)  # InputError / ModelError: exit 2 before any frame (command)
+    recording = _open_recording(args)
+    view = viewer.ViewOptions(min_score=args.view_min_score)
+    output = _open_output(args.output, append=args.resume)
     failures = list(job.source.incomplete)
     for problem in failures:
         print(f"{PROG}: {problem}", file=sys.stderr)
@@ -189,10 +203,15 @@ def main(argv: list[str] | None = None) -> int:
         with _threads(1 if args.overlap else args.threads), _warnings_to_stderr():
             for outcome in detect_frames(todo, job.model, job.config, overlap=args.overlap):
                 problem = outcome.problem
+                start = written_at = logged_at = time.perf_counter()
                 if outcome.detections is not None:
                     output.write(format_line(outcome.detections))
                     written += 1
+                    written_at = time.perf_counter()
                     problem = _log(recording, index[outcome.name], outcome, view)
+                    logged_at = time.perf_counter()
+                if on_frame is not None:
+                    on_frame(FrameReport(outcome, written_at - start, logged_at - written_at))
                 if problem:
                     failures.append(problem)
                     tqdm.write(f"{PROG}: {problem}", file=sys.stderr)
@@ -210,8 +229,7 @@ def main(argv: list[str] | None = None) -> int:
         if recording is not None:
             recording.flush()
     if recording is not None:
-        rr.script_teardown(args)  # --serve: keeps serving until Ctrl-C
-        rr.disconnect(recording)
+        viewer.load_view().close_recording(args, recording)  # --serve: keeps serving until Ctrl-C
     resumed = f", {len(job.done)} already there" if args.resume else ""
     where = "stdout" if args.output == "-" else args.output
     print(f"{PROG}: {written} frames written to {where}{resumed}, {len(failures)} failed", file=sys.stderr)
@@ -291,9 +309,10 @@ def _open_recording(args: argparse.Namespace) -> rr.RecordingStream | None:
     """The rerun recording the flags ask for, with the static entities logged; None for none."""
     if not viewer.viewer_requested(args):
         return None
+    view = viewer.load_view()  # rerun is imported here, only when a view or recording is asked for
     try:
-        recording = viewer.open_recording(args)
-        viewer.log_static(recording)
+        recording = view.open_recording(args)
+        view.log_static(recording)
     except (OSError, RuntimeError, ValueError) as e:
         raise InputError(f"rerun: cannot open the recording ({e})") from None
     return recording
@@ -310,7 +329,7 @@ def _log(
     frame, det = outcome.prepared.frame, outcome.detections
     gt = frame.truth
     try:
-        viewer.log_frame(
+        viewer.load_view().log_frame(
             recording,
             index,
             color=frame.color,

@@ -1,4 +1,4 @@
-"""Initial 3D boxes of 2D segment proposals (SPEC.md "Proposals and 3D box initialisation").
+"""Initial 3D boxes of 2D segment proposals (docs/conventions.md "Proposals and initial 3D boxes").
 
 A proposal's z is the median raw depth over its pixels with valid (non-zero) raw depth, or, when
 it has none, the median hole-filled depth over all its pixels. Its (x, y) is the back-projection

@@ -52,7 +52,7 @@ from a3d.runtime.frontend.grouping import (
 from a3d.runtime.frontend.normals import NormalConfig, surface_normals
 from a3d.runtime.frontend.superpixels import SuperpixelConfig, depth_edges, oversegment
 from a3d.runtime.io.plain_config import MAX_COUNT, dataclass_from_plain
-from a3d.runtime.structures.geometry import Intrinsics
+from a3d.runtime.structures.geometry import Intrinsics, boxes_from_pixel_bounds
 
 DEFAULT_STRATEGIES: tuple[Strategy, ...] = (
     Strategy(color=1.0, size=1.0, fill=1.0),
@@ -110,6 +110,7 @@ def proposal_config_from_dict(values: Mapping[str, Any], where: str = "proposal_
     """A ProposalConfig from its plain form (nested dicts, lists for tuples; missing keys keep
     defaults), every value type- and range-checked: a ModelError names the first bad setting."""
     return dataclass_from_plain(ProposalConfig, values, where, _LIMITS)
+
 
 @dataclass(frozen=True)
 class Proposals:
@@ -272,7 +273,7 @@ def _member_boxes(sp_box: np.ndarray, indptr: np.ndarray, indices: np.ndarray) -
     b = sp_box[indices]
     lo = np.minimum.reduceat(b[:, :2], starts, axis=0)
     hi = np.maximum.reduceat(b[:, 2:], starts, axis=0)
-    return np.concatenate([lo - 0.5, hi + 0.5], axis=1).astype(np.float64)
+    return boxes_from_pixel_bounds(np.concatenate([lo, hi], axis=1))
 
 
 def _ranked_unique(

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import json
 import os
-import uuid
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from a3d.runtime.errors import InputError
+from a3d.runtime.io.atomic import atomic_write_bytes
 from a3d.runtime.io.json_input import is_finite_number, parse_json
 from a3d.runtime.structures.classes import CLASSES
 from a3d.runtime.structures.geometry import box_corners_camera, check_rotation
@@ -62,24 +62,6 @@ class FrameDetections:
     def to_json(self) -> str:
         """The frame's detections line, exactly as a3d-run writes it (no trailing newline)."""
         return format_line(self)
-
-
-def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
-    """Write a file so that readers see the old content or the new one, never a partial file.
-
-    The temporary file is opened like any new file (mode 0666 less the umask, unlike mkstemp's
-    0600) next to the target, then renamed over it.
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
-    try:
-        with open(tmp, "xb") as f:
-            f.write(data)
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
 
 
 def format_line(det: FrameDetections) -> str:

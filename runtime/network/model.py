@@ -63,7 +63,7 @@ class ModelMetadata:
     network inputs' preprocessing (a3d.runtime.network.preprocess). input_scale: the frame is resized by
     this factor before the network (boxes with network_input.scale_boxes); context_scale: context
     box = proposal box scaled about its centre. score_threshold, nms_iou, top_k: post-processing
-    (SPEC.md "Inference and post-processing"); max_proposals: proposals per frame.
+    (docs/conventions.md "Inference and post-processing"); max_proposals: proposals per frame.
     proposal_config: the a3d.runtime.frontend.proposals.ProposalConfig the model was trained with, as a
     plain dict. content_sha256: the integrity digest (module docstring). provenance: free-form
     (package version, training config, checkpoint hash, export options, verification numbers).

@@ -12,6 +12,27 @@ import cv2
 import numpy as np
 
 from a3d.runtime.network.preprocess import color_input, depth_input
+from a3d.runtime.structures.geometry import context_boxes
+
+
+def frame_network_inputs(
+    color_bgr: np.ndarray,
+    depth_filled: np.ndarray,
+    boxes: np.ndarray,
+    scale: float,
+    truncation: float,
+    context_scale: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Everything the network takes for one frame and its proposal boxes (N, 4, native pixels):
+    colour and depth trunk inputs (3, h, w) float32 at ``scale`` (``network_inputs``), and the
+    RoIs and context RoIs (N, 4) float32 in the resized image's pixels. The runtime and training
+    (on flipped frames too) both build their inputs here, so they cannot drift apart."""
+    color_in, depth_in, (sx, sy) = network_inputs(
+        np.ascontiguousarray(color_bgr), np.ascontiguousarray(depth_filled), scale, truncation
+    )
+    context = context_boxes(boxes, depth_filled.shape, context_scale)
+    rois = scale_boxes(boxes, sx, sy).astype(np.float32)
+    return color_in, depth_in, rois, scale_boxes(context, sx, sy).astype(np.float32)
 
 
 def network_inputs(

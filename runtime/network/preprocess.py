@@ -1,4 +1,4 @@
-"""Network input tensors from a colour image and a hole-filled depth map (SPEC.md "Network").
+"""Network input tensors from a colour image and a hole-filled depth map (docs/conventions.md "Network").
 
 Training (a3d.train) and the runtime both build their inputs here, so the constants cannot drift.
 Both functions return float32 arrays in CHW layout at the image's native size.

@@ -1,6 +1,6 @@
 """Regression targets of the box regressors, and their inverse (numpy, float64).
 
-3D (SPEC.md "Regression targets"), proposal P and ground truth G as 7-vectors
+3D (docs/conventions.md "Regression targets"), proposal P and ground truth G as 7-vectors
 ``[x, y, z, l, w, h, theta]``::
 
     dx = (Gx - Px) / Pl   dy = (Gy - Py) / Ph   dz = (Gz - Pz) / Pw

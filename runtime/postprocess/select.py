@@ -1,4 +1,4 @@
-"""From the network's per-RoI outputs to detections (SPEC.md "Inference and post-processing").
+"""From the network's per-RoI outputs to detections (docs/conventions.md "Inference and post-processing").
 
 Per class: the ``top_k`` best-scoring proposals (the release keeps at most 100 per class and
 image), then greedy 2D NMS at ``nms_iou`` on the proposal boxes; no NMS in 3D, no pruning by

@@ -1,4 +1,4 @@
-"""The 19 NYUv2 object classes of Deng & Latecki (SPEC.md "Task").
+"""The 19 NYUv2 object classes of Deng & Latecki (docs/conventions.md "Task").
 
 Index 0 of the network's 20-way softmax is background; class ``CLASSES[i]`` is
 softmax index ``i + 1``.

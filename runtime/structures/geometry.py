@@ -1,6 +1,6 @@
 """Camera, 3D-box and 2D-box geometry of a3d: pure numpy (float64), no torch, no scipy.
 
-Conventions (SPEC.md "Coordinates" and "3D box parametrisation", README "Conventions"):
+Conventions (docs/conventions.md "Camera and tilt frames" and "3D boxes"):
 
 * Camera frame: x right, y down, z forward, metres. Pixel ``(u, v)`` (column, row) has its
   centre at ``(u, v)``; a pixel with depth ``z`` back-projects to ``x = (u - cx) z / fx``,
@@ -397,19 +397,29 @@ def project_boxes_to_2d(
 # ----------------------------------------------------------------------------- 2D boxes
 
 
-def box_area_2d(boxes: np.ndarray) -> np.ndarray:
-    """Areas (N,) of 2D boxes, ``(x2 - x1) * (y2 - y1)``, 0 for empty or inverted boxes."""
+def box_area_2d(boxes: np.ndarray, plus_one: bool = False) -> np.ndarray:
+    """Areas (N,) of 2D boxes, ``(x2 - x1) * (y2 - y1)``, 0 for empty or inverted boxes.
+
+    ``plus_one``: ``(x2 - x1 + 1) * (y2 - y1 + 1)``, the inclusive-pixel convention of Fast R-CNN's
+    and the Deng & Latecki release's ``nms.m`` (their boxes name first and last pixels, not edges).
+    """
     b = _boxes2d(boxes)
-    return np.maximum(b[:, 2] - b[:, 0], 0.0) * np.maximum(b[:, 3] - b[:, 1], 0.0)
+    one = 1.0 if plus_one else 0.0
+    return np.maximum(b[:, 2] - b[:, 0] + one, 0.0) * np.maximum(b[:, 3] - b[:, 1] + one, 0.0)
 
 
-def iou_2d(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """IoU matrix (N, M) of 2D boxes in continuous coordinates (no +1); 0 when the union is empty."""
+def iou_2d(a: np.ndarray, b: np.ndarray, plus_one: bool = False) -> np.ndarray:
+    """IoU matrix (N, M) of 2D boxes in continuous coordinates (no +1); 0 when the union is empty.
+
+    ``plus_one``: widths and heights ``x2 - x1 + 1`` (see ``box_area_2d``), in the same order of
+    operations as the release's ``nms.m``, so that its overlaps are reproduced to the last bit.
+    """
     a, b = _boxes2d(a, "boxes2d a"), _boxes2d(b, "boxes2d b")
-    iw = np.minimum(a[:, None, 2], b[None, :, 2]) - np.maximum(a[:, None, 0], b[None, :, 0])
-    ih = np.minimum(a[:, None, 3], b[None, :, 3]) - np.maximum(a[:, None, 1], b[None, :, 1])
+    one = 1.0 if plus_one else 0.0
+    iw = np.minimum(a[:, None, 2], b[None, :, 2]) - np.maximum(a[:, None, 0], b[None, :, 0]) + one
+    ih = np.minimum(a[:, None, 3], b[None, :, 3]) - np.maximum(a[:, None, 1], b[None, :, 1]) + one
     inter = np.maximum(iw, 0.0) * np.maximum(ih, 0.0)
-    union = box_area_2d(a)[:, None] + box_area_2d(b)[None, :] - inter
+    union = box_area_2d(a, plus_one)[:, None] + box_area_2d(b, plus_one)[None, :] - inter
     return np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
 
 
@@ -425,7 +435,9 @@ def context_boxes(boxes: np.ndarray, image_size: tuple[int, int], scale: float =
     return np.hstack([np.clip(centre - half, -0.5, limits), np.clip(centre + half, -0.5, limits)])
 
 
-def _greedy_nms(boxes: np.ndarray, scores: np.ndarray, labels: np.ndarray | None, thr: float) -> np.ndarray:
+def _greedy_nms(
+    boxes: np.ndarray, scores: np.ndarray, labels: np.ndarray | None, thr: float, plus_one: bool
+) -> np.ndarray:
     b = _boxes2d(boxes)
     s = np.asarray(scores, dtype=np.float64).reshape(-1)
     if len(s) != len(b) or (labels is not None and len(labels) != len(b)):
@@ -437,14 +449,14 @@ def _greedy_nms(boxes: np.ndarray, scores: np.ndarray, labels: np.ndarray | None
         raise InputError(f"nms: the IoU threshold must be a number, got {thr}")
     order = np.argsort(-s, kind="stable")  # descending score, ties by index
     groups = [order] if labels is None else [order[labels[order] == v] for v in np.unique(labels)]
-    kept = np.concatenate([g[_keep_in_group(b[g], thr)] for g in groups]) if len(order) else order
+    kept = np.concatenate([g[_keep_in_group(b[g], thr, plus_one)] for g in groups]) if len(order) else order
     return kept[np.lexsort((kept, -s[kept]))].astype(np.int64)
 
 
 _MATRIX_NMS_LIMIT = 4000  # boxes per label above which the IoU matrix would be too large
 
 
-def _keep_in_group(boxes: np.ndarray, thr: float) -> np.ndarray:
+def _keep_in_group(boxes: np.ndarray, thr: float, plus_one: bool) -> np.ndarray:
     """Greedy keep mask of boxes already sorted by descending score.
 
     Up to _MATRIX_NMS_LIMIT boxes: from the matrix ``sup[i, j]`` = "i, ranked before j, overlaps
@@ -455,8 +467,8 @@ def _keep_in_group(boxes: np.ndarray, thr: float) -> np.ndarray:
     """
     n = len(boxes)
     if n > _MATRIX_NMS_LIMIT:
-        return _keep_in_group_loop(boxes, thr)
-    sup = np.triu(iou_2d(boxes, boxes) > thr, 1)
+        return _keep_in_group_loop(boxes, thr, plus_one)
+    sup = np.triu(iou_2d(boxes, boxes, plus_one) > thr, 1)
     kept = ~sup.any(axis=0)
     removed = np.zeros(n, dtype=bool)
     while True:
@@ -467,33 +479,33 @@ def _keep_in_group(boxes: np.ndarray, thr: float) -> np.ndarray:
         kept |= newly
 
 
-def _keep_in_group_loop(boxes: np.ndarray, thr: float) -> np.ndarray:
+def _keep_in_group_loop(boxes: np.ndarray, thr: float, plus_one: bool) -> np.ndarray:
     """The plain greedy loop, one vectorised IoU row per kept box (for very large groups)."""
     keep = np.zeros(len(boxes), dtype=bool)
     rest = np.arange(len(boxes))
     while rest.size:
         i, rest = rest[0], rest[1:]
         keep[i] = True
-        rest = rest[iou_2d(boxes[i : i + 1], boxes[rest])[0] <= thr]
+        rest = rest[iou_2d(boxes[i : i + 1], boxes[rest], plus_one)[0] <= thr]
     return keep
 
 
-def nms_2d(boxes: np.ndarray, scores: np.ndarray, iou_threshold: float) -> np.ndarray:
+def nms_2d(boxes: np.ndarray, scores: np.ndarray, iou_threshold: float, plus_one: bool = False) -> np.ndarray:
     """Greedy NMS: indices kept, by descending score (ties: lower index first).
 
     A box is dropped when its continuous IoU with a kept, higher-scored box is > iou_threshold
-    (Fast R-CNN's ``nms``, without its "+1"). Not cv2.dnn.NMSBoxes: that one drops scores <= 0
-    (its score threshold must be >= 0 and is strict), works on float32 scores, and calls two
-    empty boxes IoU 1.
+    (Fast R-CNN's ``nms``, without its "+1"; ``plus_one`` puts it back, see ``iou_2d``). Not
+    cv2.dnn.NMSBoxes: that one drops scores <= 0 (its score threshold must be >= 0 and is
+    strict), works on float32 scores, and calls two empty boxes IoU 1.
     """
-    return _greedy_nms(boxes, scores, None, float(iou_threshold))
+    return _greedy_nms(boxes, scores, None, float(iou_threshold), plus_one)
 
 
 def batched_nms_2d(
-    boxes: np.ndarray, scores: np.ndarray, labels: np.ndarray, iou_threshold: float
+    boxes: np.ndarray, scores: np.ndarray, labels: np.ndarray, iou_threshold: float, plus_one: bool = False
 ) -> np.ndarray:
     """``nms_2d`` within each label (boxes of different labels never suppress each other)."""
-    return _greedy_nms(boxes, scores, np.asarray(labels).reshape(-1), float(iou_threshold))
+    return _greedy_nms(boxes, scores, np.asarray(labels).reshape(-1), float(iou_threshold), plus_one)
 
 
 # ----------------------------------------------------------------------------- 3D IoU
@@ -548,7 +560,7 @@ def iou_3d(a: np.ndarray, b: np.ndarray, R_tilt: np.ndarray) -> np.ndarray:
     """3D IoU matrix (N, M) of boxes rotated about gravity, both sets in one camera frame.
 
     Intersection = area of the footprints' intersection in the tilt-frame (x, z) plane times the
-    overlap of the tilt-frame y ranges (SPEC.md "Evaluation"); union = sum of volumes minus it.
+    overlap of the tilt-frame y ranges (docs/conventions.md "Evaluation"); union = sum of volumes minus it.
     Pairs whose y ranges or circumscribed footprint circles do not overlap are skipped before any
     polygon work. Each remaining footprint of ``a`` is cut by that of ``b`` in ``b``'s own frame
     (an axis-aligned rectangle there). Zero-volume boxes have IoU 0.
@@ -575,3 +587,10 @@ def iou_3d(a: np.ndarray, b: np.ndarray, R_tilt: np.ndarray) -> np.ndarray:
         inter = _rect_intersection_area(poly, half) * dy[i, j]
         out[i, j] = np.clip(inter / (vol_a[i] + vol_b[j] - inter), 0.0, 1.0)
     return out
+
+
+def boxes_from_pixel_bounds(bounds: np.ndarray) -> np.ndarray:
+    """Inclusive pixel bounds ``[u_min, v_min, u_max, v_max]`` (..., 4) of pixel sets -> their 2D
+    boxes (..., 4) float64 in the README convention: pixel (u, v) spans [u - 0.5, u + 0.5], so a
+    box runs along the set's outer pixel edges."""
+    return np.asarray(bounds, np.float64) + np.array([-0.5, -0.5, 0.5, 0.5])

@@ -11,13 +11,13 @@ One entity tree per recording, on a ``frame`` sequence timeline:
   ``world/camera/image`` the pinhole with the colour image, the depth image, the 2D boxes
   and the 3D boxes projected into the image as line strips.
 
-The default blueprint opens on the 3D view beside the camera's 2D view.
+The default blueprint opens on the 3D view beside the camera's 2D view. The flags that ask for
+it, and the import of this module, are in a3d.runtime.viewer.options (rerun is an optional extra).
 """
 
 from __future__ import annotations
 
 import argparse
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -32,29 +32,11 @@ from a3d.runtime.structures.geometry import (
     box_edges_clipped,
     project_points,
 )
+from a3d.runtime.viewer.options import ViewOptions
 
 APPLICATION_ID = "a3d"
+DEFAULT_OPTIONS = ViewOptions()
 GROUND_TRUTH_RGB = (255, 255, 255)  # ground truth in one neutral colour, apart from the class colours
-
-
-@dataclass(frozen=True)
-class ViewOptions:
-    """What to draw besides the detections; the cloud stride trades detail for viewer load."""
-
-    cloud_stride: int = 2
-    show_ground_truth: bool = True
-    max_proposals: int = 0
-    min_score: float = 0.0  # detections below this score are written to the JSON but not drawn
-
-
-def add_viewer_args(parser: argparse.ArgumentParser) -> None:
-    """The rerun SDK's standard script flags: --headless, --connect, --serve, --url, --save, --stdout."""
-    rr.script_add_args(parser)
-
-
-def viewer_requested(args: argparse.Namespace) -> bool:
-    """False for --headless with no sink: then nothing is logged (and nothing buffered in memory)."""
-    return not args.headless or bool(args.save or args.connect or args.serve or args.stdout)
 
 
 def default_blueprint() -> rrb.Blueprint:
@@ -99,6 +81,12 @@ def open_recording(args: argparse.Namespace) -> rr.RecordingStream:
     return rr.script_setup(args, APPLICATION_ID, default_blueprint=default_blueprint())
 
 
+def close_recording(args: argparse.Namespace, rec: rr.RecordingStream) -> None:
+    """With --serve keep serving until Ctrl-C (the SDK's script teardown), then disconnect."""
+    rr.script_teardown(args)
+    rr.disconnect(rec)
+
+
 def log_static(rec: rr.RecordingStream) -> None:
     """World axes and the class annotation context (class id = softmax index = CLASSES index + 1)."""
     rec.log("world", rr.ViewCoordinates.RDF, static=True)
@@ -115,7 +103,8 @@ def log_static(rec: rr.RecordingStream) -> None:
 
 
 def _yaw_rotations(theta: np.ndarray) -> list[rr.RotationAxisAngle]:
-    # Corners are rotated about +y by theta with the right-handed R_y (SPEC.md): the same axis-angle.
+    # Corners are rotated about +y by theta with the right-handed R_y (docs/conventions.md "3D boxes"):
+    # the same axis-angle.
     return [rr.RotationAxisAngle(axis=[0.0, 1.0, 0.0], radians=float(t)) for t in theta]
 
 
@@ -188,7 +177,7 @@ def log_frame(
     gt_class_ids: np.ndarray | None = None,
     gt_boxes3d: np.ndarray | None = None,
     proposals: np.ndarray | None = None,
-    options: ViewOptions = ViewOptions(),
+    options: ViewOptions = DEFAULT_OPTIONS,
 ) -> None:
     """Log one processed frame at sequence ``index`` of the ``frame`` timeline.
 

@@ -27,6 +27,7 @@ import numpy as np
 
 from a3d.runtime.errors import InputError
 from a3d.runtime.sources.proposals_file import PrecomputedProposals
+from a3d.runtime.structures.geometry import boxes_from_pixel_bounds
 from a3d.train.data.nyuv2 import load_mat, matlab_boxes_to_pixels
 
 AUTHORS_MIN_BOX_AREA = 200.0
@@ -96,7 +97,7 @@ def segment_extents(superpixels: np.ndarray, indptr: np.ndarray, indices: np.nda
     starts = indptr[:-1]
     per = [np.minimum.reduceat(lo_u[indices], starts), np.minimum.reduceat(lo_v[indices], starts)]
     per += [np.maximum.reduceat(hi_u[indices], starts), np.maximum.reduceat(hi_v[indices], starts)]
-    return np.stack(per, axis=1).astype(np.float64) + np.array([-0.5, -0.5, 0.5, 0.5])
+    return boxes_from_pixel_bounds(np.stack(per, axis=1))
 
 
 def _label_map(value: Any, path: Path) -> np.ndarray:

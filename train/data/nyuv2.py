@@ -27,7 +27,7 @@ Field mapping to a3d (``read_image``):
 * ``box2d_visible`` = ``gt2Dsel`` in README pixel coordinates:
   ``[xmin - 1.5, ymin - 1.5, xmax - 0.5, ymax - 0.5]`` (1-based inclusive indices -> pixel edges);
 * ``box2d_amodal`` = the 3D box projected with ``NYU_CROP_INTRINSICS`` and clipped to the image;
-* intrinsics: ``geometry.NYU_CROP_INTRINSICS`` (SPEC.md; the struct's ``K`` is not read).
+* intrinsics: ``geometry.NYU_CROP_INTRINSICS`` (docs/conventions.md; the struct's ``K`` is not read).
 
 MATLAB files are read with ``scipy.io.loadmat``, or with ``h5py`` for MATLAB v7.3 (HDF5) files;
 ``load_mat`` turns both into the same plain Python values (structs -> dict, cells -> list,
@@ -52,13 +52,14 @@ from a3d.runtime.structures.geometry import (
     NYU_CROP_INTRINSICS,
     Intrinsics,
     boxes_from_corners_tilt,
+    boxes_from_pixel_bounds,
     check_rotation,
     project_boxes_to_2d,
 )
 
 SPLIT_FILES = {"train": "trainval.txt", "test": "test.txt"}
 SPLIT_SIZES = {"train": 795, "test": 654}
-"""The standard NYUv2 split (SPEC.md "Evaluation")."""
+"""The standard NYUv2 split (docs/conventions.md "Evaluation")."""
 CLASS_ALIASES = {"tv": "television", "nightstand": "night stand", "garbagebin": "garbage bin"}
 """Other spellings of the 19 class names, keyed lower-case without spaces or underscores."""
 _HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
@@ -87,7 +88,7 @@ def normalize_class_name(name: str) -> str | None:
 
 def matlab_boxes_to_pixels(boxes: np.ndarray) -> np.ndarray:
     """``[xmin ymin xmax ymax]`` 1-based inclusive pixel indices -> README ``[x1, y1, x2, y2]``."""
-    return np.asarray(boxes, dtype=np.float64) - np.array([1.5, 1.5, 0.5, 0.5])
+    return boxes_from_pixel_bounds(np.asarray(boxes, dtype=np.float64) - 1.0)
 
 
 def read_split(root: str | Path, split: str) -> list[int]:

@@ -22,6 +22,8 @@ from pathlib import Path
 
 from tqdm import tqdm
 
+from a3d.runtime.cli.common import build_parser as command_parser
+from a3d.runtime.cli.common import command
 from a3d.runtime.errors import InputError
 from a3d.runtime.sources.folder import write_frame, write_intrinsics
 from a3d.runtime.sources.proposals_file import write_precomputed_proposals
@@ -33,9 +35,7 @@ PROG = "a3d-nyuv2"
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog=PROG, description="Convert the authors' NYUv2 release to a3d frames."
-    )
+    parser = command_parser(PROG, "Convert the authors' NYUv2 release to a3d frames.")
     parser.add_argument(
         "release", type=Path, help="unzipped NYUV2_3D_dataset folder (annotations/, color/, ...)"
     )
@@ -44,7 +44,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--depth",
         choices=("raw", "filled"),
         default="raw",
-        help="raw sensor depth with holes (default; a3d fills holes itself) or the release's filled depth",
+        help="raw sensor depth with holes (a3d fills holes itself) or the release's filled depth",
     )
     parser.add_argument("--mcg", type=Path, metavar="SEGS", help="folder of NYU%%04d/candidates.mat (MCG)")
     parser.add_argument(
@@ -88,16 +88,13 @@ def convert(release: Path, out: Path, depth: str, mcg: Path | None, limit: int |
     return summary
 
 
+@command(PROG)
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
     if args.limit is not None and args.limit < 1:
-        print(f"{PROG}: error: --limit must be positive", file=sys.stderr)
-        return 2
-    try:
-        summary = convert(args.release, args.out, args.depth, args.mcg, args.limit)
-    except InputError as error:
-        print(f"{PROG}: error: {error}", file=sys.stderr)
-        return 2
+        parser.error("--limit must be positive")
+    summary = convert(args.release, args.out, args.depth, args.mcg, args.limit)
     for name, counts in summary.items():
         print(
             f"{args.out / name}: {counts['frames']} frames, {counts['objects']} objects, "

@@ -1,6 +1,6 @@
 """Typed configuration of the dual-trunk RoI network (A3DNet) and its named presets.
 
-``NetConfig()`` is the paper's network (SPEC.md "Network"): two full-width VGG16 trunks, the
+``NetConfig()`` is the paper's network (docs/conventions.md "Network"): two full-width VGG16 trunks, the
 four pooled 512x7x7 blocks (RoI and context box, colour and depth) concatenated into fc6, fc6/fc7
 of 4096. Presets for CPU training scale the trunk channels and the fc sizes down and fuse the
 channels before pooling (``fuse_channels``, see a3d.train.model.net) — a departure from the

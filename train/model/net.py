@@ -1,4 +1,4 @@
-"""A3DNet: the dual-trunk VGG16 RoI network of Deng & Latecki (SPEC.md "Network").
+"""A3DNet: the dual-trunk VGG16 RoI network of Deng & Latecki (docs/conventions.md "Network").
 
 colour (B,3,H,W) -> VGG16 trunk -> conv5_3 --+
                                               +-> concat (B, T*C, H/16, W/16)   ("trunk features")
@@ -15,10 +15,10 @@ Pooled-feature layout (NetConfig.fuse_channels):
   channels for the RoI and another for the context box before pooling, and fc6 sees
   [RoI F x 7 x 7, context F x 7 x 7]. Pooling is linear, so this equals a 1x1 conv on the pooled
   blocks, i.e. a fc6 constrained to a low-rank channel mixing; it halves fc6's input at F = C and
-  pools F channels instead of 2C (PLATFORM.md "Compute ceilings"). The fuse convs start as the
+  pools F channels instead of 2C (docs/platform.md "Compute ceilings"). The fuse convs start as the
   average of the two trunks' leading min(F, C) channels, so ImageNet fc6 weights still apply.
 
-Heads follow the release's names; the 3D deltas are SPEC.md "Regression targets" (raw after the
+Heads follow the release's names; the 3D deltas are docs/conventions.md "Regression targets" (raw after the
 statistics are folded in), the 2D deltas are Fast R-CNN deltas toward the amodal 2D box.
 """
 

@@ -2,7 +2,7 @@
 
 Departure from the paper: Deng & Latecki use Fast R-CNN's max RoI pooling (integer-rounded
 bins, max per bin). We use RoIAlign with torchvision's ``roi_align(aligned=True)`` semantics and
-a fixed ``sampling_ratio``, because (PLATFORM.md "RoI pooling without torchvision") it needs no
+a fixed ``sampling_ratio``, because (docs/platform.md "RoI pooling without torchvision") it needs no
 custom op, is differentiable, exports to ONNX with standard ops and is the fastest of the
 measured forms in ONNX Runtime. Max RoI pooling has no torch op without torchvision;
 ``roi_max_pool`` writes it with masked maxima, for the ablation that measures this departure.

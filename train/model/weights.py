@@ -6,7 +6,7 @@ writes it: ``features.N.weight/bias`` for the 13 convs (N = 0, 2, 5, 7, 10, 12, 
 ``classifier.3`` (fc7, 4096 x 4096); ``classifier.6`` (the 1000 ImageNet classes) is not used.
 Nothing is downloaded: without a file, A3DNet keeps its own clean init.
 
-What goes where (SPEC.md "Network": both trunks start from ImageNet VGG16):
+What goes where (docs/conventions.md "Network": both trunks start from ImageNet VGG16):
 - Both trunks get the same conv weights. conv1_1 is converted to our input convention
   (a3d.runtime.network.preprocess: BGR, 0..255 minus the Caffe mean) when the file is torchvision's
   (RGB, /255, minus mean, / std): channels reversed and divided by 255 * std. The two

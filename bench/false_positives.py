@@ -1,0 +1,108 @@
+"""False positives: detections scoring >= 0.5 per frame on frames with no labelled object at all.
+
+    .venv/bin/a3d-synth out/fp --frames 20 --seed 11 --world real --empty-share 1 --split test=1
+    .venv/bin/python bench/false_positives.py out/fp/test --model samples/model.onnx [--threshold 0.5]
+    .venv/bin/python bench/false_positives.py FOLDER --detections detections.jsonl
+
+mAP says nothing about frames with nothing to find; a model that calls every cabinet a bookshelf
+loses little mAP on rooms of the 19 classes and is useless in a real one. This counts, on the
+frames of FOLDER whose ground truth lists no object (frames without a ground-truth file are
+left out: nothing says they are empty), the detections at or above the threshold: per frame
+(mean and maximum), the share of frames with any, and per class. Detections come from
+``--detections`` (the README detections format, e.g. a3d-run's output) or from running
+``a3d-run --headless`` with ``--model`` (written to OUT, default FOLDER/../false_positives.jsonl).
+Prints the report and writes it as JSON next to the detections (``.report.json``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from collections import Counter
+from pathlib import Path
+
+from a3d.runtime.io.detections_io import read_detections
+from a3d.runtime.sources.folder import list_frames, read_ground_truth
+
+BIN = Path(sys.executable).parent
+
+
+def empty_frames(folder: Path) -> list[str]:
+    """Names of the frames of ``folder`` whose ground truth lists no object."""
+    names = []
+    for ref in list_frames(folder):
+        gt = read_ground_truth(ref) if ref.gt_path is not None else None
+        if gt is not None and len(gt) == 0:
+            names.append(ref.name)
+    return names
+
+
+def count_false_positives(folder: Path, detections: Path, threshold: float = 0.5) -> dict | None:
+    """The report (module docstring) of ``detections`` on the empty frames of ``folder``; None
+    when it has none. An empty frame missing from the detections is an error (a failed frame)."""
+    empty = empty_frames(folder)
+    if not empty:
+        return None
+    by_frame = {d.frame: d for d in read_detections(detections)}
+    missing = [name for name in empty if name not in by_frame]
+    if missing:
+        raise ValueError(
+            f"{detections}: no detections line for {len(missing)} empty frames, e.g. {missing[0]}"
+        )
+    counts, classes = [], Counter()
+    for name in empty:
+        det = by_frame[name]
+        keep = det.scores >= threshold
+        counts.append(int(keep.sum()))
+        classes.update(c for c, k in zip(det.classes, keep, strict=True) if k)
+    return {
+        "threshold": threshold,
+        "empty_frames": len(empty),
+        "detections": sum(counts),
+        "per_frame": sum(counts) / len(empty),
+        "max_per_frame": max(counts),
+        "frames_with_any": sum(c > 0 for c in counts) / len(empty),
+        "by_class": dict(classes.most_common()),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("folder", type=Path, help="a frame folder with ground truth")
+    parser.add_argument("--model", type=Path, help="run this ONNX model with a3d-run --headless")
+    parser.add_argument("--detections", type=Path, help="detections already made (instead of --model)")
+    parser.add_argument(
+        "--out", type=Path, help="where a3d-run writes (default FOLDER/../false_positives.jsonl)"
+    )
+    parser.add_argument("--threshold", type=float, default=0.5)
+    args = parser.parse_args(argv)
+    if (args.model is None) == (args.detections is None):
+        parser.error("give exactly one of --model and --detections")
+    detections = args.detections
+    if args.model is not None:
+        detections = args.out or args.folder.parent / "false_positives.jsonl"
+        command = [str(BIN / "a3d-run"), str(args.folder), "--model", str(args.model), "--output",
+                   str(detections), "--headless"]  # fmt: skip
+        print("$", " ".join(command), flush=True)
+        if subprocess.run(command).returncode != 0:
+            print(f"false_positives: a3d-run failed on {args.folder}", file=sys.stderr)
+            return 1
+    try:
+        report = count_false_positives(args.folder, detections, args.threshold)
+    except (OSError, ValueError) as e:
+        print(f"false_positives: {e}", file=sys.stderr)
+        return 1
+    if report is None:
+        print(f"false_positives: {args.folder}: no frame with an empty ground truth", file=sys.stderr)
+        return 1
+    detections.with_suffix(".report.json").write_text(json.dumps(report, indent=1))
+    print(json.dumps(report, indent=1))
+    print(f"detections >= {args.threshold} per empty frame: {report['per_frame']:.2f} "
+          f"over {report['empty_frames']} frames (max {report['max_per_frame']})")  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,58 @@
+"""What the rerun view is asked for, without importing rerun (an optional extra, ``a3d[view]``).
+
+The flags are the rerun SDK's standard script flags (``rr.script_add_args``), declared here so
+that ``a3d-run --headless`` and the Python API run on a device without rerun installed; the
+view itself (a3d.runtime.viewer.view) is imported only when a recording is asked for, and its
+absence is then one line naming the extra.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+from dataclasses import dataclass
+from types import ModuleType
+
+from a3d.runtime.errors import InputError
+
+
+@dataclass(frozen=True)
+class ViewOptions:
+    """What to draw besides the detections; the cloud stride trades detail for viewer load."""
+
+    cloud_stride: int = 2
+    show_ground_truth: bool = True
+    max_proposals: int = 0
+    min_score: float = 0.0  # detections below this score are written to the JSON but not drawn
+
+
+def add_viewer_args(parser: argparse.ArgumentParser) -> None:
+    """The rerun SDK's script flags (the names and meaning of ``rr.script_add_args``)."""
+    parser.add_argument("--headless", action="store_true", help="no viewer window (alone: nothing is logged)")
+    parser.add_argument("--connect", action="store_true", help="send to a running rerun viewer (see --url)")
+    parser.add_argument("--serve", action="store_true", help="serve the web viewer and open it in a browser")
+    parser.add_argument("--url", help="the viewer to --connect to (default: rerun's local viewer)")
+    parser.add_argument(
+        "--save", metavar="FILE.rrd", help="record to this .rrd file (open it with: rerun FILE.rrd)"
+    )
+    parser.add_argument(
+        "--stdout", action="store_true", help="write the recording to stdout, for a pipe into rerun"
+    )
+
+
+def viewer_requested(args: argparse.Namespace) -> bool:
+    """False for --headless with no sink: then nothing is logged (and nothing buffered in memory)."""
+    return not args.headless or bool(args.save or args.connect or args.serve or args.stdout)
+
+
+def load_view() -> ModuleType:
+    """a3d.runtime.viewer.view, or InputError saying how to install rerun (or to run headless)."""
+    try:
+        return importlib.import_module("a3d.runtime.viewer.view")
+    except ModuleNotFoundError as e:
+        if not (e.name or "").startswith("rerun"):
+            raise
+        raise InputError(
+            "rerun is not installed: the view and --save need it (pip install 'a3d[view]'); "
+            "--headless alone runs without it"
+        ) from None

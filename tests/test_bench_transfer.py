@@ -1,0 +1,104 @@
+"""bench/transfer.py and bench/false_positives.py end to end on tiny settings (few small frames,
+two training iterations): the table holds every train -> test pair, its drops are what the
+scores say, and the false positives are counted on exactly the frames without annotations."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import sys
+from pathlib import Path
+
+import pytest
+
+from a3d.runtime.io.detections_io import read_detections
+from a3d.runtime.sources.folder import list_frames, read_ground_truth
+from a3d.synth.cli import main as synth_main
+from tests.test_train_scenes import TINY
+
+pytestmark = pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")
+BENCH = Path(__file__).resolve().parents[1] / "bench"
+SAMPLE_MODEL = Path(__file__).resolve().parents[1] / "samples" / "model.onnx"
+
+
+def _load(name: str):
+    sys.path.insert(0, str(BENCH))  # the scripts import their neighbours, as when run from bench/
+    try:
+        spec = importlib.util.spec_from_file_location(name, BENCH / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+        return module
+    finally:
+        sys.path.remove(str(BENCH))
+
+
+@pytest.fixture(scope="module")
+def benches():
+    modules = {name: _load(name) for name in ("false_positives", "train_synth", "transfer")}
+    yield modules
+    for name in modules:
+        sys.modules.pop(name, None)
+
+
+def _empty_names(folder: Path) -> set[str]:
+    return {r.name for r in list_frames(folder) if len(read_ground_truth(r)) == 0}
+
+
+def test_transfer_table_and_false_positives_end_to_end(benches, tmp_path: Path, monkeypatch) -> None:
+    transfer = benches["transfer"]
+    monkeypatch.setitem(transfer.WORLDS, "clutter", ["--clutter", "20", "--empty-share", "0.5"])
+    sets = [f"--set={s}" for s in TINY if not s.startswith("log.")] + ["--set=log.progress=false"]
+    argv = [
+        "--out",
+        str(tmp_path),
+        "--worlds",
+        "plain,clutter",
+        "--frames",
+        "6",
+        "--test-share",
+        "0.5",
+        "--scale",
+        "0.15",
+        "--iters",
+        "2",
+        *sets,
+    ]
+    assert transfer.main(argv) == 0
+    report = json.loads((tmp_path / "transfer.json").read_text())
+    table = report["map25"]
+    assert set(table) == {"plain", "clutter"} and all(set(row) == set(table) for row in table.values())
+    for a, row in table.items():
+        for b, value in row.items():
+            assert 0.0 <= value <= 1.0
+            assert value == report["scores"][f"{a}->{b}"]["map25_all"]
+            if a != b:
+                assert report["drop"][a][b] == pytest.approx(table[b][b] - value)
+    # The plain world has no frame without annotations; the clutter world's test split has some,
+    # and the false positives are counted on exactly those frames.
+    assert report["false_positives"]["plain->plain"] is None
+    clutter_test = tmp_path / "clutter" / "data" / "test"
+    empty = _empty_names(clutter_test)
+    assert empty
+    for a in ("plain", "clutter"):
+        fp = report["false_positives"][f"{a}->clutter"]
+        dets = {d.frame: d for d in read_detections(tmp_path / a / "on_clutter" / "detections.jsonl")}
+        expected = sum(int((dets[n].scores >= 0.5).sum()) for n in empty)
+        assert fp["empty_frames"] == len(empty) and fp["detections"] == expected
+        assert fp["per_frame"] == pytest.approx(expected / len(empty))
+
+
+def test_false_positives_runs_a3d_run_on_the_empty_frames(benches, tmp_path: Path) -> None:
+    """The bundled model on two small frames of rooms without class objects."""
+    args = ["--frames", "2", "--seed", "3", "--world", "real", "--empty-share", "1", "--split", "test=1"]
+    assert synth_main([str(tmp_path / "set"), *args, "--camera-scale", "0.25"]) == 0
+    folder = tmp_path / "set" / "test"
+    assert len(_empty_names(folder)) == 2
+    fp = benches["false_positives"]
+    assert fp.main([str(folder), "--model", str(SAMPLE_MODEL), "--out", str(tmp_path / "d.jsonl")]) == 0
+    report = json.loads((tmp_path / "d.report.json").read_text())
+    dets = read_detections(tmp_path / "d.jsonl")
+    assert report["empty_frames"] == 2
+    assert report["detections"] == sum(int((d.scores >= 0.5).sum()) for d in dets)
+    assert sum(report["by_class"].values()) == report["detections"]
+    assert fp.main([str(folder), "--detections", str(tmp_path / "missing.jsonl")]) == 1
