@@ -17,8 +17,8 @@ from a3d.runtime.structures.geometry import Intrinsics
 from a3d.synth.camera import choose_camera
 from a3d.synth.cli import scaled_intrinsics
 from a3d.synth.raycast import RayGrid, cast, room_exit
-from a3d.synth.rooms import furnish
 from a3d.synth.scene import SceneConfig, build_parts
+from a3d.synth.world import furnish_world
 
 
 def render_depth_from(
@@ -27,7 +27,7 @@ def render_depth_from(
     """(h, w) float32 exact z-depth (metres, 0 = nothing) of frame ``seed`` seen by the depth
     camera of ``calibration`` (its intrinsics; ``p_color = R p_depth + t``), image ``size``."""
     rng = np.random.default_rng(seed)
-    _, layout = furnish(rng, config.room_type)
+    _, layout = furnish_world(rng, config.room_type, config.clutter, config.labelled)
     pose = choose_camera(layout, rng, config.camera, config.intrinsics, config.image_size)
     placed = [p for p in layout.objects if p.render]
     parts, _, _ = build_parts(placed, pose, rng, config)
