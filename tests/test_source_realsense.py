@@ -11,6 +11,7 @@ frames from a software device and plays the recording back through the same sour
 from __future__ import annotations
 
 import sys
+import time
 import types
 from pathlib import Path
 
@@ -253,6 +254,7 @@ def record_with_the_sdk(rs, path: Path, frames: list) -> None:
                 profile.as_video_stream_profile(),
             )
             sensor.on_video_frame(frame)
+        time.sleep(1 / 30)  # recorded at the camera's rate: the SDK's playback replays arrival times
     for sensor in sensors:
         sensor.stop()
         sensor.close()

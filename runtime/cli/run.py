@@ -48,7 +48,7 @@ from a3d.runtime.network.model import DetectorModel
 from a3d.runtime.pipeline import PROPOSAL_SOURCES, FrameOutcome, PipelineConfig, detect_frames
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.folder import MODEL_FILE
-from a3d.runtime.sources.registry import FrameSource, SourceOptions, kinds, open_source
+from a3d.runtime.sources.registry import FrameSource, SourceOptions, kinds, open_source, recognised
 from a3d.runtime.viewer import options as viewer
 
 if TYPE_CHECKING:
@@ -112,7 +112,7 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
         parser.error("--score-threshold must be in [0, 1]")
     if args.output == "-" and (args.resume or args.stdout):
         parser.error("--output - cannot be combined with --resume or --stdout")
-    if not args.source.exists() and ":" not in str(args.source):  # "realsense:SERIAL" names no file
+    if not args.source.exists() and ":" not in str(args.source) and not recognised(args.source):
         parser.error(f"{args.source}: no such file or folder")
     if args.model is None:
         args.model = args.source / DEFAULT_MODEL

@@ -64,8 +64,11 @@ class RealSenseSource:
             profile = self.pipeline.start(config)
         except RuntimeError as e:
             raise InputError(f"{spec}: cannot start the camera ({e})") from None
-        if self.recording is not None:
-            profile.get_device().as_playback().set_real_time(False)
+        self.playback = None
+        if self.recording is not None:  # paused until the run takes frames (the model loads first)
+            self.playback = profile.get_device().as_playback()
+            self.playback.set_real_time(False)
+            self.playback.pause()
         self.depth_scale = options.depth_scale or float(
             profile.get_device().first_depth_sensor().get_depth_scale()
         )
@@ -83,6 +86,8 @@ class RealSenseSource:
 
     def __iter__(self) -> Iterator[FrameLoader]:
         index = 0
+        if self.playback is not None:
+            self.playback.resume()
         try:
             while True:
                 ok, frames = self.pipeline.try_wait_for_frames(FRAME_TIMEOUT_MS)

@@ -65,6 +65,11 @@ def kinds() -> list[str]:
     return list(_KINDS)
 
 
+def recognised(spec: str | os.PathLike) -> bool:
+    """Whether a registered kind claims SOURCE (which need not be a file: ``realsense``)."""
+    return any(kind.claims(os.fspath(spec)) for kind in _KINDS.values())
+
+
 def open_source(spec: str | os.PathLike, options: SourceOptions, kind: str | None = None) -> FrameSource:
     """The source SOURCE names (InputError "SOURCE: ..." when nothing can open it)."""
     text = os.fspath(spec)
