@@ -74,7 +74,7 @@ def claims(spec: str) -> bool:
     return (path.is_file() and path.suffix.lower() == ".bag") or (path / "metadata.yaml").is_file()
 
 
-def open_bag(spec: str, options: SourceOptions) -> BagSource:
+def open_source(spec: str, options: SourceOptions) -> BagSource:
     return BagSource(Path(spec), options)
 
 

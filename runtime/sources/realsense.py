@@ -36,7 +36,7 @@ def claims(spec: str) -> bool:
     return spec == SCHEME or spec.startswith(f"{SCHEME}:")
 
 
-def open_realsense(spec: str, options: SourceOptions) -> RealSenseSource:
+def open_source(spec: str, options: SourceOptions) -> RealSenseSource:
     return RealSenseSource(spec, options)
 
 

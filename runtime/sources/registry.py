@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from importlib import import_module
 from pathlib import Path
 from typing import Protocol
 
@@ -104,45 +105,30 @@ register(
 )
 
 
-def _is_bag(spec: str) -> bool:
-    from a3d.runtime.sources.bag import claims  # no optional import: claims only looks at paths
+def _in_module(module: str, name: str, describe: str) -> SourceKind:
+    """A kind whose ``claims`` and ``open_source`` live in ``a3d.runtime.sources.MODULE``, imported
+    only when first asked (the module imports its optional extra only when a source is opened)."""
 
-    return claims(spec)
+    def claims(spec: str) -> bool:
+        return import_module(f"a3d.runtime.sources.{module}").claims(spec)
 
+    def open_(spec: str, options: SourceOptions) -> FrameSource:
+        return import_module(f"a3d.runtime.sources.{module}").open_source(spec, options)
 
-def _open_bag(spec: str, options: SourceOptions) -> FrameSource:
-    from a3d.runtime.sources.bag import open_bag
-
-    return open_bag(spec, options)
+    return SourceKind(name, claims, open_, describe)
 
 
 register(
-    SourceKind(
+    _in_module(
         "bag",
-        _is_bag,
-        _open_bag,
+        "bag",
         "a ROS 1 .bag, a ROS 2 bag folder or a RealSense SDK .bag recording (needs: pip install 'a3d[bag]')",
     )
 )
-
-
-def _is_realsense(spec: str) -> bool:
-    from a3d.runtime.sources.realsense import claims
-
-    return claims(spec)
-
-
-def _open_realsense(spec: str, options: SourceOptions) -> FrameSource:
-    from a3d.runtime.sources.realsense import open_realsense
-
-    return open_realsense(spec, options)
-
-
 register(
-    SourceKind(
+    _in_module(
         "realsense",
-        _is_realsense,
-        _open_realsense,
+        "realsense",
         "realsense, realsense:SERIAL or realsense:RECORDING for an Intel RealSense camera "
         "(needs: pip install 'a3d[realsense]')",
     )
