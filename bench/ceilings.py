@@ -47,6 +47,14 @@ class Ceilings:
     def gemm(self, int8: bool) -> float:
         return self.gemm_int8 if int8 else self.gemm_fp32
 
+    def best(self, other: Ceilings) -> Ceilings:
+        """Each ceiling's higher measurement: the machine's limit is what it reached when least disturbed."""
+        rates = {
+            f: max(getattr(self, f), getattr(other, f))
+            for f in ("gemm_fp32", "gemm_int8", "conv_fp32", "conv_int8")
+        }
+        return Ceilings(threads=self.threads, **rates)
+
 
 def gemm_graph(m: int, k: int, n: int, int8: bool) -> tuple[onnx.ModelProto, dict[str, np.ndarray]]:
     """(model, feeds) of one (m, k) x (k, n) product with a constant weight."""

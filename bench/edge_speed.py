@@ -1,37 +1,35 @@
-"""Edge speed: the paper's full network, end to end through a3d-run, on 2 CPU cores.
+"""Edge speed: the paper's full network, end to end through a3d-run, judged against the machine's own limit.
 
-The paper reports 0.739 s per frame on a Titan X for the network alone. This benchmark times
-a3d-run's own code (a3d.runtime.cli.run.main, i.e. a3d.runtime.pipeline) over a folder of
-frames, with
+The paper reports 0.739 s per frame on a Titan X for the network alone. A bar in seconds says
+little on CPUs whose instruction sets differ (int8 is ~4x fp32 with VNNI, ~1.5-2x on AVX2 alone), so
+this benchmark measures, in the same run, what the machine can do and how close each part gets:
 
-(a) the paper's network at full size: both VGG16 trunks at the native 427 x 561 input, context
-    and RoI pooling, fc6/fc7 of 4096, random weights. The layout is the ``vgg16-fused``
-    preset (a3d.train.model.config): the trunk maps are fused by a 1x1 conv to 512 channels
-    before pooling, so fc6 sees 2 x 512 x 7 x 7 inputs instead of the plain layout's
-    4 x 512 x 7 x 7 (whose fc6 alone is 100352 x 4096 weights, 1.6 GB in fp32); it is the
-    layout docs/platform.md measured. The checkpoint is written with a3d.train.checkpoint and
-    exported with a3d-export twice: fp32 (no SVD), and ``--svd RANK --int8`` calibrated on the
-    first ``--calib-frames`` frames;
-(b) the bundled small model (``--small-model``, default samples/model.onnx when it exists).
+- the ceilings (bench.ceilings): GEMM and convolution throughput of ONNX Runtime, fp32 and int8,
+  on large shapes, with the instruction set found in /proc/cpuinfo;
+- a3d-run's own code (a3d.runtime.cli.run.main, i.e. a3d.runtime.pipeline) over a folder of frames,
+  each run in its own process with ``--max-proposals N --save RUN.rrd`` on the first ``--frames``
+  frames (the first is a warm-up, left out), with ``--overlap off``, ``on`` and ``auto``, for
+  (a) the paper's network at full size: both VGG16 trunks at the native 427 x 561 input, context
+      and RoI pooling, fc6/fc7 of 4096, random weights, in the ``vgg16-fused`` layout
+      (a3d.train.model.config: the trunk maps fused by a 1x1 conv to 512 channels before pooling,
+      so fc6 sees 2 x 512 x 7 x 7 inputs; the plain layout's fc6 alone is 1.6 GB in fp32),
+      exported twice with a3d-export: fp32, and ``--svd RANK --int8`` calibrated on the first
+      ``--calib-frames`` frames;
+  (b) the bundled small model (``--small-model``, default samples/model.onnx when it exists);
+  per stage (read .. rerun logging), the frame time (the period between the moments a3d-run is
+  done with consecutive frames), frames/s, frames overlapped and the peak resident memory;
+- the network alone on the same inputs (the runtime's front end on the same frames): ONNX Runtime
+  through the runtime's DetectorModel for both files (all RoIs, one RoI) and torch eager fp32;
+- ONNX Runtime's profile of each model (bench.network_profile): per part (front end, trunks,
+  head, whole frame) the MACs, the time, the time at the measured ceiling and the fraction of it
+  reached; and the head per operator, which shows where it loses time.
 
-Every a3d-run measurement runs in its own process (so that its peak resident memory is a3d-run's)
-with ``--max-proposals N --save RUN.rrd`` on the first ``--frames`` frames, sequential and with
-``--overlap``. The first frame is a warm-up and is left out. Printed per run: the per-stage
-mean seconds (read, hole fill, gravity, proposals, lifting, network input, the ONNX Runtime call,
-NMS + decoding, output writing = JSON formatting + the flushed and fsynced line, rerun logging
-= the synchronous part of logging the frame; rerun encodes and writes the .rrd on its own
-threads, which the frame time includes), the frame time (steady-state period between frames),
-frames/s and the peak resident memory.
-
-Network alone, on the same inputs (the runtime's front end on the same frames), each in its own
-process: ONNX Runtime (a3d.runtime.network.model.DetectorModel, the runtime's own session) for the fp32
-and int8 + SVD files, with all RoIs and with one RoI (about the trunks' share; the head is the
-difference), and torch eager fp32 (a3d.train.inference.TorchNetwork, the same checkpoint, same
-thread count). Times move between machines and with the load, so the targets are also ratios:
-
-- int8 + SVD end to end <= 1.3 x its ONNX Runtime network call alone, and <= 0.739 s per frame;
-- ONNX Runtime fp32 >= 1.3 x faster than torch eager fp32 (same model, same inputs);
-- peak resident memory of a3d-run with the int8 model <= 2 GiB.
+Printed last: which export is faster here (measured) and the runtime's CPU-flag advice
+(a3d.runtime.network.cpu_support), then PASS/FAIL lines with the load average: int8 trunks >=
+75 % of the int8 convolution ceiling; end to end <= 1.25 x the network alone; <= 0.739 s where the
+CPU has int8 dot products (elsewhere the measured and the projected time at the ceiling);
+``--overlap auto`` never slower than sequential for both models; ONNX Runtime fp32 >= 1.3 x
+torch eager; a3d-run's peak memory with the int8 model <= 2 GiB. docs/edge-speed.md explains them.
 
     .venv/bin/a3d-synth /tmp/a3d_edge/synth --frames 24 --seed 11 --split test=0.5
     .venv/bin/python -m bench.edge_speed /tmp/a3d_edge/synth/test --work /tmp/a3d_edge/work \\
@@ -39,48 +37,34 @@ thread count). Times move between machines and with the load, so the targets are
 
 The checkpoint and the exports are kept in ``--work`` and reused by later runs (``--rebuild``
 makes them again); building them takes about 10 minutes on 2 busy cores and up to 8.4 GB of
-memory (the int8 export). The first line says whether the CPU has VNNI: without it ONNX Runtime's
-int8 trunks gain 1.9-2.7x over fp32 (measured on an AVX2-only VM) instead of docs/platform.md's 3.8x.
+memory (the int8 export). ``--net cpu-eighth --svd 64 --max-proposals 100 --frames 4 --no-torch``
+is a quick run of the same code on a small network.
 """
 
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
-import os
-import resource
 import subprocess
 import sys
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
+from a3d.runtime.pipeline import FRONT_END_STAGES, PreparedFrame
 from a3d.runtime.pipeline import STAGES as PIPELINE_STAGES
-from a3d.runtime.pipeline import PreparedFrame
+from bench import edge_report as report
+from bench.ceilings import measure_ceilings
+from bench.edge_report import Measurements
+from bench.network_profile import NetworkProfile, profile_network
 
 BIN = Path(sys.executable).parent
 REPO = Path(__file__).resolve().parents[1]  # where ``python -m bench.NAME`` runs
-PAPER_SECONDS = 0.739  # Deng & Latecki 2017, Titan X, network only
-TARGET_E2E_OVER_NETWORK = 1.3
-TARGET_ORT_OVER_TORCH = 1.3
-TARGET_PEAK_BYTES = 2 * 1024**3
-RUN_STAGES = (*PIPELINE_STAGES, "output", "rerun")
-STAGE_LABELS = {
-    "read": "read",
-    "depth_fill": "hole fill",
-    "gravity": "gravity",
-    "proposals": "proposals",
-    "lifting": "lifting",
-    "network_input": "network input",
-    "network": "ORT network",
-    "postprocess": "NMS + decoding",
-    "output": "output writing",
-    "rerun": "rerun logging",
-}
 
 
 # ----------------------------------------------------------------------------- the models
@@ -149,19 +133,24 @@ class RunResult:
     steady-state frame period, the mean RoIs per frame and the process's peak resident memory."""
 
     model: str
-    overlap: bool
+    overlap: str  # a3d-run's --overlap: off (sequential), on, auto
     frames: int
     rois: float
     stages: dict[str, float]
     frame_seconds: float
+    overlapped: int = 0  # frames prepared in the background (auto: 0 where it chose sequential)
     peak_bytes: int = 0
 
     @property
     def stage_sum(self) -> float:
         return sum(self.stages.values())
 
+    @property
+    def front_end_seconds(self) -> float:
+        return sum(self.stages[s] for s in FRONT_END_STAGES)
 
-def measure_run(model: Path, frames: Path, *, max_proposals: int, threads: int = 2, overlap: bool = False,
+
+def measure_run(model: Path, frames: Path, *, max_proposals: int, threads: int = 2, overlap: str = "off",
                 rrd: Path | None = None) -> RunResult:  # fmt: skip
     """Run a3d-run's main on ``frames`` with ``model`` and time every stage of every frame.
 
@@ -179,9 +168,7 @@ def measure_run(model: Path, frames: Path, *, max_proposals: int, threads: int =
         output = Path(tmp) / "detections.jsonl"
         rrd = rrd or Path(tmp) / "run.rrd"
         argv = [str(frames), "--model", str(model), "--output", str(output), "--threads", str(threads),
-                "--max-proposals", str(max_proposals), "--save", str(rrd)]  # fmt: skip
-        if overlap:
-            argv.append("--overlap")
+                "--max-proposals", str(max_proposals), "--save", str(rrd), "--overlap", overlap]  # fmt: skip
         reports: list[tuple[float, run_cli.FrameReport]] = []
         code = run_cli.main(argv, on_frame=lambda report: reports.append((time.perf_counter(), report)))
         if code != 0:
@@ -196,22 +183,26 @@ def measure_run(model: Path, frames: Path, *, max_proposals: int, threads: int =
     done = [moment for moment, _ in reports]
     period = (done[-1] - done[0]) / (len(done) - 1) if len(done) > 1 else lines[0].timing["total"]
     rois = [len(r.outcome.prepared.rois) if r.outcome.prepared is not None else 0 for _, r in reports]
-    return RunResult(model.name, overlap, len(lines), float(np.mean(rois)), stages, period)
+    overlapped = sum(r.outcome.overlapped for _, r in reports)
+    return RunResult(model.name, overlap, len(lines), float(np.mean(rois)), stages, period, overlapped)
 
 
 # ----------------------------------------------------------------------------- the network alone
 
 
-def network_inputs(model: Path, frames: Path, max_proposals: int) -> list[PreparedFrame]:
-    """What a3d-run feeds ``model`` for each frame of ``frames`` (a3d.runtime.pipeline.prepare;
-    a3d.export.verify.folder_inputs does the same but brings torch into the process)."""
+def network_inputs(
+    model: Path, frames: Path, max_proposals: int, count: int | None = None
+) -> list[PreparedFrame]:
+    """What a3d-run feeds ``model`` for each (of the first ``count``) frame of ``frames``
+    (a3d.runtime.pipeline.prepare; a3d.export.verify.folder_inputs does the same but brings torch
+    into the process)."""
     from a3d.runtime.network.model import DetectorModel
     from a3d.runtime.pipeline import PipelineConfig, load_and_prepare
     from a3d.runtime.sources.folder import FolderSource
 
     metadata = DetectorModel.load(model, threads=1).metadata
     config = PipelineConfig.from_metadata(metadata, max_proposals=max_proposals)
-    return [load_and_prepare(loader, config) for loader in FolderSource(frames)]
+    return [load_and_prepare(loader, config) for loader in itertools.islice(FolderSource(frames), count)]
 
 
 @dataclass
@@ -271,10 +262,24 @@ def _network_result(engine: str, model: str, run: Callable, inputs: list[Prepare
                          float(np.mean([len(i.rois) for i in used])))  # fmt: skip
 
 
+def measure_profile(model: Path, frames: Path, *, max_proposals: int, threads: int = 2) -> NetworkProfile:
+    """ONNX Runtime's per-operator profile of ``model`` (bench.network_profile) on the frame with
+    the most RoIs among the first two of ``frames``."""
+    inputs = [i for i in network_inputs(model, frames, max_proposals, count=2) if len(i.rois) >= 2]
+    if not inputs:
+        raise RuntimeError(f"{frames}: no frame with 2 usable proposals among the first two")
+    item = max(inputs, key=lambda i: len(i.rois))
+    feeds = {"color": item.color_input, "depth": item.depth_input, "rois": item.rois,
+             "context_rois": item.context_rois}  # fmt: skip
+    return profile_network(model, feeds, threads)
+
+
 # ----------------------------------------------------------------------------- child processes
 
 
-WORKERS: dict[str, Callable] = {"run": measure_run, "ort": measure_ort, "torch": measure_torch}
+WORKERS: dict[str, Callable] = {
+    "run": measure_run, "ort": measure_ort, "torch": measure_torch, "profile": measure_profile
+}  # fmt: skip
 
 
 def in_child(kind: str, **kwargs) -> dict:
@@ -290,116 +295,23 @@ def in_child(kind: str, **kwargs) -> dict:
         return json.loads(result.read_text())
 
 
+def peak_resident_bytes() -> int:
+    """This process's peak resident memory: VmHWM, which starts afresh at exec. (getrusage's
+    ru_maxrss survives exec, so a child would report the parent's peak when that is higher: the
+    ceilings' 600 MB of test matrices, a checkpoint built in the parent.)"""
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith("VmHWM:"):
+            return int(line.split()[1]) * 1024  # kB
+    raise RuntimeError("no VmHWM in /proc/self/status")
+
+
 def _worker(kind: str, spec: Path, result: Path) -> None:
     kwargs = json.loads(spec.read_text())
     paths = {"model", "frames", "checkpoint", "rrd"}
     kwargs = {k: Path(v) if k in paths and v is not None else v for k, v in kwargs.items()}
     value = asdict(WORKERS[kind](**kwargs))
-    value["peak_bytes"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # KiB on Linux
+    value["peak_bytes"] = peak_resident_bytes()
     result.write_text(json.dumps(value))
-
-
-# ----------------------------------------------------------------------------- report
-
-
-@dataclass
-class Measurements:
-    """Everything one benchmark run measured: a3d-run with the full model's int8 + SVD file and
-    with the small model (sequential, then --overlap), and the networks alone."""
-
-    full: list[RunResult] = field(default_factory=list)
-    small: list[RunResult] = field(default_factory=list)
-    networks: dict[str, NetworkResult] = field(default_factory=dict)
-
-
-def print_breakdown(title: str, runs: list[RunResult], network: NetworkResult | None = None) -> None:
-    """One column per run: stage means, their sum, the frame period, frames/s, peak memory; the
-    network stage split into trunks and head by ``network``'s one-RoI share."""
-    print(f"\n{title}")
-    print(
-        f"  {'ms per frame':30s}"
-        + "".join(f"{'--overlap' if r.overlap else 'sequential':>12s}" for r in runs)
-    )
-    rows = [(STAGE_LABELS[s], [1e3 * r.stages[s] for r in runs]) for s in RUN_STAGES]
-    if network is not None:
-        share = network.one_roi_seconds / network.seconds
-        at = RUN_STAGES.index("network") + 1
-        network_ms = [1e3 * r.stages["network"] for r in runs]
-        rows[at:at] = [
-            ("  trunks (est.)", [share * ms for ms in network_ms]),
-            ("  head (est.)", [(1 - share) * ms for ms in network_ms]),
-        ]
-    rows += [
-        ("sum of stages", [1e3 * r.stage_sum for r in runs]),
-        ("frame time", [1e3 * r.frame_seconds for r in runs]),
-        ("other (< 0: hidden by overlap)", [1e3 * (r.frame_seconds - r.stage_sum) for r in runs]),
-        ("frames/s", [1 / r.frame_seconds for r in runs]),
-        ("RoIs per frame", [r.rois for r in runs]),
-        ("peak resident memory (MiB)", [r.peak_bytes / 2**20 for r in runs]),
-    ]
-    for label, values in rows:
-        print(
-            f"  {label:30s}" + "".join(f"{v:12.2f}" if label == "frames/s" else f"{v:12.1f}" for v in values)
-        )
-
-
-def print_networks(networks: dict[str, NetworkResult]) -> None:
-    print("\nnetwork alone, same inputs (ms per frame; trunks ~ the one-RoI call, head = the rest)")
-    print(f"  {'':28s}{'all RoIs':>10s}{'trunks':>10s}{'head':>10s}{'RoIs':>8s}{'peak MiB':>10s}")
-    for key, n in networks.items():
-        print(f"  {key:28s}{1e3 * n.seconds:10.1f}{1e3 * n.one_roi_seconds:10.1f}"
-              f"{1e3 * n.head_seconds:10.1f}{n.rois:8.0f}{n.peak_bytes / 2**20:10.0f}")  # fmt: skip
-
-
-def print_targets(m: Measurements) -> None:
-    """Ratios, then a PASS/FAIL line per target (the faster a3d-run mode of the full model)."""
-    best = min(m.full, key=lambda r: r.frame_seconds)
-    mode = "--overlap" if best.overlap else "sequential"
-    alone = m.networks["ort int8 + SVD"].seconds
-    fp32 = m.networks["ort fp32"].seconds
-    torch_fp32 = m.networks["torch eager fp32"].seconds if "torch eager fp32" in m.networks else None
-    print("\nratios (machine independent)")
-    print(f"  end to end ({mode}) / network alone, int8 + SVD: {best.frame_seconds / alone:.2f}")
-    print(f"  int8 + SVD / fp32, ONNX Runtime network: {alone / fp32:.2f}")
-    if torch_fp32 is not None:
-        print(f"  ONNX Runtime fp32 / torch eager fp32 network: {fp32 / torch_fp32:.2f}")
-    print(f"\ntargets ({load_average()} now)")
-    _target(f"int8 + SVD end to end <= {TARGET_E2E_OVER_NETWORK} x its network alone",
-            best.frame_seconds <= TARGET_E2E_OVER_NETWORK * alone,
-            f"{best.frame_seconds:.3f} s vs {TARGET_E2E_OVER_NETWORK} x {alone:.3f} s ({mode})")  # fmt: skip
-    _target(f"int8 + SVD end to end <= {PAPER_SECONDS} s (the paper: Titan X, network only)",
-            best.frame_seconds <= PAPER_SECONDS, f"{best.frame_seconds:.3f} s a frame ({mode})")  # fmt: skip
-    if torch_fp32 is not None:
-        speedup = torch_fp32 / fp32
-        _target(f"ONNX Runtime fp32 >= {TARGET_ORT_OVER_TORCH} x faster than torch eager fp32",
-                speedup >= TARGET_ORT_OVER_TORCH, f"{speedup:.2f} x")  # fmt: skip
-    peak = max(r.peak_bytes for r in m.full)
-    _target("peak resident memory of a3d-run with the int8 model <= 2 GiB", peak <= TARGET_PEAK_BYTES,
-            f"{peak / 2**30:.2f} GiB")  # fmt: skip
-
-
-def _target(what: str, ok: bool, detail: str) -> None:
-    print(f"  [{'PASS' if ok else 'FAIL'}] {what}: {detail}")
-
-
-def load_average() -> str:
-    one, five, fifteen = os.getloadavg()
-    return f"load average {one:.2f} {five:.2f} {fifteen:.2f} on {os.cpu_count()} CPUs"
-
-
-def cpu_description() -> str:
-    """The CPU model and whether it has the int8 dot-product instructions ONNX Runtime's int8 path
-    uses (VNNI); without them int8 gains far less over fp32 (docs/platform.md measured with them)."""
-    try:
-        text = Path("/proc/cpuinfo").read_text()
-    except OSError:
-        return "unknown CPU"
-    pairs = (line.split(":", 1) for line in reversed(text.splitlines()) if ":" in line)
-    fields = {key.strip(): value.strip() for key, value in pairs}  # the first CPU's values win
-    model = fields.get("model name", "unknown CPU")
-    flags = set(fields.get("flags", "").split())
-    isa = [name for name in ("avx2", "avx512f", "avx512_vnni", "avx_vnni", "amx_int8") if name in flags]
-    return f"{model} ({', '.join(isa) or 'no AVX2'})"
 
 
 # ----------------------------------------------------------------------------- main
@@ -422,11 +334,12 @@ def build_full_model(work: Path, frames: Path, args: argparse.Namespace) -> tupl
 
 
 def measure(args: argparse.Namespace, frames: Path, checkpoint: Path, fp32: Path, int8: Path) -> Measurements:
-    """Every measurement, each in its own process (module docstring)."""
-    m = Measurements()
+    """Every measurement, each in its own process (module docstring), the ceilings first and last
+    (each ceiling the higher of the two)."""
+    m = Measurements(ceiling_runs=[measure_ceilings(args.threads)])
     common = {"frames": frames, "max_proposals": args.max_proposals, "threads": args.threads}
-    for overlap in (False, True):
-        rrd = args.work / f"{int8.stem}{'.overlap' * overlap}.rrd"
+    for overlap in report.MODES:
+        rrd = args.work / f"{int8.stem}.{overlap}.rrd"
         m.full.append(RunResult(**in_child("run", model=int8, overlap=overlap, rrd=rrd, **common)))
         if args.small_model.is_file():
             m.small.append(RunResult(**in_child("run", model=args.small_model, overlap=overlap, **common)))
@@ -435,13 +348,39 @@ def measure(args: argparse.Namespace, frames: Path, checkpoint: Path, fp32: Path
     if not args.no_torch:
         m.networks["torch eager fp32"] = NetworkResult(**in_child("torch", checkpoint=checkpoint, model=fp32,
                                                                   **common))  # fmt: skip
+    m.profiles["int8 + SVD"] = NetworkProfile.from_dict(in_child("profile", model=int8, **common))
+    m.profiles["fp32"] = NetworkProfile.from_dict(in_child("profile", model=fp32, **common))
     if m.small:
         m.networks["ort small model"] = NetworkResult(**in_child("ort", model=args.small_model, **common))
+        m.profiles["small model"] = NetworkProfile.from_dict(
+            in_child("profile", model=args.small_model, **common)
+        )
+    m.ceiling_runs.append(measure_ceilings(args.threads))  # again: a busy machine shows as a spread
     return m
 
 
+def print_report(m: Measurements, args: argparse.Namespace, int8: Path) -> None:
+    """Everything measured (bench.edge_report), the targets last."""
+    report.print_ceilings(m.ceiling_runs)
+    report.print_breakdown(f"(a) {int8} through a3d-run", m.full, m.networks["ort int8 + SVD"])
+    if m.small:
+        report.print_breakdown(
+            f"(b) {args.small_model} through a3d-run", m.small, m.networks["ort small model"]
+        )
+    elif not args.small_model.is_file():
+        print(f"\n(b) skipped: no {args.small_model}")
+    report.print_networks(m.networks)
+    runs = {"int8 + SVD": m.full[0], "fp32": None, "small model": m.small[0] if m.small else None}
+    for name, profile in m.profiles.items():
+        report.print_parts(f"{name} ({profile.model})", profile, m.ceilings, runs[name])
+    for name, profile in m.profiles.items():
+        report.print_head_ops(f"{name} ({profile.model})", profile, m.ceilings)
+    report.print_export_choice(m.networks)
+    report.print_targets(m)
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="python -m bench.edge_speed", description=__doc__.split("\n\n")[0])
     parser.add_argument("frames", type=Path, help="frames (427 x 561: a3d-synth's test split)")
     parser.add_argument("--work", type=Path, default=Path("/tmp/a3d_edge_speed"), help="checkpoint, models")
     parser.add_argument("--small-model", type=Path, default=Path("samples/model.onnx"))
@@ -459,17 +398,11 @@ def main(argv: list[str] | None = None) -> int:
     checkpoint, fp32, int8 = build_full_model(args.work, frames, args)
     print(
         f"edge speed: {args.count} frames of {args.frames}, --max-proposals {args.max_proposals}, "
-        f"--threads {args.threads}; {cpu_description()}; {load_average()} at the start",
+        f"--threads {args.threads}; {report.cpu_description()}; {report.load_average()} at the start",
         flush=True,
     )
     m = measure(args, frames, checkpoint, fp32, int8)
-    print_breakdown(f"(a) {int8} through a3d-run", m.full, m.networks["ort int8 + SVD"])
-    if m.small:
-        print_breakdown(f"(b) {args.small_model} through a3d-run", m.small, m.networks["ort small model"])
-    elif not args.small_model.is_file():
-        print(f"\n(b) skipped: no {args.small_model}")
-    print_networks(m.networks)
-    print_targets(m)
+    print_report(m, args, int8)
     return 0
 
 

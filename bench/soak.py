@@ -58,7 +58,7 @@ def _arguments() -> argparse.Namespace:
     )
     p.add_argument("--warmup", type=int, default=100, help="frames before the reference sample (%(default)s)")
     p.add_argument("--threads", type=int, default=2, help="a3d-run --threads (default %(default)s)")
-    p.add_argument("--overlap", action="store_true", help="a3d-run --overlap")
+    p.add_argument("--overlap", action="store_true", help="a3d-run --overlap on (default: a3d-run's auto)")
     p.add_argument("--max-proposals", type=int, help="a3d-run --max-proposals (default: the model's)")
     p.add_argument("--save", action="store_true", help="log to WORK/soak.rrd instead of --headless")
     args = p.parse_args()
@@ -119,7 +119,7 @@ def soak(args: argparse.Namespace, folder: Path) -> tuple[list[Sample], int]:
     command = [sys.executable, "-m", "a3d.runtime.cli.run", str(folder), "--model", str(args.model)]
     command += ["--output", str(output), "--threads", str(args.threads)]
     command += ["--save", str(args.work / "soak.rrd")] if args.save else ["--headless"]
-    command += ["--overlap"] if args.overlap else []
+    command += ["--overlap", "on"] if args.overlap else []
     command += ["--max-proposals", str(args.max_proposals)] if args.max_proposals else []
     print(" ".join(command), flush=True)
     counter, samples = LineCounter(output), []

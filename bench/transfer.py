@@ -1,6 +1,6 @@
 """Transfer: train on one synthetic world, test on every other, and report what the change costs.
 
-    .venv/bin/python bench/transfer.py --out out/bench_transfer [--worlds plain,clutter,kinect-v1,tof]
+    .venv/bin/python -m bench.transfer --out out/bench_transfer [--worlds plain,clutter,kinect-v1,tof]
         [--frames 300] [--test-share 0.2] [--scale 1] [--config cpu-small] [--iters N] [--set KEY=VALUE ...]
 
 A model that fits its own world can still fail on another: a held-out split of the training
@@ -24,8 +24,8 @@ import json
 import sys
 from pathlib import Path
 
-from false_positives import count_false_positives  # bench/ is the script's folder, first on sys.path
-from train_synth import detect_and_score, synthesize, train
+from bench.false_positives import count_false_positives
+from bench.train_synth import detect_and_score, synthesize, train
 
 NYU_SIZE = (427, 561)
 WORLDS: dict[str, list[str]] = {

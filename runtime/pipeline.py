@@ -22,11 +22,15 @@ timed) and never stops at a bad one: each frame comes back with its result or a 
 ("ORIGIN: what is wrong"). It takes the source lazily, one frame ahead at most, so a live source
 is never drained in advance. With ``overlap`` one background thread
 prepares frame i + 1 while the calling thread runs the network on frame i; the caller then gives
-the network one thread fewer so that the cores are not oversubscribed.
+the network one thread fewer so that the cores are not oversubscribed. That pays only where the
+front end takes longer than the network (a small model); with the paper's VGG16 on 2 cores it
+doubles the network's time. ``detect_frames_auto`` times a frame sequentially and overlaps the
+rest only where ``overlap_pays`` (a3d-run's default, ``--overlap auto``).
 """
 
 from __future__ import annotations
 
+import itertools
 import time
 import typing
 from collections.abc import Callable, Iterable, Iterator
@@ -54,6 +58,7 @@ from a3d.runtime.structures.geometry import box_corners_camera, context_boxes
 ProposalSource = Literal["auto", "compute", "precomputed"]
 PROPOSAL_SOURCES: tuple[str, ...] = typing.get_args(ProposalSource)
 STAGES = ("read", "depth_fill", "gravity", "proposals", "lifting", "network_input", "network", "postprocess")
+FRONT_END_STAGES = STAGES[: STAGES.index("network")]  # what ``load_and_prepare`` times
 
 
 class NetworkRunner(Protocol):
@@ -270,13 +275,15 @@ def detect(frame: Frame, model: NetworkRunner, config: PipelineConfig) -> FrameD
 
 @dataclass(eq=False)
 class FrameOutcome:
-    """One frame of a run: its detections and prepared inputs, or the problem that stopped it."""
+    """One frame of a run: its detections and prepared inputs, or the problem that stopped it;
+    ``overlapped``: prepared on the background thread during the previous frame's network call."""
 
     name: str
     origin: str
     detections: FrameDetections | None = None
     prepared: PreparedFrame | None = None
     problem: str = ""
+    overlapped: bool = False
 
 
 def frame_problem(loader: FrameLoader, error: Exception) -> str:
@@ -310,12 +317,64 @@ def detect_frames(
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="a3d-prepare") as pool:
         current = next(items, None)
         pending = None if current is None else pool.submit(load_and_prepare, current, config)
+        first = True
         while current is not None and pending is not None:
             following = next(items, None)
             ready = pending
             pending = None if following is None else pool.submit(load_and_prepare, following, config)
-            yield _run_one(current, ready.result, model, config)
-            current = following
+            yield replace(_run_one(current, ready.result, model, config), overlapped=not first)
+            current, first = following, False
+
+
+def overlap_pays(timing: dict[str, float], threads: int, margin: float = 0.9) -> bool:
+    """Whether frames like this one (its ``timing``, run sequentially on ``threads`` threads) come
+    faster with the next frame prepared on a background thread and the network on one thread fewer.
+
+    Predicted overlapped period: max(network x threads / (threads - 1) + postprocess, front end),
+    against front end + network + postprocess sequentially; overlap only where that is below
+    ``margin`` x sequential. The network is assumed to scale linearly with threads (it scales
+    less, so the real overlapped period is shorter: the choice errs towards sequential), and the
+    caller's own per-frame work (writing, logging) is left out of both (it only adds to the gain).
+    With a network much longer than the front end (the paper's VGG16 on 2 cores) overlap would
+    double the network's time for a small hidden front end; with a small network it hides the
+    network behind the front end.
+    """
+    if threads < 2:
+        return False
+    front = sum(timing.get(stage, 0.0) for stage in FRONT_END_STAGES)
+    network, post = timing.get("network", 0.0), timing.get("postprocess", 0.0)
+    overlapped = max(network * threads / (threads - 1) + post, front)
+    return overlapped < margin * (front + network + post)
+
+
+def detect_frames_auto(
+    loaders: Iterable[FrameLoader],
+    model: NetworkRunner,
+    config: PipelineConfig,
+    *,
+    threads: int,
+    narrow: Callable[[int], NetworkRunner],
+) -> Iterator[FrameOutcome]:
+    """``detect_frames`` that chooses overlap where it is faster: frames run sequentially on
+    ``model`` (``threads`` threads) until one after the first (a warm-up) has its timing; the rest
+    then overlap, with the network on ``narrow(threads - 1)``, where ``overlap_pays`` for it,
+    else go on sequentially. The source is taken lazily as by ``detect_frames``; the outcomes say
+    which way each frame ran (``overlapped``)."""
+    items = iter(loaders)
+    for i, loader in enumerate(items):
+        outcome = _run_one(loader, lambda item=loader: load_and_prepare(item, config), model, config)
+        yield outcome
+        if i == 0 or outcome.detections is None:
+            continue
+        following = next(items, None)  # a live source's next frame, which the run needs next anyway
+        if following is None:
+            return
+        rest = itertools.chain([following], items)
+        if overlap_pays(outcome.detections.timing, threads):
+            yield from detect_frames(rest, narrow(threads - 1), config, overlap=True)
+        else:
+            yield from detect_frames(rest, model, config)
+        return
 
 
 def _run_one(

@@ -125,6 +125,31 @@ def _init_worker() -> None:
     cv2.setNumThreads(1)  # one core per worker
 
 
+def frame_configs(
+    seed: int,
+    frames: int,
+    config: SceneConfig,
+    camera_mix: tuple[str, ...] = (),
+    camera_scale: float = 1.0,
+    empty_share: float = 0.0,
+) -> list[SceneConfig]:
+    """The settings of frames 0..frames-1 of a run: ``config``, each with a camera preset of
+    ``camera_mix`` (none: ``config``'s size and intrinsics) at ``camera_scale``, and for an
+    ``empty_share`` of them (fixed by seed) a room without class objects."""
+    empty = held_out_indices(seed, frames, empty_share, salt=0xE3)
+    configs = []
+    for i in range(frames):
+        frame_config = replace(config, labelled=False) if i in empty else config
+        if camera_mix:
+            device = DEVICES[frame_device(seed, i, camera_mix)]
+            size, K = device.frame(camera_scale)
+            frame_config = replace(
+                frame_config, image_size=size, intrinsics=K, depth_sensor=device.depth, device=device.name
+            )
+        configs.append(frame_config)
+    return configs
+
+
 def generate(
     out: Path,
     frames: int,
@@ -140,30 +165,16 @@ def generate(
 ) -> list[dict]:
     """Render and write a set (see the module docstring); returns its statistics records.
 
-    Each frame takes a camera preset of ``camera_mix`` (none: ``config``'s size and intrinsics)
-    at ``camera_scale``; an ``empty_share`` of the frames show rooms without class objects."""
+    Frames take their settings from ``frame_configs``."""
     test = held_out_indices(seed, frames, test_share)
-    empty = held_out_indices(seed, frames, empty_share, salt=0xE3)
+    configs = frame_configs(seed, frames, config, camera_mix, camera_scale, empty_share)
     jobs = []
-    for i in range(frames):
+    for i, frame_config in enumerate(configs):
         split = "test" if i in test else "train"
-        frame_config = replace(config, labelled=False) if i in empty else config
-        if camera_mix:
-            device = DEVICES[frame_device(seed, i, camera_mix)]
-            size, K = device.frame(camera_scale)
-            frame_config = replace(
-                frame_config, image_size=size, intrinsics=K, depth_sensor=device.depth, device=device.name
-            )
-        job = (
-            out / split,
-            f"synth_{i:06d}",
-            split,
-            frame_seed(seed, i),
-            frame_config,
-            depth_format,
-            bool(camera_mix),
+        name = f"synth_{i:06d}"
+        jobs.append(
+            (out / split, name, split, frame_seed(seed, i), frame_config, depth_format, bool(camera_mix))
         )
-        jobs.append(job)
     for split in ("train", "test"):
         (out / split).mkdir(parents=True, exist_ok=True)
         write_intrinsics(out / split, config.intrinsics)
@@ -278,8 +289,11 @@ def main(argv: list[str] | None = None) -> int:
     world = {k: v if getattr(args, k) is None else getattr(args, k) for k, v in WORLDS[args.world].items()}
     if world["clutter"] < 0 or not 0.0 <= world["empty_share"] <= 1.0 or not 0.05 <= args.camera_scale <= 4:
         parser.error("--clutter must be >= 0, --empty-share in [0, 1] and --camera-scale in [0.05, 4]")
-    if world["camera_mix"] and args.size is not None:
-        parser.error("--size and a camera mix exclude each other (use --camera-scale, or --camera-mix '')")
+    if world["camera_mix"] and (args.size is not None or args.sensor != "a3d"):
+        parser.error(
+            "--size and --sensor exclude a camera mix: each preset has its own size and depth model"
+            " (use --camera-scale, or --camera-mix '')"
+        )
     size = args.size or NYU_CROP_SIZE
     config = replace(
         SceneConfig(),

@@ -3,7 +3,8 @@
 A frame of a device is its colour image with the depth registered into it, at a working size
 of 640 pixels across (times ``scale``): the colour camera's horizontal field of view sets the
 focal length, and the depth family and parameters (``a3d.synth.depth_families``) its errors.
-Values follow the makers' data sheets, rounded; they aim at each family's look, not at one unit:
+The values approximate the makers' published figures; they aim at each family's look, not at
+one calibrated unit:
 
 =================  ==========  =====  ================  =============================================
 device             frame       HFOV   depth family      what goes wrong

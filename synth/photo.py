@@ -27,12 +27,18 @@ DAYLIGHT = np.array([0.88, 0.95, 1.05])  # linear RGB of the sky's light
 DAYLIGHT_SHARE = 0.7  # frames with daylight through the windows
 
 
-def add_daylight(rng: np.random.Generator, lights: Lights) -> Lights:
+def add_daylight(rng: np.random.Generator, lights: Lights, window_yaw: float | None = None) -> Lights:
     """``lights`` with (probability DAYLIGHT_SHARE) a strong directional daylight in place of the
-    renderer's weak sun, and the sky's light added to the ambient term."""
+    renderer's weak sun, and the sky's light added to the ambient term. The light comes in
+    through a window facing tilt-frame yaw ``window_yaw`` (its inward direction), within 0.6 rad
+    of it; from anywhere without one."""
     if rng.random() >= DAYLIGHT_SHARE:
         return lights
-    elevation, azimuth = float(rng.uniform(0.2, 0.9)), float(rng.uniform(0, 2 * math.pi))
+    elevation = float(rng.uniform(0.2, 0.9))
+    if window_yaw is None:
+        azimuth = float(rng.uniform(0, 2 * math.pi))
+    else:
+        azimuth = window_yaw + float(rng.uniform(-0.6, 0.6))
     c, s = math.cos(elevation), math.sin(elevation)
     direction = np.array([c * math.sin(azimuth), s, c * math.cos(azimuth)])  # tilt frame: +y is down
     power = DAYLIGHT * float(rng.uniform(0.6, 2.5))

@@ -1,8 +1,9 @@
 """One synthetic RGB-D frame with amodal ground truth: ``generate_frame(seed, config)``.
 
-Pipeline: furnish a random room (``rooms``), choose a handheld camera pose that sees many
-objects (``camera``), ray-cast the exact depth and the visible part of every pixel
-(``raycast``), shade it (``shading``), then apply the Kinect-like sensor models (``sensor``).
+Pipeline: furnish a random room (``rooms``, plus objects of no class with ``world``), choose a
+handheld camera pose that sees many objects (``camera``), ray-cast the exact depth and the
+visible part of every pixel (``raycast``), shade it (``shading``, plus daylight with ``photo``),
+then apply the sensor models (``sensor``, ``depth_families``, ``photo``).
 
 Ground truth, per object of one of the 19 classes with at least ``min_visible_px`` visible
 pixels (smaller ones are rendered but not annotated, and are 0 in the instance map):
@@ -162,10 +163,16 @@ def generate_frame(seed: int, config: SceneConfig = SceneConfig()) -> SynthFrame
         np.array([0, room.width, room.width, 0.0]), np.zeros(4), np.array([0, 0, room.depth, room.depth])
     )
     lights = shading.draw_lights(rng, pose.height - room.height, corners)
+    lit_sun = None
     if config.real_light:
-        lights = photo.add_daylight(rng, lights)
+        windows = [p.yaw - pose.heading for p in placed if p.item.glow >= 0]
+        lights = photo.add_daylight(rng, lights, float(rng.choice(windows)) if windows else None)
+        if lights.sun_dir is not None:
+            centre = np.array([corners[:, 0].mean(), pose.height - room.height / 2, corners[:, 2].mean()])
+            radius = 0.5 * math.sqrt(room.width**2 + room.depth**2 + room.height**2) + 0.1
+            lit_sun = shading.sun_shadow(surf.point, lights.sun_dir, parts, n_obj, centre, radius)
     lit = shading.shadow_factor(surf.point, lights.positions[0], parts, n_obj)
-    radiance = shading.illuminate(surf, alb, gloss, lights, t, lit)
+    radiance = shading.illuminate(surf, alb, gloss, lights, t, lit, lit_sun)
     if config.real_light:
         radiance = photo.glow(rng, radiance, np.isin(part, _glowing_parts(placed, parts)))
 

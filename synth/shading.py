@@ -309,29 +309,39 @@ _LIGHT_ROT = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]])  # v
 _SHADOW_SIZE, _SHADOW_TAN = 256, 2.5
 
 
-def shadow_factor(points: np.ndarray, light: np.ndarray, parts: PartArrays, n_objects: int) -> np.ndarray:
+def shadow_factor(
+    points: np.ndarray,
+    light: np.ndarray,
+    parts: PartArrays,
+    n_objects: int,
+    rot: np.ndarray = _LIGHT_ROT,
+    tan: float = _SHADOW_TAN,
+    size: int = _SHADOW_SIZE,
+    bias: tuple[float, float] = (0.03, 0.02),
+) -> np.ndarray:
     """(H, W) in [0, 1]: how much of the light reaches each point (1 = lit), by a shadow map.
 
-    The map looks straight down from the light over a 136-degree field; points it does not
-    cover count as lit. The four nearest map samples are compared and their results bilinearly
-    weighted, then blurred a little (soft edges).
+    The map looks from the light along ``rot``'s third column (default straight down) over a
+    field of half-width ``tan`` (default 136 degrees across); points it does not cover count as
+    lit. The four nearest map samples are compared (depth bias ``bias[0] + bias[1] * depth``)
+    and their results bilinearly weighted, then blurred a little (soft edges).
     """
-    f = _SHADOW_SIZE / (2 * _SHADOW_TAN)
-    c = (_SHADOW_SIZE - 1) / 2
+    f = size / (2 * tan)
+    c = (size - 1) / 2
     K = np.array([[f, 0, c], [0, f, c], [0, 0, 1.0]])
-    grid = RayGrid.make(light, _LIGHT_ROT, K, (_SHADOW_SIZE, _SHADOW_SIZE))
+    grid = RayGrid.make(light, rot, K, (size, size))
     depth = cast(grid, parts, n_objects).t
     rel = points - light.astype(np.float32)[:, None, None]
-    vz = rel[1]  # view z = tilt y (down)
-    vx, vy = rel[0], -rel[2]
+    r = rot.astype(np.float32)
+    vx, vy, vz = (r[0, k] * rel[0] + r[1, k] * rel[1] + r[2, k] * rel[2] for k in range(3))  # view frame
     ok = vz > 0.05
     safe = np.where(ok, vz, 1.0)
     u, v = f * vx / safe + c, f * vy / safe + c
-    ok &= (u >= 0) & (u < _SHADOW_SIZE - 1) & (v >= 0) & (v < _SHADOW_SIZE - 1)
+    ok &= (u >= 0) & (u < size - 1) & (v >= 0) & (v < size - 1)
     fu_, fv_ = np.where(ok, u, 0), np.where(ok, v, 0)
     u0, v0 = fu_.astype(np.int64), fv_.astype(np.int64)
     wu, wv = (fu_ - u0).astype(np.float32), (fv_ - v0).astype(np.float32)
-    limit = vz - (0.03 + 0.02 * vz)  # depth bias against self-shadowing
+    limit = vz - (bias[0] + bias[1] * vz)  # depth bias against self-shadowing
     lit = np.zeros(vz.shape, np.float32)
     for du, dv, w in (
         (0, 0, (1 - wu) * (1 - wv)),
@@ -342,6 +352,27 @@ def shadow_factor(points: np.ndarray, light: np.ndarray, parts: PartArrays, n_ob
         lit += w * (depth[v0 + dv, u0 + du] >= limit)
     lit = cv2.GaussianBlur(lit, (0, 0), 1.5)  # soft shadow edges
     return np.where(ok, lit, np.float32(1))
+
+
+def sun_shadow(
+    points: np.ndarray,
+    direction: np.ndarray,
+    parts: PartArrays,
+    n_objects: int,
+    centre: np.ndarray,
+    radius: float,
+) -> np.ndarray:
+    """(H, W) in [0, 1]: how much of a directional light shining along ``direction`` reaches each
+    point; its shadow map looks along it from 60 m away (nearly parallel rays) over the sphere of
+    ``radius`` about ``centre`` (the room), at 512 x 512."""
+    d = direction / np.linalg.norm(direction)
+    x = np.cross(d, [0.0, 0.0, 1.0] if abs(d[2]) < 0.9 else [1.0, 0.0, 0.0])
+    x /= np.linalg.norm(x)
+    rot = np.column_stack([x, np.cross(d, x), d])
+    distance = 60.0
+    return shadow_factor(
+        points, centre - distance * d, parts, n_objects, rot, radius / distance, 512, (0.04, 0.0)
+    )
 
 
 def ambient_occlusion(depth: np.ndarray) -> np.ndarray:
@@ -355,10 +386,17 @@ def ambient_occlusion(depth: np.ndarray) -> np.ndarray:
 
 
 def illuminate(
-    s: Surfaces, alb: np.ndarray, gloss: np.ndarray, lights: Lights, depth: np.ndarray, lit_main: np.ndarray
+    s: Surfaces,
+    alb: np.ndarray,
+    gloss: np.ndarray,
+    lights: Lights,
+    depth: np.ndarray,
+    lit_main: np.ndarray,
+    lit_sun: np.ndarray | None = None,
 ) -> np.ndarray:
     """(H, W, 3) linear radiance seen from a camera at the tilt-frame origin: albedo times
-    (occluded ambient + lights with distance falloff) plus a highlight of the main light."""
+    (occluded ambient + lights with distance falloff) plus a highlight of the main light; the
+    directional light is shadowed by ``lit_sun`` when given."""
     f32 = np.float32
     (px, py, pz), (nx, ny, nz) = s.point, s.normal
     inv_v = f32(1) / np.sqrt(px * px + py * py + pz * pz)
@@ -381,7 +419,8 @@ def illuminate(
     powers = lights.powers.astype(f32)
     if lights.sun_dir is not None:
         d = lights.sun_dir.astype(f32)
-        irradiance.append(np.maximum(-(d[0] * nx + d[1] * ny + d[2] * nz), f32(0)))
+        sun = np.maximum(-(d[0] * nx + d[1] * ny + d[2] * nz), f32(0))
+        irradiance.append(sun if lit_sun is None else sun * lit_sun)
         powers = np.vstack([powers, lights.sun.astype(f32)])
     sky = (f32(0.85) - f32(0.15) * ny) * ambient_occlusion(
         depth

@@ -55,16 +55,7 @@ def add_clutter(L: Layout, n: int) -> int:
     placed, tries = 0, 0
     while placed < n and tries < 4 * n:
         tries += 1
-        kind = KINDS[int(rng.choice(len(KINDS), p=WEIGHTS))]
-        idx = {
-            "surface": _on_surface,
-            "storage": _storage,
-            "floor": _on_floor,
-            "wall": _on_wall,
-            "partition": _partition,
-            "window": _window,
-            "near-miss": _near_miss,
-        }[kind](L)
+        idx = _PLACERS[KINDS[int(rng.choice(len(KINDS), p=WEIGHTS))]](L)
         placed += idx is not None
     return placed
 
@@ -147,3 +138,14 @@ def _near_miss(L: Layout) -> int | None:
             0.3,
         )
     return L.place_free(un.stool(rng) if rng.random() < 0.5 else un.bench(rng), tries=8)
+
+
+_PLACERS = {
+    "surface": _on_surface,
+    "storage": _storage,
+    "floor": _on_floor,
+    "wall": _on_wall,
+    "partition": _partition,
+    "window": _window,
+    "near-miss": _near_miss,
+}

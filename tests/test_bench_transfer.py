@@ -4,9 +4,7 @@ scores say, and the false positives are counted on exactly the frames without an
 
 from __future__ import annotations
 
-import importlib.util
 import json
-import sys
 from pathlib import Path
 
 import pytest
@@ -14,39 +12,19 @@ import pytest
 from a3d.runtime.io.detections_io import read_detections
 from a3d.runtime.sources.folder import list_frames, read_ground_truth
 from a3d.synth.cli import main as synth_main
+from a3d.train.config import apply_overrides, load_config
+from bench import background_rois, false_positives, transfer
 from tests.test_train_scenes import TINY
 
 pytestmark = pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")
-BENCH = Path(__file__).resolve().parents[1] / "bench"
 SAMPLE_MODEL = Path(__file__).resolve().parents[1] / "samples" / "model.onnx"
-
-
-def _load(name: str):
-    sys.path.insert(0, str(BENCH))  # the scripts import their neighbours, as when run from bench/
-    try:
-        spec = importlib.util.spec_from_file_location(name, BENCH / f"{name}.py")
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[name] = module
-        spec.loader.exec_module(module)
-        return module
-    finally:
-        sys.path.remove(str(BENCH))
-
-
-@pytest.fixture(scope="module")
-def benches():
-    modules = {name: _load(name) for name in ("false_positives", "train_synth", "transfer")}
-    yield modules
-    for name in modules:
-        sys.modules.pop(name, None)
 
 
 def _empty_names(folder: Path) -> set[str]:
     return {r.name for r in list_frames(folder) if len(read_ground_truth(r)) == 0}
 
 
-def test_transfer_table_and_false_positives_end_to_end(benches, tmp_path: Path, monkeypatch) -> None:
-    transfer = benches["transfer"]
+def test_transfer_table_and_false_positives_end_to_end(tmp_path: Path, monkeypatch) -> None:
     monkeypatch.setitem(transfer.WORLDS, "clutter", ["--clutter", "20", "--empty-share", "0.5"])
     sets = [f"--set={s}" for s in TINY if not s.startswith("log.")] + ["--set=log.progress=false"]
     argv = [
@@ -88,17 +66,35 @@ def test_transfer_table_and_false_positives_end_to_end(benches, tmp_path: Path, 
         assert fp["per_frame"] == pytest.approx(expected / len(empty))
 
 
-def test_false_positives_runs_a3d_run_on_the_empty_frames(benches, tmp_path: Path) -> None:
+def test_false_positives_runs_a3d_run_on_the_empty_frames(tmp_path: Path) -> None:
     """The bundled model on two small frames of rooms without class objects."""
     args = ["--frames", "2", "--seed", "3", "--world", "real", "--empty-share", "1", "--split", "test=1"]
     assert synth_main([str(tmp_path / "set"), *args, "--camera-scale", "0.25"]) == 0
     folder = tmp_path / "set" / "test"
     assert len(_empty_names(folder)) == 2
-    fp = benches["false_positives"]
-    assert fp.main([str(folder), "--model", str(SAMPLE_MODEL), "--out", str(tmp_path / "d.jsonl")]) == 0
+    assert (
+        false_positives.main([str(folder), "--model", str(SAMPLE_MODEL), "--out", str(tmp_path / "d.jsonl")])
+        == 0
+    )
     report = json.loads((tmp_path / "d.report.json").read_text())
     dets = read_detections(tmp_path / "d.jsonl")
     assert report["empty_frames"] == 2
     assert report["detections"] == sum(int((d.scores >= 0.5).sum()) for d in dets)
     assert sum(report["by_class"].values()) == report["detections"]
-    assert fp.main([str(folder), "--detections", str(tmp_path / "missing.jsonl")]) == 1
+    assert false_positives.main([str(folder), "--detections", str(tmp_path / "missing.jsonl")]) == 1
+
+
+def test_background_rois_at_bound_zero_keep_the_empty_rooms(tmp_path: Path) -> None:
+    """At the default bound (0.1) a room without labelled objects offers no RoI and is skipped;
+    at 0 it is kept with background RoIs only, and every frame offers at least as many."""
+    args = "--frames 4 --seed 3 --empty-share 0.5 --clutter 20 --split test=0".split()
+    assert synth_main([str(tmp_path / "set"), *args, "--size", "96x128"]) == 0
+    folder = tmp_path / "set" / "train"
+    empty = _empty_names(folder)
+    assert len(empty) == 2
+    config = apply_overrides(load_config("cpu-small"), list(TINY))
+    report = background_rois.background_counts(folder, config, [0.1, 0.0], tmp_path / "cache")
+    low, zero = report["0.1"], report["0.0"]
+    assert low["frames_skipped"] >= len(empty) and zero["frames_kept"] == low["frames_kept"] + len(empty)
+    assert zero["background_rois"] > low["background_rois"]
+    assert zero["foreground_rois"] == low["foreground_rois"]

@@ -8,6 +8,8 @@ network-alone measurement sees the very inputs a3d-run fed the model.
 from __future__ import annotations
 
 import os
+import subprocess
+import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bench import edge_speed
+from bench import edge_report, edge_speed
 from tests.test_export import _frames as write_test_frames
 
 pytestmark = pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")
@@ -51,7 +53,7 @@ def test_breakdown_accounts_for_the_whole_frame(tiny: Tiny, tmp_path: Path) -> N
     rrd = tmp_path / "run.rrd"
     run = edge_speed.measure_run(tiny.model, tiny.frames, max_proposals=40, threads=1, rrd=rrd)
     assert run.frames == 3 and 0 < run.rois <= 40 and rrd.stat().st_size > 0
-    assert set(run.stages) == set(edge_speed.RUN_STAGES)
+    assert set(run.stages) == set(edge_report.RUN_STAGES)
     assert all(seconds >= 0 for seconds in run.stages.values())
     assert run.stages["network"] > 0 and run.stages["output"] > 0 and run.stages["rerun"] > 0
     # Sequential: the frame period is the stages plus a little loop overhead (progress bar, generator).
@@ -79,3 +81,136 @@ def test_a_slow_warm_up_frame_stays_out_of_the_period(tiny: Tiny, monkeypatch: p
     run = edge_speed.measure_run(tiny.model, tiny.frames, max_proposals=40, threads=1)
     assert len(calls) == 3
     assert run.frame_seconds <= run.stage_sum * 1.25 + 0.02
+
+
+VGG16 = (64, 64, "M", 128, 128, "M", 256, 256, 256, "M", 512, 512, 512, "M", 512, 512, 512)
+
+
+def vgg16_trunk_macs(height: int, width: int, scale: float) -> tuple[int, int, int, int]:
+    """(MACs of one VGG16 trunk of ``scale`` x the channels, channels, height, width of conv5_3)."""
+    macs, channels = 0, 3
+    for layer in VGG16:
+        if layer == "M":
+            height, width = -(-height // 2), -(-width // 2)  # ceil_mode, as Caffe
+            continue
+        out = round(layer * scale)
+        macs += height * width * channels * out * 9
+        channels = out
+    return macs, channels, height, width
+
+
+def test_profile_finds_the_parts_and_their_macs(tiny: Tiny) -> None:
+    """The profile's MACs equal the network's by hand: two VGG16 trunks at the input size plus the
+    two 1 x 1 channel fusions, RoI and context (trunks); fc6 / fc7 / the three outputs per RoI (the
+    head's weighted GEMMs)."""
+    profile = edge_speed.measure_profile(tiny.model, tiny.frames, max_proposals=40, threads=1)
+    item = max(edge_speed.network_inputs(tiny.model, tiny.frames, 40, count=2), key=lambda i: len(i.rois))
+    assert profile.rois == len(item.rois) >= 2
+    net = TINY["net"]
+    trunk, channels, h, w = vgg16_trunk_macs(*item.color_input.shape[2:], net["width"])
+    fusion = 2 * h * w * 2 * channels * net["fuse_channels"]
+    assert profile.macs("trunks") == 2 * trunk + fusion
+    fc6_in = 2 * net["fuse_channels"] * 7 * 7  # the RoI's and its context's pooled maps
+    per_roi = fc6_in * net["fc6"] + net["fc6"] * net["fc7"] + net["fc7"] * 20 * (1 + 7 + 4)
+    weighted = sum(o.macs for o in profile.ops if o.part == "head" and o.op in ("Gemm", "FusedGemm"))
+    assert weighted == profile.rois * per_roi
+    pooling = sum(o.macs for o in profile.ops if o.part == "head" and o.op in ("MatMul", "FusedMatMul"))
+    assert profile.macs("head") == weighted + pooling > weighted  # RoI pooling: products of computed tensors
+    assert profile.seconds("trunks") > 0 and profile.seconds("head") > 0
+    assert not profile.int8()
+
+
+def test_ceiling_graphs_compute_what_their_macs_count() -> None:
+    """The ceilings divide MACs by time: the graphs must be the products they claim to be."""
+    import onnxruntime as ort
+
+    from bench.ceilings import conv_graph, gemm_graph, measure_ceilings
+
+    def run(model, feeds):
+        session = ort.InferenceSession(model.SerializeToString(), providers=["CPUExecutionProvider"])
+        return session.run(None, feeds)[0]
+
+    model, feeds = gemm_graph(8, 16, 24, int8=False)
+    weight = onnx_numpy(model, "w")
+    np.testing.assert_allclose(run(model, feeds), feeds["x"] @ weight, rtol=1e-5, atol=1e-4)
+    model, feeds = gemm_graph(8, 16, 24, int8=True)
+    # Activations <= 128: AVX2 without VNNI adds uint8 x int8 products in pairs into int16, which
+    # saturates above 2 x 128 x 127 (the int8 model's own accuracy on such a machine is another matter).
+    feeds["x"] = np.random.default_rng(1).integers(0, 129, feeds["x"].shape, dtype=np.uint8)
+    exact = (feeds["x"].astype(np.int64) - 128) @ onnx_numpy(model, "w").astype(np.int64)
+    expected = np.clip(np.round(exact * 0.02 * 0.01 / 0.5) + 128, 0, 255)
+    assert np.abs(run(model, feeds).astype(np.int64) - expected).max() <= 1
+    model, feeds = conv_graph(4, 6, 5, 7, int8=False)
+    out = run(model, feeds)
+    padded = np.pad(feeds["x"][0], ((0, 0), (1, 1), (1, 1)))
+    weight, bias = onnx_numpy(model, "w"), onnx_numpy(model, "b")
+    by_hand = np.einsum(
+        "oikl,iyxkl->oyx", weight, np.lib.stride_tricks.sliding_window_view(padded, (3, 3), (1, 2))
+    )
+    np.testing.assert_allclose(out[0], by_hand + bias[:, None, None], rtol=1e-4, atol=1e-4)
+
+    ceilings = measure_ceilings(threads=1, scale=1 / 16, repeats=1)
+    rates = [ceilings.gemm_fp32, ceilings.gemm_int8, ceilings.conv_fp32, ceilings.conv_int8]
+    assert all(np.isfinite(r) and r > 1e6 for r in rates)
+
+
+def onnx_numpy(model, name: str) -> np.ndarray:
+    from onnx import numpy_helper
+
+    return next(numpy_helper.to_array(t) for t in model.graph.initializer if t.name == name)
+
+
+def test_a_child_reports_its_own_peak_memory_not_its_parents() -> None:
+    ballast = np.ones(64 * 2**20)  # 512 MiB resident in this process
+    code = "from bench.edge_speed import peak_resident_bytes; print(peak_resident_bytes())"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=edge_speed.REPO)  # fmt: skip
+    assert int(out.stdout) < 256 * 2**20 < ballast.nbytes
+
+
+def test_targets_judge_what_was_measured(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+) -> None:
+    """The report's verdicts from made-up measurements: trunks at 60 % of a ceiling that the second
+    ceiling run raised, auto overlap slower than sequential for one model only, no VNNI."""
+    from bench.ceilings import Ceilings
+    from bench.edge_speed import NetworkResult, RunResult
+    from bench.network_profile import NetworkProfile, OpStat
+
+    monkeypatch.setattr(edge_report, "cpu_flags", lambda: frozenset({"avx2"}))
+    start = Ceilings(gemm_fp32=20e9, gemm_int8=30e9, conv_fp32=20e9, conv_int8=25e9, threads=2)
+    end = Ceilings(gemm_fp32=25e9, gemm_int8=40e9, conv_fp32=15e9, conv_int8=50e9, threads=2)
+    ops = [OpStat("trunks", "QLinearConv", seconds=1.0, macs=30_000_000_000, nodes=26),  # at 50 G: 0.6 s
+           OpStat("head", "QGemm", seconds=0.2, macs=4_000_000_000, nodes=7),  # at 40 G: 0.1 s
+           OpStat("head", "Transpose", seconds=0.1, nodes=2)]  # fmt: skip
+    stages = {s: 0.01 for s in edge_report.RUN_STAGES} | {"network": 1.3}
+
+    def run(model: str, overlap: str, seconds: float) -> RunResult:
+        return RunResult(model, overlap, 8, 100.0, stages, seconds, overlapped=6 * (overlap != "off"),
+                         peak_bytes=2**30)  # fmt: skip
+
+    m = edge_report.Measurements(
+        ceiling_runs=[start, end],
+        full=[run("a", "off", 1.5), run("a", "on", 1.9), run("a", "auto", 1.52)],
+        small=[run("b", "off", 0.5), run("b", "on", 0.4), run("b", "auto", 0.6)],
+        networks={
+            key: NetworkResult("onnxruntime", key, seconds, 1.0, 100.0)
+            for key, seconds in (("ort int8 + SVD", 1.3), ("ort fp32", 2.0), ("ort small model", 0.2))
+        },
+        profiles={"int8 + SVD": NetworkProfile("a.onnx", 100, 5, ops)},
+    )
+    assert m.ceilings.conv_int8 == 50e9 and m.ceilings.conv_fp32 == 20e9  # each ceiling's best run
+    edge_report.print_targets(m)
+    edge_report.print_parts("a", m.profiles["int8 + SVD"], m.ceilings, m.full[0])
+    out = capsys.readouterr().out
+    assert "[FAIL] int8 trunks >= 75% of the measured int8 convolution ceiling: 60%" in out
+    assert (
+        "[PASS] int8 + SVD end to end <= 1.25 x its network alone: 1.500 s vs 1.25 x 1.300 s (sequential)"
+        in out
+    )
+    assert "[n/a ] int8 + SVD end to end <= 0.739 s" in out and "0.900 s projected" in out  # 0.6 + 0.1 + 0.2
+    assert "[PASS] --overlap auto never slower than sequential, full model" in out  # 1.52 <= 1.05 x 1.5
+    assert "[FAIL] --overlap auto never slower than sequential, small model" in out  # 0.6 > 1.05 x 0.5
+    assert "[PASS] peak resident memory" in out
+    trunks = next(line for line in out.splitlines() if line.strip().startswith("trunks"))
+    assert trunks.split()[1:] == ["30.0", "1000.0", "600.0", "60%"]

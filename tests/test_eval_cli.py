@@ -139,6 +139,21 @@ def test_cli_end_to_end_prints_the_table_and_writes_eval_json_and_the_png(scene,
     assert sorted(p.name for p in out.iterdir()) == ["eval.json", "pr_curves.png"]  # no temp files left
 
 
+def test_cli_scores_the_shards_of_a_run_as_one_file(scene, tmp_path, capsys) -> None:
+    folder, detections = scene
+    assert main([str(folder), "--detections", str(detections)]) == 0
+    whole = capsys.readouterr().out
+    lines = detections.read_text().splitlines(keepends=True)
+    shards = [tmp_path / "shard0.jsonl", tmp_path / "shard1.jsonl"]
+    shards[0].write_text("".join(lines[0::2]))
+    shards[1].write_text("".join(lines[1::2]))
+    assert main([str(folder), "--detections", *map(str, shards)]) == 0
+    assert capsys.readouterr().out == whole
+    shards[1].write_text(lines[0])  # frame f0 in both files
+    assert main([str(folder), "--detections", *map(str, shards)]) == 2
+    assert f"{shards[1]}: frame 'f0' is also in {shards[0]}" in capsys.readouterr().err
+
+
 def test_cli_thresholds_and_no_nms(scene, tmp_path) -> None:
     folder, detections = scene
     out = tmp_path / "out"

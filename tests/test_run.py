@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from a3d.runtime import pipeline
 from a3d.runtime.cli import eval as eval_cli
 from a3d.runtime.evaluation.metric import FrameTruth, evaluate
 from a3d.runtime.frontend.proposals import ProposalConfig, proposal_config_from_dict
@@ -21,7 +23,7 @@ from a3d.runtime.io.detections_io import FrameDetections, read_detections, write
 from a3d.runtime.network.model import SCHEMA_VERSION, ModelMetadata
 from a3d.runtime.network.network_input import network_inputs, scale_boxes, with_batch_index
 from a3d.runtime.network.preprocess import COLOR_MEAN_BGR, DEPTH_MEAN, color_input, depth_input
-from a3d.runtime.pipeline import PipelineConfig, detect, detect_frames
+from a3d.runtime.pipeline import PipelineConfig, detect, detect_frames, detect_frames_auto, overlap_pays
 from a3d.runtime.postprocess.select import decode_detections, select_detections
 from a3d.runtime.sources.folder import (
     FolderSource,
@@ -328,6 +330,65 @@ def test_overlapped_run_gives_the_sequential_results(tmp_path: Path) -> None:
     sequential = list(detect_frames(FolderSource(folder), model, config))
     overlapped = list(detect_frames(FolderSource(folder), model, config, overlap=True))
     for a, b in zip(sequential, overlapped, strict=True):
+        assert a.detections is not None and b.detections is not None
+        assert_same_detections(a.detections, b.detections)
+
+
+@pytest.mark.parametrize(
+    ("front", "network", "threads", "pays"),
+    [
+        (0.15, 0.04, 2, True),  # a small model: the network hides behind the front end
+        (0.13, 0.66, 2, False),  # the paper's VGG16 on 2 cores: overlap would double the network
+        (0.15, 0.04, 1, False),  # one thread: nothing to overlap on
+        (0.05, 0.10, 2, False),  # the network on 1 thread (0.2 s) would outlast sequential (0.16 s)
+        (0.05, 0.10, 4, True),  # ... on 3 of 4 threads it would not
+        (0.15, 0.001, 2, False),  # a negligible network: under 10 % to gain, not worth a thread
+    ],
+)
+def test_overlap_pays_where_the_front_end_is_the_longer_part(
+    front: float, network: float, threads: int, pays: bool
+) -> None:
+    timing = {"read": 0.2 * front, "proposals": 0.8 * front, "network": network, "postprocess": 0.01}
+    assert overlap_pays(timing, threads) is pays
+
+
+class TimedNetwork(FakeModel):
+    def __init__(self, seconds: float) -> None:
+        super().__init__()
+        self.seconds = seconds
+
+    def run(self, *args):
+        time.sleep(self.seconds)
+        return super().run(*args)
+
+
+@pytest.mark.parametrize(("network", "front_end", "overlaps"), [(0.05, 0.2, True), (0.3, 0.0, False)])
+def test_auto_overlap_times_a_frame_then_overlaps_only_where_it_pays(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, network: float, front_end: float, overlaps: bool
+) -> None:
+    folder = write_scene_folder(tmp_path / "frames", ["a", "b", "c", "d", "e"])
+    model = TimedNetwork(network)
+    config = PipelineConfig.from_metadata(model.metadata)
+    sequential = list(detect_frames(FolderSource(folder), model, config))
+    load_and_prepare = pipeline.load_and_prepare
+
+    def slow_front_end(*args):
+        prepared = load_and_prepare(*args)
+        prepared.timing["proposals"] += front_end  # as if it took that long (the choice reads the timing)
+        return prepared
+
+    monkeypatch.setattr(pipeline, "load_and_prepare", slow_front_end)
+    narrowed: list[int] = []
+
+    def narrow(threads: int) -> FakeModel:
+        narrowed.append(threads)
+        return model
+
+    auto = list(detect_frames_auto(FolderSource(folder), model, config, threads=2, narrow=narrow))
+    # Frames a and b run sequentially (a warms up, b is timed); c is prepared after the choice.
+    assert [o.overlapped for o in auto] == [False, False, False, overlaps, overlaps]
+    assert narrowed == ([1] if overlaps else [])
+    for a, b in zip(sequential, auto, strict=True):
         assert a.detections is not None and b.detections is not None
         assert_same_detections(a.detections, b.detections)
 

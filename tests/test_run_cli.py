@@ -74,7 +74,7 @@ def test_usage_errors_exit_2_before_any_frame(tmp_path: Path, capsys: pytest.Cap
     assert run([str(tmp_path / "nowhere"), "--headless"]) == 2  # the folder is named, not the model
     assert (
         capsys.readouterr().err.strip().splitlines()[-1]
-        == f"a3d-run: error: {tmp_path / 'nowhere'}: no such folder"
+        == f"a3d-run: error: {tmp_path / 'nowhere'}: no such file or folder"
     )
     assert not out.exists()
 
@@ -107,7 +107,8 @@ def test_bad_frames_are_reported_and_the_rest_match_a_clean_run(
     folder = tmp_path / "frames"
     bad = _mixed_folder(folder)
     mixed = tmp_path / "mixed.jsonl"  # bad frames fail on the background thread too
-    assert run([str(folder), "--model", "m.onnx", "--output", str(mixed), "--headless", "--overlap"]) == 1
+    argv = [str(folder), "--model", "m.onnx", "--output", str(mixed), "--headless", "--overlap", "on"]
+    assert run(argv) == 1
     err = capsys.readouterr().err
     assert "Traceback" not in err
     problems = [line for line in err.splitlines() if not line.startswith("a3d-run: 3 frames written")]

@@ -80,7 +80,7 @@ def _kill_after_first_line(
 
 @pytest.mark.parametrize(
     ("sig", "status", "extra"),
-    [(signal.SIGINT, 130, ("--overlap",)), (signal.SIGKILL, -signal.SIGKILL, ())],
+    [(signal.SIGINT, 130, ("--overlap", "on")), (signal.SIGKILL, -signal.SIGKILL, ())],
     ids=["sigint-overlap", "kill-9"],
 )
 def test_killed_run_resumes_to_the_clean_output(

@@ -16,6 +16,8 @@ from a3d.synth.cli import frame_seed, main
 from a3d.synth.depth_families import depth_edges, sense
 from a3d.synth.devices import DEVICES
 from a3d.synth.layout import Layout, Room
+from a3d.synth.raycast import PartArrays
+from a3d.synth.shading import sun_shadow
 from a3d.synth.stats import read_records, summarise
 from a3d.synth.world import EMPTY_ROOM, add_clutter, furnish_world
 
@@ -190,6 +192,7 @@ def test_cli_rejects_bad_world_options(tmp_path, capsys) -> None:
         ["--clutter", "-1"],
         ["--empty-share", "2"],
         ["--world", "real", "--size", "96x128"],
+        ["--camera-mix", "kinect-v2", "--sensor", "kinect-v1"],
     ):
         with pytest.raises(SystemExit):
             main([str(tmp_path / "x"), "--frames", "1", *bad])
@@ -214,3 +217,22 @@ def test_stats_of_old_records_have_no_unlabelled_count() -> None:
     assert s.unlabelled_per_frame == 1.5 and s.more_unlabelled_share == 0.5
     assert s.at_least_as_many_unlabelled_share == 0.5 and s.frames_without_annotations == 1
     assert s.depth_families == {"tof": 1, "structured-light": 1}
+
+
+def test_sun_shadow_falls_along_the_light_direction() -> None:
+    """A 0.4 m cube standing on the floor (tilt y = 1.5 down to the floor), sun slanting 45 deg
+    towards +x: floor points under the shifted cube (x + 0.4 .. 0.8 m) are dark, others lit."""
+    parts = PartArrays(
+        np.array([0]),
+        np.array([[0.0, 1.3, 3.0]]),
+        np.array([[0.2, 0.2, 0.2]]),
+        np.zeros(1),
+        np.zeros(1, np.int64),
+        np.zeros(1, np.int64),
+        np.ones((1, 3)),
+    )
+    xs = np.linspace(-1.0, 1.5, 26, dtype=np.float32)
+    points = np.stack([xs, np.full_like(xs, 1.5), np.full_like(xs, 3.0)])[:, None, :]  # (3, 1, 26) floor
+    lit = sun_shadow(points, np.array([1.0, 1.0, 0.0]), parts, 1, np.array([0.0, 1.0, 3.0]), 3.0)[0]
+    shadowed = (xs > 0.3) & (xs < 0.5)  # under the cube's top, slid 0.2-0.6 m along x, well inside
+    assert (lit[shadowed] < 0.2).all() and (lit[(xs < -0.3) | (xs > 0.8)] > 0.9).all()

@@ -182,7 +182,7 @@ def test_the_training_front_end_equals_the_runtime_pipeline(scenes, tmp_path, fo
         ref = list_frames(folder)[0]
     front, filled = compute_front_end(ref, read_ground_truth(ref), intrinsics, config)
     pipeline = PipelineConfig(np.ones((NUM_CLASSES, 3)), proposals=config, max_proposals=config.max_proposals)
-    prepared = prepare(ref, intrinsics, pipeline)
+    prepared = prepare(read_frame(ref, intrinsics, with_proposals=True), pipeline)
     assert 0 < len(front.proposal_boxes) <= 5
     np.testing.assert_array_equal(front.proposal_boxes, prepared.boxes)
     np.testing.assert_array_equal(front.proposal_centers, prepared.centers)

@@ -1,6 +1,6 @@
 """The skeleton every a3d command shares: one parser style and one error -> exit-code mapping.
 
-Exit codes, the same for all seven commands:
+Exit codes, the same for every a3d command:
 
 - 0 (``EXIT_OK``): everything done;
 - 1 (``EXIT_FAILED``): the command ran but some inputs failed (each named on stderr), or a check

@@ -1,7 +1,7 @@
 """a3d-eval: score a detections file against a folder's ground truth, under a named protocol.
 
-    a3d-eval FOLDER --detections detections.jsonl [--protocol paper|authors|sunrgbd|all] [--out DIR]
-             [--nms 0.3 | --no-nms] [--iou 0.25 0.5]
+    a3d-eval FOLDER --detections detections.jsonl [more.jsonl ...] [--protocol paper|authors|sunrgbd|all]
+             [--out DIR] [--nms 0.3 | --no-nms] [--iou 0.25 0.5]
 
 Prints the protocol's header and a table (per class: #GT, #det, AP at each IoU threshold, in
 percent; then the mAP over the protocol's classes and over those with ground truth) and, with
@@ -52,7 +52,14 @@ PROG = "a3d-eval"
 def build_parser() -> argparse.ArgumentParser:
     p = command_parser(PROG, __doc__.split("\n\n")[0])
     p.add_argument("folder", type=Path, help="frame folder with NAME.gt.json and NAME.meta.json (README)")
-    p.add_argument("--detections", type=Path, required=True, help="detections JSON-lines file (a3d-run)")
+    p.add_argument(
+        "--detections",
+        type=Path,
+        nargs="+",
+        required=True,
+        metavar="FILE",
+        help="detections JSON-lines file(s) of a3d-run (several: the shards of one run, --shard K/N)",
+    )
     p.add_argument("--out", type=Path, help="also write OUT/eval.json and OUT/pr_curves.png")
     p.add_argument(
         "--protocol",
@@ -87,11 +94,24 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def read_detection_files(paths: list[Path]) -> list[FrameDetections]:
+    """The lines of several detections files (shards of one run); a frame in two is an InputError."""
+    lines: list[FrameDetections] = []
+    origin: dict[str, Path] = {}
+    for path in paths:
+        for line in read_detections(path):
+            if line.frame in origin:
+                raise InputError(f"{path}: frame {line.frame!r} is also in {origin[line.frame]}")
+            origin[line.frame] = path
+            lines.append(line)
+    return lines
+
+
 def select_detections(
     lines: list[FrameDetections],
     truth: dict[str, FrameTruth],
     unannotated: list[str],
-    source: Path,
+    source: Path | str,
     folder: Path,
 ) -> tuple[dict[str, FrameDetections], list[str]]:
     """The lines of annotated frames, and the unannotated frames whose lines are skipped."""
@@ -235,11 +255,12 @@ def main(argv: list[str] | None = None) -> int:
     if len(set(args.iou)) != len(args.iou):
         parser.error("--iou thresholds must be distinct")
     truth, unannotated = load_truth(args.folder)  # InputError: exit 2 (command)
-    lines = read_detections(args.detections)
-    detections, skipped = select_detections(lines, truth, unannotated, args.detections, args.folder)
+    lines = read_detection_files(args.detections)
+    files = " + ".join(map(str, args.detections))
+    detections, skipped = select_detections(lines, truth, unannotated, files, args.folder)
     if skipped:
         print(
-            f"{PROG}: warning: {args.detections}: {len(skipped)} line(s) for frames without ground truth "
+            f"{PROG}: warning: {files}: {len(skipped)} line(s) for frames without ground truth "
             f"skipped ({', '.join(skipped[:3])}{', ...' if len(skipped) > 3 else ''})",
             file=sys.stderr,
         )
@@ -258,7 +279,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.out is not None:
         inputs = {
             "folder": str(args.folder.resolve()),
-            "detections": str(args.detections.resolve()),
+            "detections": [str(path.resolve()) for path in args.detections]
+            if len(args.detections) > 1
+            else str(args.detections[0].resolve()),
             "frames_with_gt": len(truth),
             "frames_with_detections": len(detections),
             "frames_without_detections": first.frames_without_detections,

@@ -2,7 +2,10 @@
 
     a3d-run FOLDER [--model model.onnx] [--output detections.jsonl] [--threads 2]
             [--proposals auto|compute|precomputed] [--max-proposals N] [--score-threshold S]
-            [--resume] [--overlap] [--headless] [--connect] [--url URL] [--serve] [--save FILE.rrd] [--stdout]
+            [--resume] [--overlap [auto|on|off]] [--headless] [--connect] [--url URL] [--serve]
+            [--save FILE.rrd] [--stdout]
+            [--intrinsics FX,FY,CX,CY | fr1 | fr2 | fr3] [--depth-scale S] [--resize-depth] [--shard K/N]
+            [--color-topic TOPIC] [--depth-topic TOPIC] [--max-frames N]
 
 SOURCE is a frame source (a3d.runtime.sources.registry: an a3d frame folder, README "Frame
 format", and the other kinds registered there; --source-format forces one); for a folder the
@@ -45,9 +48,17 @@ from a3d.runtime.cli.common import command
 from a3d.runtime.errors import InputError
 from a3d.runtime.io.detections_io import format_line, parse_line
 from a3d.runtime.network.model import DetectorModel
-from a3d.runtime.pipeline import PROPOSAL_SOURCES, FrameOutcome, PipelineConfig, detect_frames
+from a3d.runtime.pipeline import (
+    PROPOSAL_SOURCES,
+    FrameOutcome,
+    NetworkRunner,
+    PipelineConfig,
+    detect_frames,
+    detect_frames_auto,
+)
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.folder import MODEL_FILE
+from a3d.runtime.sources.overrides import parse_depth_scale, parse_intrinsics
 from a3d.runtime.sources.registry import FrameSource, SourceOptions, kinds, open_source, recognised
 from a3d.runtime.viewer import options as viewer
 
@@ -55,6 +66,10 @@ if TYPE_CHECKING:
     import rerun as rr
 
 PROG = "a3d-run"
+OVERLAP_MODES = ("auto", "on", "off")
+OVERLAP_NOTE = (
+    "the front end is the longer part: next frames prepared in the background, the network on {n} - 1 threads"
+)
 DEFAULT_MODEL = MODEL_FILE
 DEFAULT_OUTPUT = "detections.jsonl"
 
@@ -90,10 +105,25 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument(
         "--overlap",
-        action="store_true",
-        help="prepare the next frame on a background thread during the network call "
-        "(the network then gets THREADS - 1 threads)",
+        choices=OVERLAP_MODES,
+        nargs="?",
+        const="auto",
+        default="auto",
+        help="prepare the next frame on a background thread during the network call, the network then "
+        "on THREADS - 1 threads: on, off, or auto (also a bare --overlap): a frame after the first is "
+        "timed sequentially and the rest overlap only where that is predicted faster",
     )
+    p.add_argument(
+        "--intrinsics",
+        metavar="FX,FY,CX,CY",
+        help="camera intrinsics in pixels for every frame, or a preset (fr1|fr2|fr3: TUM RGB-D); "
+        "replaces what the source says",
+    )
+    p.add_argument(
+        "--depth-scale", metavar="S", help="metres per depth unit (0.001: mm), replaces the source's"
+    )
+    p.add_argument("--resize-depth", action="store_true", help="resize depth of another size to the colour's")
+    p.add_argument("--shard", metavar="K/N", help="only every N-th frame from the K-th (K = 0..N-1)")
     viewer.add_viewer_args(p)
     return p
 
@@ -114,11 +144,22 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
         parser.error("--output - cannot be combined with --resume or --stdout")
     if not args.source.exists() and ":" not in str(args.source) and not recognised(args.source):
         parser.error(f"{args.source}: no such file or folder")
+    args.shard = _shard(parser, args.shard)
     if args.model is None:
         args.model = args.source / DEFAULT_MODEL
         if not args.model.is_file():
             parser.error(f"no model given and {args.model} does not exist; pass --model FILE")
     return args
+
+
+def _shard(parser: argparse.ArgumentParser, text: str | None) -> tuple[int, int]:
+    """--shard K/N as (K, N); (0, 1) without it."""
+    if text is None:
+        return 0, 1
+    k, _, n = text.partition("/")
+    if not (k.isdigit() and n.isdigit() and 0 <= int(k) < int(n)):
+        parser.error(f"--shard: expected K/N with 0 <= K < N, got {text!r}")
+    return int(k), int(n)
 
 
 @dataclass(frozen=True)
@@ -135,13 +176,16 @@ def _job(args: argparse.Namespace) -> _Job:
     """Open the source, load the model and read the output to resume (InputError / ModelError)."""
     topics = {"color_topic": args.color_topic, "depth_topic": args.depth_topic}
     options = SourceOptions(
+        intrinsics=None if args.intrinsics is None else parse_intrinsics(args.intrinsics),
+        depth_scale=None if args.depth_scale is None else parse_depth_scale(args.depth_scale),
+        resize_depth=args.resize_depth,
         with_proposals=args.proposals != "compute",
         with_truth=viewer.viewer_requested(args),
         extra={key: value for key, value in topics.items() if value is not None},
     )
     source = open_source(args.source, options, args.source_format)
-    # With --overlap one thread prepares frames, so the network gets one fewer (no oversubscription).
-    model = load_model(args.model, threads=max(1, args.threads - 1) if args.overlap else args.threads)
+    # With --overlap on one thread prepares frames, so the network gets one fewer (no oversubscription).
+    model = load_model(args.model, threads=max(1, args.threads - 1) if args.overlap == "on" else args.threads)
     config = PipelineConfig.from_metadata(
         model.metadata,
         proposal_source=args.proposals,
@@ -153,17 +197,22 @@ def _job(args: argparse.Namespace) -> _Job:
 
 
 def _frames_to_do(
-    source: FrameSource, done: set[str], index: dict[str, int], limit: int | None
+    source: FrameSource,
+    done: set[str],
+    index: dict[str, int],
+    shard: tuple[int, int] = (0, 1),
+    limit: int | None = None,
 ) -> Iterator[FrameLoader]:
-    """The source's first ``limit`` frames (all for None), lazily, less those already done;
-    ``index`` learns each frame's position as it goes (so a live source is never drained ahead
-    of the run). The source's iterator is closed when this one is, so a camera is stopped
-    however the run ends."""
+    """The source's frames of this ``shard`` (K, N) among its first ``limit`` (all for None):
+    positions K, K + N, ..., lazily, less those already done; ``index`` learns each frame's
+    position as it goes (so a live source is never drained ahead of the run). The source's
+    iterator is closed when this one is, so a camera is stopped however the run ends."""
+    k, n = shard
     frames = iter(source)
     try:
         for position, loader in enumerate(itertools.islice(frames, limit)):
             index[loader.name] = position
-            if loader.name not in done:
+            if position % n == k and loader.name not in done:
                 yield loader
     finally:
         close = getattr(frames, "close", None)
@@ -193,15 +242,18 @@ def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] 
     for problem in failures:
         print(f"{PROG}: {problem}", file=sys.stderr)
     written = 0
+    overlapping = False
     index: dict[str, int] = {}  # frame name -> its position in the source (the rerun timeline)
-    todo = _frames_to_do(job.source, job.done, index, args.max_frames)
-    total = len(job.source) - len(job.done) if hasattr(job.source, "__len__") else None
-    if args.max_frames is not None:
-        total = args.max_frames if total is None else min(total, args.max_frames)
+    todo = _frames_to_do(job.source, job.done, index, args.shard, args.max_frames)
+    total = None
+    if hasattr(job.source, "__len__"):
+        k, n = args.shard
+        count = len(job.source) if args.max_frames is None else min(len(job.source), args.max_frames)
+        total = max(0, len(range(k, count, n)) - len(job.done))
     bar = tqdm(total=total, desc=PROG, unit="frame", file=sys.stderr, disable=None)
     try:
-        with _threads(1 if args.overlap else args.threads), _warnings_to_stderr():
-            for outcome in detect_frames(todo, job.model, job.config, overlap=args.overlap):
+        with _threads(1 if args.overlap == "on" else args.threads), _warnings_to_stderr():
+            for outcome in _frames(todo, job, args):
                 problem = outcome.problem
                 start = written_at = logged_at = time.perf_counter()
                 if outcome.detections is not None:
@@ -212,6 +264,11 @@ def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] 
                     logged_at = time.perf_counter()
                 if on_frame is not None:
                     on_frame(FrameReport(outcome, written_at - start, logged_at - written_at))
+                if outcome.overlapped and not overlapping and args.overlap == "auto":
+                    overlapping = True
+                    tqdm.write(
+                        f"{PROG}: --overlap auto: {OVERLAP_NOTE.format(n=args.threads)}", file=sys.stderr
+                    )
                 if problem:
                     failures.append(problem)
                     tqdm.write(f"{PROG}: {problem}", file=sys.stderr)
@@ -234,6 +291,18 @@ def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] 
     where = "stdout" if args.output == "-" else args.output
     print(f"{PROG}: {written} frames written to {where}{resumed}, {len(failures)} failed", file=sys.stderr)
     return 1 if failures else 0
+
+
+def _frames(todo: Iterator[FrameLoader], job: _Job, args: argparse.Namespace) -> Iterator[FrameOutcome]:
+    """The pipeline's outcomes in the --overlap mode asked for (auto: pipeline.detect_frames_auto)."""
+    if args.overlap != "auto":
+        return detect_frames(todo, job.model, job.config, overlap=args.overlap == "on")
+
+    def narrow(threads: int) -> NetworkRunner:
+        cv2.setNumThreads(1)  # the background thread's OpenCV leaves the other cores to the network
+        return load_model(args.model, threads=threads)
+
+    return detect_frames_auto(todo, job.model, job.config, threads=args.threads, narrow=narrow)
 
 
 # ----------------------------------------------------------------------------- output file

@@ -5,17 +5,17 @@ Many recordings (RealSense SDK bags, Kinect v2 / Azure Kinect raw streams, bags 
 centimetres beside the colour camera. a3d needs depth on the colour pixels, so every source whose
 depth is not registered goes through ``register_depth``.
 
-How: the depth map is a mesh (two triangles per 2 x 2 block of valid pixels) carried into the
-colour camera by the extrinsics and rasterised there, interpolating inverse depth (exact for
-planes, which a per-pixel splat is not: on a slanted floor it is off by the depth change of a
-pixel, centimetres far away). A triangle whose corners' depths differ by more than
-``max_step`` (relative; 3 %: 6 cm at 2 m, more than a floor's step between neighbouring pixels
-of a 320-pixel-wide depth camera out to 8 m) spans an occlusion edge and is dropped, so a hole the colour camera
-sees behind a foreground edge stays a hole instead of being bridged. Where several surfaces land
-on one pixel the nearest wins (a z-buffer). Missing depth stays 0, and so does every pixel no
-triangle covers: an isolated valid depth pixel is dropped rather than splatted to the nearest
-colour pixel, which on anything but a fronto-parallel surface puts the wrong depth there (off by
-up to a pixel's depth change, and most such pixels lie on edges).
+How: the depth map is a mesh (two triangles per 2 x 2 block of valid pixels) carried into the colour
+camera by the extrinsics and rasterised there, interpolating inverse depth (exact for planes, which
+a per-pixel splat is not: on a slanted floor it is off by the depth change of a pixel, centimetres
+far away). A triangle whose corners' depths differ by more than ``max_step`` (relative; 3 %: 6 cm at
+2 m, more than a floor's step between neighbouring pixels of a 320-pixel-wide depth camera out to 8
+m) spans an occlusion edge and is dropped, so a hole the colour camera sees behind a foreground edge
+stays a hole instead of being bridged. Where several surfaces land on one pixel the nearest wins (a
+z-buffer). Missing depth stays 0, and so does every pixel no triangle covers: an isolated valid
+depth pixel is dropped rather than splatted to the nearest colour pixel, which on anything but a
+fronto-parallel surface puts the wrong depth there (off by up to a pixel's depth change, and most
+such pixels lie on edges).
 """
 
 from __future__ import annotations

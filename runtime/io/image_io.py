@@ -112,6 +112,19 @@ def decode_image(data: bytes, path: Path, flags: int) -> np.ndarray:
     return image
 
 
+def read_uint16_png(path: Path, what: str = "depth") -> np.ndarray:
+    """A 1-channel 16-bit PNG (a data set's depth map) as uint16 (H, W), checked before decoding."""
+    data = read_bytes(path)
+    header = parse_header(data, path)
+    if header.kind != "png" or header.channels != 1 or header.bit_depth != 16:
+        raise InputError(
+            f"{path}: {what} must be a 1-channel 16-bit PNG, this is a {header.bit_depth}-bit "
+            f"{header.kind.upper()} with {header.channels} channel(s)"
+        )
+    check_complete(data, header, path)
+    return decode_image(data, path, cv2.IMREAD_UNCHANGED)
+
+
 def read_image_header(path: Path) -> ImageHeader:
     """Header of an image file, checked for size limits and truncation, without decoding it."""
     data = read_bytes(path)

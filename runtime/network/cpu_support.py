@@ -3,7 +3,7 @@
 ONNX Runtime's int8 kernels (uint8 activations x int8 weights, what ``a3d-export --int8``
 writes) are fast where the CPU has int8 dot-product instructions: x86 AVX-512 VNNI, AVX-VNNI or
 AMX, ARM's dot product (asimddp) or i8mm; there the int8 + SVD model runs the network about
-3-4x faster than fp32. With AVX2 alone int8 still gains, far less (about 1.5x on the GEMM and
+3-4x faster than fp32. With AVX2 alone int8 still gains, far less (1.5-2x on the GEMM and
 convolution ceilings ``python -m bench.edge_speed`` measured on an AVX2-only AMD EPYC); without
 AVX2 or a dot product int8 gains nothing worth its accuracy cost. ``python -m bench.edge_speed``
 measures both exports on the machine itself; this is the quick answer without a benchmark.
@@ -58,7 +58,7 @@ def export_advice(flags: frozenset[str] | None = None) -> ExportAdvice:
         )
     if "avx2" in flags:
         return ExportAdvice(
-            "int8", "AVX2 without VNNI: int8 + SVD still faster than fp32, by about 1.5x instead of 3-4x"
+            "int8", "AVX2 without VNNI: int8 + SVD still faster than fp32, by about 1.5-2x instead of 3-4x"
         )
     if not flags:
         return ExportAdvice("fp32", "instruction set unknown (no /proc/cpuinfo): fp32, the safe choice")

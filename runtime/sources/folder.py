@@ -296,6 +296,12 @@ def read_instances(ref: FrameRef) -> np.ndarray | None:
     return decode_image(data, path, cv2.IMREAD_UNCHANGED).astype(np.uint16)
 
 
+def read_color(path: Path) -> np.ndarray:
+    """A colour image file as uint8 BGR (H, W, 3), checked as ``read_color_bytes`` checks it."""
+    data, _ = read_color_bytes(path)
+    return decode_image(data, path, _COLOR_FLAGS)
+
+
 def read_color_bytes(path: Path) -> tuple[bytes, ImageHeader]:
     """A colour image file's bytes and header, checked (8-bit colour, size limit, complete), not decoded."""
     data = read_bytes(path)
@@ -651,6 +657,8 @@ class FolderSource:
     ``with_proposals`` a frame brings its ``NAME.proposals.npz``; with ``with_truth`` its ground
     truth (a bad ``NAME.gt.json`` then costs the frame only its ground truth, with a warning).
     """
+
+    depth_scale = 1.0 / MM_PER_M  # a depth PNG's unit (--depth-scale replaces it; .npy depth is metres)
 
     def __init__(self, folder: str | os.PathLike, *, with_proposals: bool = True, with_truth: bool = False):
         listing = scan_folder(folder)

@@ -22,7 +22,9 @@ from a3d.runtime.structures.geometry import Intrinsics
 
 class FrameSource(Protocol):
     """Frames to load, in order; ``incomplete`` holds "PATH: reason" for inputs found unusable
-    before any frame is read (reported by the run, which goes on with the rest)."""
+    before any frame is read (reported by the run, which goes on with the rest). A source that
+    reads integer depth says its unit in a ``depth_scale`` attribute (metres per unit), which
+    ``--depth-scale`` replaces (a3d.runtime.sources.overrides); without one it has none to replace."""
 
     incomplete: list[str]
 
@@ -32,7 +34,8 @@ class FrameSource(Protocol):
 @dataclass(frozen=True)
 class SourceOptions:
     """What the command line may tell any source. ``intrinsics`` / ``depth_scale`` (metres per
-    depth unit) override what the source says; ``resize_depth`` lets depth of another size than
+    depth unit) override what the source says, applied by ``open_source`` to every source's frames
+    (readers need not); ``resize_depth`` lets depth of another size than
     the colour be resized to it (refused otherwise); ``with_proposals`` / ``with_truth`` ask for
     precomputed proposals and ground truth where the source has them; ``extra`` holds the
     options of one kind (bag topics, a TUM preset, ...)."""
@@ -77,14 +80,21 @@ def open_source(spec: str | os.PathLike, options: SourceOptions, kind: str | Non
     if kind is not None:
         if kind not in _KINDS:
             raise InputError(f"--source-format: unknown format {kind!r} (one of: {', '.join(_KINDS)})")
-        return _KINDS[kind].open(text, options)
+        return _overridden(_KINDS[kind].open(text, options), options)
     for candidate in _KINDS.values():
         if candidate.claims(text):
-            return candidate.open(text, options)
+            return _overridden(candidate.open(text, options), options)
     if not Path(text).exists() and ":" not in text:
         raise InputError(f"{text}: no such file or folder")
     known = "; ".join(f"{k.name}: {k.describe}" for k in _KINDS.values())
     raise InputError(f"{text}: not a frame source a3d knows ({known}); --source-format forces one")
+
+
+def _overridden(source: FrameSource, options: SourceOptions) -> FrameSource:
+    """The user's intrinsics and depth unit applied to every frame (a3d.runtime.sources.overrides)."""
+    from a3d.runtime.sources.overrides import with_overrides
+
+    return with_overrides(source, options.intrinsics, options.depth_scale)
 
 
 def _is_frame_folder(spec: str) -> bool:
@@ -102,6 +112,50 @@ def _open_folder(spec: str, options: SourceOptions) -> FrameSource:
 
 register(
     SourceKind("a3d", _is_frame_folder, _open_folder, "a folder of NAME.color.png + NAME.depth.png frames")
+)
+
+
+def _claims_tum(spec: str) -> bool:
+    from a3d.runtime.sources.tum import is_tum_sequence
+
+    return is_tum_sequence(spec)
+
+
+def _open_tum(spec: str, options: SourceOptions) -> FrameSource:
+    from a3d.runtime.sources.tum import DEFAULT_MAX_DIFFERENCE, TumSource
+
+    max_difference = float(options.extra.get("max_difference", DEFAULT_MAX_DIFFERENCE))  # type: ignore[arg-type]
+    return TumSource(spec, options.intrinsics, max_difference, options.resize_depth)
+
+
+register(SourceKind("tum", _claims_tum, _open_tum, "a TUM RGB-D sequence folder (rgb.txt, depth.txt)"))
+
+
+def _claims_sunrgbd(spec: str) -> bool:
+    from a3d.runtime.sources.sunrgbd import is_sunrgbd
+
+    return is_sunrgbd(spec)
+
+
+def _open_sunrgbd(spec: str, options: SourceOptions) -> FrameSource:
+    from a3d.runtime.sources.sunrgbd import SunOptions, open_sunrgbd
+
+    sun = SunOptions(
+        depth=str(options.extra.get("depth", "raw")),
+        classes=str(options.extra.get("classes", "nyu19")),
+        with_truth=options.with_truth,
+        resize_depth=options.resize_depth,
+    )
+    return open_sunrgbd(spec, sun)
+
+
+register(
+    SourceKind(
+        "sunrgbd",
+        _claims_sunrgbd,
+        _open_sunrgbd,
+        "SUN RGB-D: release frame folders (or a tree of them), or VoteNet's sunrgbd_trainval",
+    )
 )
 
 

@@ -6,6 +6,10 @@ softmax index ``i + 1``.
 
 from __future__ import annotations
 
+import re
+
+import numpy as np
+
 CLASSES: tuple[str, ...] = (
     "bathtub",
     "bed",
@@ -34,12 +38,34 @@ BACKGROUND = 0
 _INDEX = {name: i for i, name in enumerate(CLASSES)}
 
 
+def to_softmax(class_ids: np.ndarray | int) -> np.ndarray:
+    """Softmax indices (background 0) of 0-based CLASSES indices: the one place the offset is added."""
+    return np.asarray(class_ids) + 1
+
+
+def from_softmax(labels: np.ndarray | int) -> np.ndarray:
+    """0-based CLASSES indices of softmax indices > 0 (background has none)."""
+    return np.asarray(labels) - 1
+
+
 def class_index(name: str) -> int:
     """0-based index of a class name in CLASSES; ValueError names the unknown class."""
     try:
         return _INDEX[name]
     except KeyError:
         raise ValueError(f"unknown class name {name!r} (expected one of: {', '.join(CLASSES)})") from None
+
+
+CLASS_ALIASES = {"tv": "television", "nightstand": "night stand", "garbagebin": "garbage bin"}
+"""Other spellings of the 19 class names (NYUv2, SUN RGB-D), keyed lower-case without spaces or "_"."""
+
+
+def normalize_class_name(name: str) -> str | None:
+    """The a3d class of a data set's label ('night_stand' -> 'night stand', 'tv' -> 'television'), or None."""
+    key = re.sub(r"\s+", " ", name.strip().lower().replace("_", " "))
+    key = CLASS_ALIASES.get(key.replace(" ", ""), key)
+    return key if key in CLASSES else None
+
 
 # One colour per class (RGB, tab20-like, distinct at a glance), shared by every view and plot.
 CLASS_COLORS_RGB: tuple[tuple[int, int, int], ...] = (

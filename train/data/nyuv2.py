@@ -36,7 +36,6 @@ char -> str, numeric -> ndarray of the MATLAB shape).
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -46,7 +45,7 @@ import scipy.io
 
 from a3d.runtime.errors import InputError
 from a3d.runtime.sources.folder import NPY_MILLIMETRE_MEDIAN, read_color_bytes
-from a3d.runtime.structures.classes import CLASSES
+from a3d.runtime.structures.classes import normalize_class_name
 from a3d.runtime.structures.frame import GroundTruth
 from a3d.runtime.structures.geometry import (
     NYU_CROP_INTRINSICS,
@@ -60,8 +59,6 @@ from a3d.runtime.structures.geometry import (
 SPLIT_FILES = {"train": "trainval.txt", "test": "test.txt"}
 SPLIT_SIZES = {"train": 795, "test": 654}
 """The standard NYUv2 split (docs/conventions.md "Evaluation")."""
-CLASS_ALIASES = {"tv": "television", "nightstand": "night stand", "garbagebin": "garbage bin"}
-"""Other spellings of the 19 class names, keyed lower-case without spaces or underscores."""
 _HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 
 
@@ -77,13 +74,6 @@ class NyuImage:
     R_tilt: np.ndarray  # (3, 3)
     intrinsics: Intrinsics
     gt: GroundTruth
-
-
-def normalize_class_name(name: str) -> str | None:
-    """The a3d class of a release label ('night_stand' -> 'night stand', 'tv' -> 'television'), or None."""
-    key = re.sub(r"\s+", " ", name.strip().lower().replace("_", " "))
-    key = CLASS_ALIASES.get(key.replace(" ", ""), key)
-    return key if key in CLASSES else None
 
 
 def matlab_boxes_to_pixels(boxes: np.ndarray) -> np.ndarray:
