@@ -237,7 +237,7 @@ def measure_torch(checkpoint: Path, frames: Path, model: Path, *, max_proposals:
     feeds ``model`` (its fp32 export)."""
     import torch
 
-    from a3d.export.onnx_export import load_trained
+    from a3d.train.checkpoint import load_trained
     from a3d.train.inference import TorchNetwork
 
     torch.set_num_threads(threads)

@@ -58,11 +58,9 @@ def variants(svd: int) -> dict[str, dict]:
 
 def default_rank(checkpoint: Path) -> int:
     """A quarter of the checkpoint network's fc6 width."""
-    from a3d.train.checkpoint import load_checkpoint
-    from a3d.train.config import TrainConfig
+    from a3d.train.checkpoint import checkpoint_config
 
-    config = TrainConfig.from_json(load_checkpoint(checkpoint)["config"], str(checkpoint))
-    return max(1, config.net.fc6 // 4)
+    return max(1, checkpoint_config(checkpoint).net.fc6 // 4)
 
 
 def detect_and_score(model: Path, frames: Path, detections: Path, threads: int, reuse: bool) -> dict:

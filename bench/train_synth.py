@@ -70,11 +70,11 @@ def train(train_dir: Path, run_dir: Path, config: str | None, sets: list[str], i
 def detect_and_score(checkpoint: Path, test_dir: Path, out: Path, overrides: list[str] = (),
                      device: str = "cpu") -> dict:  # fmt: skip
     """Torch-path detections of the test frames, scored by a3d-eval; the numbers and timings."""
-    from a3d.train.checkpoint import load_checkpoint
-    from a3d.train.config import TrainConfig, apply_overrides
+    from a3d.train.checkpoint import checkpoint_config
+    from a3d.train.config import apply_overrides
     from a3d.train.inference import TorchDetector, write_folder_detections
 
-    config = apply_overrides(TrainConfig.from_json(load_checkpoint(checkpoint)["config"]), list(overrides))
+    config = apply_overrides(checkpoint_config(checkpoint), list(overrides))
     detector = TorchDetector.from_checkpoint(checkpoint, device, config)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()

@@ -36,7 +36,6 @@ from a3d.export.onnx_export import (
     ExportError,
     RuntimeGraph,
     export_graph,
-    load_trained,
     save_model,
 )
 from a3d.export.quantize import CALIB_ROIS, quantize_int8
@@ -55,6 +54,7 @@ from a3d.runtime.cli.common import EXIT_FAILED, command
 from a3d.runtime.cli.common import build_parser as command_parser
 from a3d.runtime.network.model import DetectorModel, ModelMetadata
 from a3d.runtime.pipeline import PipelineConfig
+from a3d.train.checkpoint import load_trained
 from a3d.train.inference import TorchNetwork
 
 PROG = "a3d-export"
@@ -130,9 +130,7 @@ def export(args: argparse.Namespace) -> Path:
             kept = 100 * info["energy_kept"]
             _log(f"svd {name} {info['shape']} rank {info['rank']}: {info['parameters']} -> "
                  f"{info['parameters_svd']} weights, {kept:.2f}% of the energy kept")  # fmt: skip
-    metadata = build_metadata(
-        trained.state, trained.config, args.checkpoint, score_threshold=args.score_threshold
-    )
+    metadata = build_metadata(trained.state, trained.config, args.checkpoint, min_score=args.score_threshold)
     pipeline = PipelineConfig.from_metadata(metadata)  # the front end a3d-run will use with this model
     regress_3d = trained.config.inference.regress_3d
     torch_net = TorchNetwork(reference, trained.stats, regress_3d)

@@ -3,7 +3,7 @@
 Values come from the checkpoint (classes, mean sizes, training config) through
 ``TrainConfig.pipeline`` (the runtime pipeline settings the pure-torch validation detector of
 a3d.train.inference uses, so a3d-run reproduces it) and from the shared preprocessing constants
-(a3d.runtime.network.preprocess), never typed in twice. ``score_threshold`` can be set at export
+(a3d.runtime.network.preprocess), never typed in twice. ``min_score`` can be set at export
 (``--score-threshold``).
 """
 
@@ -33,7 +33,7 @@ def build_metadata(
     config: TrainConfig,
     checkpoint: str | os.PathLike,
     *,
-    score_threshold: float | None = None,
+    min_score: float | None = None,
     export_options: dict[str, Any] | None = None,
 ) -> ModelMetadata:
     """Metadata for the model exported from checkpoint ``state`` (as load_checkpoint returns it).
@@ -57,11 +57,10 @@ def build_metadata(
         depth_truncation_m=float(pipeline.depth_truncation_m),
         input_scale=float(pipeline.input_scale),
         context_scale=float(pipeline.context_scale),
-        score_threshold=float(pipeline.min_score if score_threshold is None else score_threshold),
+        min_score=float(pipeline.min_score if min_score is None else min_score),
         nms_iou=float(pipeline.nms_iou),
         top_k=int(pipeline.top_k),
-        max_proposals=int(pipeline.max_proposals),
-        proposal_config=config.to_dict()["proposals"],
+        proposals=pipeline.proposals,
         provenance=provenance(state, config, path, export_options or {}),
     )
 

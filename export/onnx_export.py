@@ -18,7 +18,6 @@ import dataclasses
 import logging
 import os
 import warnings
-from dataclasses import dataclass
 from pathlib import Path
 
 import onnx
@@ -28,8 +27,6 @@ from torch import nn
 from a3d.runtime.io.atomic import atomic_write_bytes
 from a3d.runtime.network.model import INPUT_NAMES, METADATA_KEY, OUTPUT_NAMES, ModelMetadata, content_digest
 from a3d.runtime.structures.classes import NUM_OUTPUTS
-from a3d.train.checkpoint import load_checkpoint
-from a3d.train.config import TrainConfig
 from a3d.train.dataset import TargetStats
 from a3d.train.model.net import BOX2D_SIZE, BOX3D_SIZE, A3DNet
 
@@ -40,35 +37,6 @@ EXAMPLE_SIZE = (64, 80)  # (h, w) of the tracing example; the exported graph tak
 
 class ExportError(RuntimeError):
     """Export or verification failed; the message is one line for the command line."""
-
-
-@dataclass(frozen=True)
-class Trained:
-    """A training checkpoint ready to export: the network (eval mode), its target statistics,
-    its training config and the rest of the checkpoint (without model and optimizer state)."""
-
-    net: A3DNet
-    stats: TargetStats
-    config: TrainConfig
-    state: dict
-
-
-def load_trained(path: str | os.PathLike) -> Trained:
-    """Read an a3d-train checkpoint; CheckpointError / ExportError "PATH: problem" if unusable."""
-    state = load_checkpoint(path)
-    missing = [k for k in ("target_stats", "mean_sizes") if k not in state]
-    if missing:
-        raise ExportError(f"{path}: checkpoint without {', '.join(missing)} (not written by a3d-train?)")
-    config = TrainConfig.from_json(state["config"], str(path))
-    net = A3DNet(config.net)
-    try:
-        net.load_state_dict(state["model"])
-    except RuntimeError as e:
-        first = str(e).strip().splitlines()[0]
-        raise ExportError(f"{path}: weights do not fit the checkpoint's network config ({first})") from None
-    stats = TargetStats.from_tensors(state["target_stats"])
-    rest = {k: v for k, v in state.items() if k not in ("model", "optimizer")}
-    return Trained(net.eval(), stats, config, rest)
 
 
 class RuntimeGraph(nn.Module):

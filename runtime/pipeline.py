@@ -5,14 +5,16 @@ optional R_tilt and precomputed proposals), whatever source it came from; readin
 frame source's job (a3d.runtime.sources). Three stages, so that the CPU front end of one frame
 can overlap the network call of another:
 
-1. ``prepare`` (numpy + OpenCV): fill the depth holes, take the frame's R_tilt or estimate it
-   from the raw depth, compute segment proposals (or use the frame's precomputed ones), lift them
+1. ``prepare`` (numpy + OpenCV): fill the depth holes, choose R_tilt (the frame's own, the
+   estimate from the depth, or a fallback the line names: frontend.gravity.choose_gravity),
+   compute segment proposals (or use the frame's precomputed ones), lift them
    to initial 3D centres (proposals without any depth are dropped), and build the network
    inputs: the trunk images at the model's
    ``input_scale`` and the proposal and context RoIs in the resized image's pixel coordinates;
 2. ``infer``: one ONNX Runtime call per frame (both trunks once, the head over all RoIs at once);
 3. ``finish``: per-class top-k and 2D NMS, class-specific 3D boxes and amodal 2D boxes
-   (a3d.runtime.postprocess.select), corners, and the frame's detections line.
+   (a3d.runtime.postprocess.select) bounded to boxes that can exist (postprocess.box_limits),
+   corners, and the frame's detections line, with its gravity source and notes.
 
 Every stage adds its wall time (seconds) to the frame's ``timing``: read, depth_fill, gravity,
 proposals, lifting, network_input, network, postprocess, and total (their sum).
@@ -31,6 +33,7 @@ rest only where ``overlap_pays`` (a3d-run's default, ``--overlap auto``).
 from __future__ import annotations
 
 import itertools
+import logging
 import time
 import typing
 from collections.abc import Callable, Iterable, Iterator
@@ -41,13 +44,14 @@ from typing import Any, Literal, Protocol
 import numpy as np
 
 from a3d.runtime.errors import InputError, ModelError
-from a3d.runtime.frontend.depth import fill_depth
+from a3d.runtime.frontend.depth import fill_depth_info
 from a3d.runtime.frontend.frame_proposals import frame_proposals
-from a3d.runtime.frontend.gravity import estimate_rtilt
+from a3d.runtime.frontend.gravity import choose_gravity
 from a3d.runtime.frontend.lifting import lift
 from a3d.runtime.frontend.proposals import ProposalConfig, Proposals, proposal_config_from_dict
 from a3d.runtime.io.detections_io import FrameDetections
 from a3d.runtime.network.network_input import network_inputs, scale_boxes
+from a3d.runtime.postprocess.box_limits import bound_boxes, near_range
 from a3d.runtime.postprocess.select import decode_detections, select_detections
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.proposals_file import PrecomputedProposals
@@ -57,6 +61,8 @@ from a3d.runtime.structures.geometry import box_corners_camera, context_boxes
 
 ProposalSource = Literal["auto", "compute", "precomputed"]
 PROPOSAL_SOURCES: tuple[str, ...] = typing.get_args(ProposalSource)
+MOSTLY_MISSING = 0.5  # a frame with more of its depth missing than this says so in its line
+logger = logging.getLogger(__name__)
 STAGES = ("read", "depth_fill", "gravity", "proposals", "lifting", "network_input", "network", "postprocess")
 FRONT_END_STAGES = STAGES[: STAGES.index("network")]  # what ``load_and_prepare`` times
 
@@ -153,6 +159,8 @@ class PreparedFrame:
     rois: np.ndarray
     context_rois: np.ndarray
     timing: dict[str, float]
+    gravity: str = ""
+    notes: list[str] = field(default_factory=list)
 
 
 @dataclass(eq=False)
@@ -169,16 +177,24 @@ def prepare(frame: Frame, config: PipelineConfig, timing: dict[str, float] | Non
     hold the frame's read time."""
     timing = {} if timing is None else timing
     clock = _Clock(timing)
-    filled = fill_depth(frame.depth)
+    notes: list[str] = []
+    fill = fill_depth_info(frame.depth)
+    filled = fill.depth
+    if fill.hole_fraction > MOSTLY_MISSING:
+        notes.append(f"depth mostly missing: {fill.hole_fraction:.0%} of the pixels have none")
     clock.lap("depth_fill")
-    R_tilt = frame.R_tilt if frame.R_tilt is not None else estimate_rtilt(frame.depth, frame.intrinsics)
+    gravity = choose_gravity(frame.depth, filled, frame.intrinsics, frame.R_tilt)
+    if gravity.is_fallback:
+        logger.warning("%s: gravity %s", frame.origin or frame.name, gravity.source)
     clock.lap("gravity")
-    segments, boxes = _proposals(frame, filled, config)
+    segments, boxes = _proposals(frame, filled, config, notes)
     clock.lap("proposals")
     centers = np.zeros((0, 3))
     if len(boxes):
         lifted = lift(segments, frame.depth, filled, frame.intrinsics)
         boxes, centers = boxes[lifted.valid], lifted.centers[lifted.valid]
+        if not len(boxes):
+            notes.append("no proposals: none has depth to lift it")
     clock.lap("lifting")
     scale, truncation = config.input_scale, config.depth_truncation_m
     color, depth, (sx, sy) = network_inputs(frame.color, filled, scale, truncation)
@@ -186,8 +202,9 @@ def prepare(frame: Frame, config: PipelineConfig, timing: dict[str, float] | Non
     rois = scale_boxes(boxes, sx, sy).astype(np.float32)
     context_rois = scale_boxes(context, sx, sy).astype(np.float32)
     clock.lap("network_input")
-    R_tilt = np.asarray(R_tilt, np.float64)
-    return PreparedFrame(frame, R_tilt, boxes, centers, color[None], depth[None], rois, context_rois, timing)
+    R_tilt = np.asarray(gravity.R_tilt, np.float64)
+    inputs = (color[None], depth[None], rois, context_rois)
+    return PreparedFrame(frame, R_tilt, boxes, centers, *inputs, timing, gravity.source, notes)
 
 
 def load_and_prepare(loader: FrameLoader, config: PipelineConfig) -> PreparedFrame:
@@ -200,13 +217,23 @@ def load_and_prepare(loader: FrameLoader, config: PipelineConfig) -> PreparedFra
 
 
 def _proposals(
-    frame: Frame, filled: np.ndarray, config: PipelineConfig
+    frame: Frame, filled: np.ndarray, config: PipelineConfig, notes: list[str]
 ) -> tuple[Proposals | PrecomputedProposals | np.ndarray, np.ndarray]:
-    """(segments in a form ``lift`` takes, boxes (N, 4) float64), at most ``max_proposals``."""
+    """(segments in a form ``lift`` takes, boxes (N, 4) float64), at most ``max_proposals``;
+    ``notes`` learns when there are none or the cap cut the list."""
     if config.proposal_source == "precomputed" and frame.proposals is None:
         raise InputError(f"{frame.origin}: no precomputed proposals (--proposals precomputed)")
     precomputed = None if config.proposal_source == "compute" else frame.proposals
-    return frame_proposals(frame.color, filled, frame.intrinsics, config.proposals, precomputed)
+    segments, boxes = frame_proposals(frame.color, filled, frame.intrinsics, config.proposals, precomputed)
+    if precomputed is None and not len(boxes):
+        notes.append("no proposals: the segmentation found no candidate object")
+    elif precomputed is None and len(boxes) >= config.proposals.max_proposals:
+        notes.append(f"proposals capped at {config.proposals.max_proposals}")
+    elif precomputed is not None and not len(precomputed):
+        notes.append("no proposals: the precomputed list is empty")
+    elif precomputed is not None and len(boxes) < len(precomputed):
+        notes.append(f"proposals capped at {len(boxes)} of {len(precomputed)} precomputed")
+    return segments, boxes
 
 
 def infer(model: NetworkRunner, prepared: PreparedFrame) -> NetworkOutput:
@@ -244,6 +271,8 @@ def finish(prepared: PreparedFrame, out: NetworkOutput, config: PipelineConfig) 
         out.deltas2d,
         prepared.frame.image_size,
     )
+    bounded = bound_boxes(boxes3d, class_idx, near_range(prepared.frame.depth))
+    boxes3d = bounded.boxes3d
     corners = box_corners_camera(boxes3d, prepared.R_tilt) if len(rows) else np.zeros((0, 8, 3))
     clock.lap("postprocess")
     timing = prepared.timing
@@ -261,6 +290,8 @@ def finish(prepared: PreparedFrame, out: NetworkOutput, config: PipelineConfig) 
         depth=frame.depth_file,
         timing=dict(timing),
         boxes2d_amodal=amodal,
+        gravity=prepared.gravity,
+        notes=(*prepared.notes, *bounded.notes()),
     )
 
 

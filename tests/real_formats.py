@@ -14,7 +14,7 @@ import pytest
 
 from a3d.runtime.cli import run as run_cli
 from a3d.runtime.io.detections_io import read_detections
-from a3d.runtime.structures.geometry import Intrinsics
+from a3d.runtime.structures.geometry import Intrinsics, box_corners_camera
 from a3d.synth import SceneConfig, SynthFrame, generate_frame
 from a3d.synth.cli import scaled_intrinsics
 
@@ -168,3 +168,39 @@ def assert_same_detections(got: dict, expected: dict, atol: float = 1e-6) -> Non
         np.testing.assert_array_equal(other.class_ids, line.class_ids, err_msg=name)
         for field in ("scores", "boxes2d", "boxes3d", "R_tilt"):
             np.testing.assert_allclose(getattr(other, field), getattr(line, field), atol=atol, err_msg=name)
+
+
+def sun_name(cls: str) -> str:
+    return {"television": "tv"}.get(cls, cls.replace(" ", "_"))
+
+
+def footprints_of(frame: SynthFrame, E: np.ndarray) -> list[dict]:
+    """The frame's ground truth as release footprints: lower-face corners 0, 1, 2 and both heights in w."""
+    corners_w = box_corners_camera(frame.gt.boxes3d, frame.R_tilt) @ E.T
+    return [
+        footprint_object(sun_name(cls), [(c[i, 0], c[i, 2]) for i in range(3)], c[4, 1], c[0, 1])
+        for cls, c in zip(frame.gt.classes, corners_w, strict=True)
+    ]
+
+
+def labels_of(frame: SynthFrame, Rtilt_sun: np.ndarray) -> list[str]:
+    """The frame's ground truth as VoteNet label lines, made as readframeSUNRGBD + extract_rgbd_data_v2
+    make them (the 3D numbers printed with %f, 6 decimals)."""
+    lines = []
+    corners_u = box_corners_camera(frame.gt.boxes3d, frame.R_tilt) @ A.T @ Rtilt_sun.T
+    for cls, c, b2 in zip(frame.gt.classes, corners_u, frame.gt.boxes2d_visible, strict=True):
+        centre = c.mean(axis=0)
+        hx, hy = np.linalg.norm(c[1] - c[0]) / 2, np.linalg.norm(c[2] - c[1]) / 2
+        hz = abs(c[4, 2] - c[0, 2]) / 2
+        o = (c[0, :2] + c[1, :2]) / 2 - centre[:2]
+        o = o / np.linalg.norm(o)
+        box2d = [b2[0] + 1, b2[1] + 1, b2[2] - b2[0], b2[3] - b2[1]]
+        numbers = " ".join(f"{v:f}" for v in (*centre, hx, hy, hz, *o))
+        lines.append(f"{sun_name(cls)} {' '.join(f'{v:g}' for v in box2d)} {numbers}")
+    return lines
+
+
+def sun_intrinsics(frame: SynthFrame) -> Intrinsics:
+    """What a3d reads back from SUN's K of the frame's intrinsics (cx + 1 - 1 in floating point)."""
+    K = frame.intrinsics
+    return Intrinsics(K.fx, K.fy, (K.cx + 1.0) - 1.0, (K.cy + 1.0) - 1.0)

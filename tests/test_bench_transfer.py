@@ -14,7 +14,7 @@ from a3d.runtime.sources.folder import list_frames, read_ground_truth
 from a3d.synth.cli import main as synth_main
 from a3d.train.config import apply_overrides, load_config
 from bench import background_rois, false_positives, transfer
-from tests.test_train_scenes import TINY
+from tests.helpers.train_scenes import TINY
 
 pytestmark = pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")
 SAMPLE_MODEL = Path(__file__).resolve().parents[1] / "samples" / "model.onnx"
@@ -24,6 +24,7 @@ def _empty_names(folder: Path) -> set[str]:
     return {r.name for r in list_frames(folder) if len(read_ground_truth(r)) == 0}
 
 
+@pytest.mark.slow  # trains and runs the transfer benchmark end to end
 def test_transfer_table_and_false_positives_end_to_end(tmp_path: Path, monkeypatch) -> None:
     monkeypatch.setitem(transfer.WORLDS, "clutter", ["--clutter", "20", "--empty-share", "0.5"])
     sets = [f"--set={s}" for s in TINY if not s.startswith("log.")] + ["--set=log.progress=false"]

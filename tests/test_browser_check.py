@@ -185,6 +185,7 @@ def _check(tmp_path: Path, *flags: str, timeout: float) -> tuple[bc.ScreenshotSt
     return bc.screenshot_stats(out), bc.recording_classes(recording)
 
 
+@pytest.mark.slow  # a headless browser
 @pytest.mark.skipif(not (OPT_IN and bc.CHROMIUM.exists()), reason="opt-in: A3D_BROWSER_TEST=1 and chromium")
 def test_web_viewer_in_chromium_shows_the_boxes(tmp_path: Path) -> None:
     stats, classes = _check(tmp_path, "--wait", "45", timeout=300)
@@ -194,6 +195,7 @@ def test_web_viewer_in_chromium_shows_the_boxes(tmp_path: Path) -> None:
     assert all(stats.class_pixels.get(name, 0) >= 500 for name in classes), stats.class_pixels
 
 
+@pytest.mark.slow  # a headless viewer
 @pytest.mark.skipif(
     not (OPT_IN and any(Path("/usr/share/vulkan/icd.d").glob("lvp_icd*.json"))),
     reason="opt-in: A3D_BROWSER_TEST=1 and mesa-vulkan-drivers",

@@ -18,9 +18,13 @@ import numpy as np
 import pytest
 
 from bench import edge_report, edge_speed
-from tests.test_export import _frames as write_test_frames
+from tests.helpers.synth_frames import write_synth_frames
 
-pytestmark = pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")
+# slow: an ONNX export and timed a3d-run processes
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning"),
+]
 TINY = {
     "net": {"width": 0.125, "fuse_channels": 16, "fc6": 32, "fc7": 32},
     "data": {"input_scale": 0.5},
@@ -38,14 +42,13 @@ class Tiny:
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory: pytest.TempPathFactory) -> Tiny:
     root = tmp_path_factory.mktemp("edge")
-    frames = root / "frames"
-    write_test_frames(frames, 4, np.random.default_rng(0))
+    frames = write_synth_frames(root / "synth", 4)
     checkpoint = edge_speed.random_checkpoint(root / "run" / "checkpoint.pt", "cpu-eighth", TINY)
     model = root / "tiny.onnx"
     edge_speed.export_model(checkpoint, model, frames, threads=1)
     subset = edge_speed.frame_subset(frames, root / "subset", 3)
-    assert sorted(p.name for p in subset.glob("*.color.png")) == ["0000.color.png", "0001.color.png",
-                                                                  "0002.color.png"]  # fmt: skip
+    names = sorted(p.name for p in subset.glob("*.color.png"))
+    assert names == [f"synth_00000{i}.color.png" for i in range(3)]
     return Tiny(checkpoint, model, subset)
 
 

@@ -23,7 +23,7 @@ from a3d.runtime.evaluation.protocols import (
 )
 from a3d.runtime.structures.classes import CLASSES, class_index
 from a3d.runtime.structures.geometry import batched_nms_2d, iou_2d
-from tests.test_evaluation import CHAIR, LAMP, cube, dets, truth
+from tests.helpers.evaluation_cases import CHAIR, LAMP, cube, dets, truth
 
 
 def score(gt, det, protocol, **config):

@@ -22,23 +22,25 @@ import pytest
 import torch
 
 from a3d.export import cli
-from a3d.export.onnx_export import load_trained
 from a3d.export.svd import svd_compress
 from a3d.export.verify import folder_inputs
 from a3d.runtime.cli import run as run_cli
 from a3d.runtime.network.model import DetectorModel
 from a3d.runtime.pipeline import PipelineConfig
-from a3d.runtime.sources.folder import write_frame, write_intrinsics
 from a3d.runtime.structures.classes import CLASSES
-from a3d.runtime.structures.geometry import Intrinsics
 from a3d.runtime.viewer.options import viewer_requested
-from a3d.train.checkpoint import load_checkpoint, save_checkpoint
+from a3d.train.checkpoint import load_checkpoint, load_trained, save_checkpoint
 from a3d.train.config import TrainConfig
 from a3d.train.dataset import TargetStats
 from a3d.train.inference import TorchNetwork
 from a3d.train.model import A3DNet
+from tests.helpers.synth_frames import write_synth_frames
 
-pytestmark = pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")
+# slow: two ONNX exports (dynamo) and an int8 calibration
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning"),
+]
 SVD_RANK = 8
 CONFIG = {
     "net": {"width": 0.125, "fuse_channels": 32, "fc6": 64, "fc7": 48, "trunk_norm": True},
@@ -46,24 +48,6 @@ CONFIG = {
     "proposals": {"min_area": 20, "max_proposals": 150},
     "inference": {"top_k": 50, "nms_iou": 0.4, "min_score": 0.02},
 }
-
-
-def _frames(folder: Path, count: int, rng: np.random.Generator) -> None:
-    """Small RGB-D frames: coloured rectangles at their own depths, a few depth holes."""
-    height, width = 96, 128
-    write_intrinsics(folder, Intrinsics(110.0, 110.0, (width - 1) / 2, (height - 1) / 2))
-    for k in range(count):
-        color = np.empty((height, width, 3), np.uint8)
-        color[:] = rng.integers(60, 200, 3)
-        depth = np.full((height, width), 3.0, np.float32)
-        for _ in range(5):
-            y, x = rng.integers(0, height - 20), rng.integers(0, width - 20)
-            h, w = rng.integers(10, height // 2), rng.integers(10, width // 2)
-            color[y : y + h, x : x + w] = rng.integers(0, 255, 3)
-            depth[y : y + h, x : x + w] = rng.uniform(1.0, 3.0)
-        color = np.clip(color + rng.normal(0, 4, color.shape), 0, 255).astype(np.uint8)
-        depth[rng.random((height, width)) < 0.05] = 0.0
-        write_frame(folder, f"{k:04d}", color, depth)
 
 
 def _checkpoint(path: Path, rng: np.random.Generator, stats: TargetStats | None = None) -> None:
@@ -96,22 +80,20 @@ def run(tmp_path_factory: pytest.TempPathFactory):
     """The checkpoint, frames, and both exports (float32; svd + int8) with their CLI output."""
     root = tmp_path_factory.mktemp("export")
     rng = np.random.default_rng(0)
-    _frames(root / "frames", 3, rng)
+    frames = write_synth_frames(root / "synth", 3)
     _checkpoint(root / "run" / "checkpoint.pt", rng)
     (root / "run" / "metrics.jsonl").write_text('{"kind": "data", "iter": 0, "frames": 3, "rois": 500}\n')
     results, stdout = {}, {}
     for name, extra in (
-        ("float", ["--verify-frames", str(root / "frames")]),
-        ("int8", ["--svd", str(SVD_RANK), "--int8", "--calib", str(root / "frames"),
-                  "--verify-frames", str(root / "frames")]),
+        ("float", ["--verify-frames", str(frames)]),
+        ("int8", ["--svd", str(SVD_RANK), "--int8", "--calib", str(frames),
+                  "--verify-frames", str(frames)]),
     ):  # fmt: skip
         out = root / f"{name}.onnx"
         with contextlib.redirect_stdout(io.StringIO()) as printed:
             assert cli.main([str(root / "run" / "checkpoint.pt"), "-o", str(out), *extra]) == 0
         results[name], stdout[name] = out, printed.getvalue()
-    return SimpleNamespace(
-        checkpoint=root / "run" / "checkpoint.pt", frames=root / "frames", stdout=stdout, **results
-    )
+    return SimpleNamespace(checkpoint=root / "run" / "checkpoint.pt", frames=frames, stdout=stdout, **results)
 
 
 def _reference(checkpoint: Path, net=None) -> TorchNetwork:
@@ -136,8 +118,8 @@ def test_metadata_comes_from_the_checkpoint(run) -> None:
     config = TrainConfig.from_json(state["config"])
     np.testing.assert_array_equal(meta.mean_sizes, state["mean_sizes"].numpy())
     assert meta.classes == CLASSES and meta.input_scale == 0.75 and meta.context_scale == 1.5
-    assert (meta.top_k, meta.nms_iou, meta.score_threshold) == (50, 0.4, 0.02)
-    assert meta.max_proposals == 150 and meta.depth_truncation_m == 10.0
+    assert (meta.top_k, meta.nms_iou, meta.min_score) == (50, 0.4, 0.02)
+    assert meta.proposals.max_proposals == 150 and meta.depth_truncation_m == 10.0
     # The runtime rebuilds the very proposal configuration the network was trained with.
     assert PipelineConfig.from_metadata(meta).proposals == config.proposals
     prov = meta.provenance
@@ -145,7 +127,7 @@ def test_metadata_comes_from_the_checkpoint(run) -> None:
     assert prov["training_config"] == json.loads(state["config"])
     assert prov["training_data"] == {"frames": 3, "rois": 500}
     assert prov["a3d_version"] and prov["export"]["torch"] and prov["exported_at"]
-    assert prov["verification"]["inputs"] == ["0000", "0001"]
+    assert prov["verification"]["inputs"] == ["synth_000000", "synth_000001"]
     assert prov["verification"]["float32_vs_torch"]["probs"]["max_abs"] <= 1e-4
 
 

@@ -21,6 +21,7 @@ from onnx import TensorProto, helper, numpy_helper
 
 from a3d.export.onnx_export import save_model
 from a3d.runtime.errors import ModelError
+from a3d.runtime.frontend.proposals import ProposalConfig
 from a3d.runtime.network.model import (
     METADATA_KEY,
     SCHEMA_VERSION,
@@ -90,11 +91,10 @@ def _metadata(**changes) -> ModelMetadata:
         "depth_truncation_m": 10.0,
         "input_scale": 0.5,
         "context_scale": 1.5,
-        "score_threshold": 0.01,
+        "min_score": 0.01,
         "nms_iou": 0.3,
         "top_k": 100,
-        "max_proposals": 2000,
-        "proposal_config": {"min_area": 200, "max_proposals": 2000},
+        "proposals": ProposalConfig(min_area=200, max_proposals=2000),
         "provenance": {"a3d_version": "test", "checkpoint": {"sha256": "0" * 64}},
     }
     return ModelMetadata(**{**values, **changes})
@@ -243,3 +243,20 @@ def test_a_model_whose_inputs_or_outputs_differ_is_refused(tmp_path: Path, graph
     save_model(graph(), _metadata(), path)
     message = _refusal(path)
     assert expected in message and "do not match the contract" in message
+
+
+def test_schema_1_metadata_reads_into_todays_fields() -> None:
+    """samples/model.onnx is a schema 1 file: score_threshold becomes min_score and the top-level
+    max_proposals the proposal settings' cap (it overrode proposal_config's), one value each."""
+    path = Path(__file__).resolve().parents[1] / "samples" / "model.onnx"
+    props = {p.key: p.value for p in onnx.load(str(path), load_external_data=False).metadata_props}
+    old = json.loads(props[METADATA_KEY])
+    assert old["schema_version"] == 1
+    old["proposal_config"]["max_proposals"] = old["max_proposals"] + 7  # the top-level one wins
+    metadata = ModelMetadata.from_json(json.dumps(old), "samples")
+    assert metadata.schema_version == SCHEMA_VERSION and metadata.min_score == old["score_threshold"]
+    assert metadata.proposals.max_proposals == old["max_proposals"]
+    assert metadata.proposals.superpixels.n_segments == old["proposal_config"]["superpixels"]["n_segments"]
+    again = json.loads(metadata.to_json())
+    assert "score_threshold" not in again and "max_proposals" not in again and "proposal_config" not in again
+    assert ModelMetadata.from_json(metadata.to_json(), "again").proposals == metadata.proposals

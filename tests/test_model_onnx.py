@@ -15,7 +15,11 @@ from a3d.train.model.net import A3DNet
 
 INPUTS = ("color", "depth", "rois", "context_rois")
 OUTPUTS = ("class_logits", "deltas3d", "deltas2d")
-pytestmark = pytest.mark.filterwarnings("ignore::FutureWarning", "ignore:.*axis name.*:UserWarning")
+# slow: an ONNX export (dynamo)
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.filterwarnings("ignore::FutureWarning", "ignore:.*axis name.*:UserWarning"),
+]
 
 
 def _rois(count: int, gen: torch.Generator, height: int, width: int) -> torch.Tensor:

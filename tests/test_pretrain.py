@@ -14,7 +14,7 @@ from a3d.train.model.net import A3DNet
 from a3d.train.model.weights import load_vgg16_imagenet
 from a3d.train.pretrain import BACKGROUND_MAX_IOU, CropClassifier, frame_crops, torchvision_state
 from a3d.train.pretrain_cli import main
-from tests.test_train_scenes import write_scenes
+from tests.helpers.train_scenes import write_scenes
 
 TINY = NetConfig(width=0.0625, fc6=32, fc7=16, trunk_norm=True, dropout=0.0)
 
@@ -67,6 +67,7 @@ def test_background_crops_stay_off_the_objects():
     assert BACKGROUND_MAX_IOU < 0.5
 
 
+@pytest.mark.slow  # a pretraining run
 def test_cli_learns_the_crops_and_writes_the_torchvision_layout(tmp_path, capsys):
     assert synth_main([str(tmp_path / "synth"), "--frames", "3", "--seed", "5", "--split", "test=0"]) == 0
     out = tmp_path / "w" / "synth.pt"

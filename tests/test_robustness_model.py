@@ -19,7 +19,7 @@ from a3d.export.onnx_export import save_model
 from a3d.runtime import pipeline
 from a3d.runtime.cli import run as run_cli
 from a3d.runtime.network.model import METADATA_KEY, SCHEMA_VERSION, DetectorModel
-from tests.test_run import write_scene_folder
+from tests.helpers.runtime_frames import write_scene_folder
 
 
 def _truncated(data: bytes, tmp_path: Path) -> bytes:
@@ -71,11 +71,11 @@ def _newer(meta: dict) -> str:
 
 
 def _proposal_setting(path: str, value: object) -> Callable[[dict], str]:
-    """Set proposal_config.PATH (dotted) to value in the metadata."""
+    """Set proposals.PATH (dotted) to value in the metadata."""
 
     def edit(meta: dict) -> str:
         *parents, leaf = path.split(".")
-        node = meta["proposal_config"]
+        node = meta["proposals"]
         for key in parents:
             node = node.setdefault(key, {})
         node[leaf] = value
@@ -101,19 +101,20 @@ CASES = {
     ),
     "proposal_setting_type": (
         _edited_metadata(_proposal_setting("superpixels.n_segments", "many")),
-        "a3d metadata proposal_config.superpixels.n_segments must be an integer in [1, 10000000], got 'many'",
+        "a3d metadata proposals.superpixels.n_segments must be an integer in [1, 10000000], got 'many'",
     ),
     "proposal_count_huge": (
         _edited_metadata(_proposal_setting("max_proposals", 10**30)),
-        "a3d metadata proposal_config.max_proposals must be an integer in [1, 10000000]",
+        "a3d metadata proposals.max_proposals must be an integer in [1, 10000000]",
     ),
     "proposal_weights_short": (
         _edited_metadata(_proposal_setting("edge_weights", [1.0, 2.0])),
-        "a3d metadata proposal_config.edge_weights must be a list of 3 values",
+        "a3d metadata proposals.edge_weights must be a list of 3 values",
     ),
 }
 
 
+@pytest.mark.slow  # the exported tiny model (conftest)
 @pytest.mark.parametrize("case", list(CASES))
 def test_unusable_model_is_refused_before_any_frame(
     case: str,
@@ -138,6 +139,7 @@ def test_unusable_model_is_refused_before_any_frame(
     assert err.count("\n") == 1 and err.startswith(f"a3d-run: error: {path}: ") and says in err, err
 
 
+@pytest.mark.slow  # the exported tiny model (conftest)
 def test_the_undamaged_model_runs(tmp_path: Path, tiny_model: Path, capsys: pytest.CaptureFixture) -> None:
     """The control for the cases above: the same command with the intact file writes both frames."""
     folder = write_scene_folder(tmp_path / "frames", ["a", "b"])

@@ -18,8 +18,7 @@ from a3d.runtime.io.detections_io import read_detections
 from a3d.runtime.sources.folder import FolderSource, write_frame
 from a3d.runtime.structures.frame import GroundTruth
 from a3d.runtime.structures.geometry import rtilt_from_pitch_roll
-from tests.rrd_reader import as_array, read_columns
-from tests.test_run import (
+from tests.helpers.runtime_frames import (
     FakeModel,
     H,
     K,
@@ -29,6 +28,7 @@ from tests.test_run import (
     scene,
     write_scene_folder,
 )
+from tests.rrd_reader import as_array, read_columns
 
 
 def run(argv: list[str]) -> int:
@@ -111,7 +111,8 @@ def test_bad_frames_are_reported_and_the_rest_match_a_clean_run(
     assert run(argv) == 1
     err = capsys.readouterr().err
     assert "Traceback" not in err
-    problems = [line for line in err.splitlines() if not line.startswith("a3d-run: 3 frames written")]
+    reports = ("a3d-run: 3 frames written", "a3d-run: summary: ", "a3d-run: progress: ", "a3d-run: warning: ")
+    problems = [line for line in err.splitlines() if not line.startswith(reports)]
     assert len(problems) == len(bad)
     for name, file in bad.items():
         [line] = [p for p in problems if f"/{file}" in p and name in p]
@@ -140,8 +141,13 @@ def test_frame_without_depth_gives_an_empty_line_and_a_warning(
     assert run([str(folder), "--model", "m.onnx", "--output", str(out), "--headless"]) == 0
     a, z = read_detections(out)
     assert len(a.scores) > 0 and len(z.scores) == 0
-    [warning] = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
-    assert warning.startswith("a3d-run: warning: ") and "z.depth.png" in warning
+    no_depth, gravity = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
+    assert no_depth.startswith("a3d-run: warning: ") and "z.depth.png" in no_depth
+    assert (
+        gravity.startswith("a3d-run: warning: ")
+        and "/z." in gravity
+        and "gravity fallback: camera axes" in gravity
+    )
 
 
 def test_resume_after_a_crash_gives_the_clean_file(tmp_path: Path, fake_model: FakeModel) -> None:

@@ -20,9 +20,11 @@ from pathlib import Path
 import pytest
 
 from a3d.runtime.io.detections_io import parse_line
-from tests.test_run import write_scene_folder
+from tests.helpers.runtime_frames import write_scene_folder
 
 FRAMES = 24
+
+pytestmark = pytest.mark.slow  # kills a3d-run processes and resumes them
 
 
 def _command(folder: Path, model: Path, output: Path, *extra: str) -> list[str]:

@@ -3,24 +3,33 @@ both class mappings, and bad files named in one line each (exit 1)."""
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from a3d.runtime.cli.eval import main as eval_main
 from a3d.runtime.cli.sunrgbd import main
+from a3d.runtime.evaluation.protocols import SUNRGBD
+from a3d.runtime.io.detections_io import FrameDetections, write_detections
 from a3d.runtime.sources.folder import FolderSource, list_frames
+from a3d.runtime.sources.sunrgbd_conventions import map_class
 from a3d.runtime.structures.geometry import canonical_boxes
 from a3d.synth import SynthFrame
 from tests.real_formats import (
+    A,
     R_y,
+    footprints_of,
     jpeg,
+    labels_of,
+    sun_intrinsics,
+    sun_name,
     synth_frames,
     upright_cloud,
     write_sun_release_frame,
     write_votenet_frame,
 )
-from tests.test_source_sunrgbd import A, footprints_of, labels_of, map_class, sun_intrinsics, sun_name
 
 
 def read_out(folder: Path) -> dict[str, object]:
@@ -113,6 +122,36 @@ def test_votenet_tree_with_its_split(tmp_path: Path, capsys: pytest.CaptureFixtu
         check_frame(frame, synth, "nyu19", atol=2e-5)
         np.testing.assert_allclose(frame.depth, synth.depth, atol=5e-4)  # a millimetre PNG
         np.testing.assert_allclose(frame.truth.boxes2d_visible, synth.gt.boxes2d_visible, atol=1e-6)
+    check_sunrgbd_protocol_on(out / "train", train, capsys)
+
+
+def check_sunrgbd_protocol_on(folder: Path, frames: dict, capsys: pytest.CaptureFixture) -> None:
+    """a3d-eval --protocol sunrgbd on a folder a3d-sunrgbd wrote: its own ground truth as detections
+    scores 100 on each of the 10 classes present, and the other classes are left out, counted."""
+    lines = [
+        FrameDetections(
+            frame=name,
+            R_tilt=f.R_tilt,
+            class_ids=f.truth.class_ids,
+            scores=np.linspace(1.0, 0.5, len(f.truth)),
+            boxes2d=f.truth.boxes2d_visible,
+            boxes3d=f.truth.boxes3d,
+        )
+        for name, f in frames.items()
+    ]
+    detections = folder.parent / "truth_as_detections.jsonl"
+    write_detections(detections, lines)
+    report = folder.parent / "eval"
+    argv = [str(folder), "--detections", str(detections), "--protocol", "sunrgbd", "--out", str(report)]
+    assert eval_main(argv) == 0
+    assert "protocol sunrgbd" in capsys.readouterr().out
+    result = json.loads((report / "eval.json").read_text())
+    names = [c for f in frames.values() for c in f.truth.classes]
+    ten = sorted({c for c in names if c in SUNRGBD.classes}, key=SUNRGBD.classes.index)
+    assert result["protocol"]["name"] == "sunrgbd" and ten and len(ten) < len(set(names))
+    assert result["present_classes"] == ten
+    assert all(result["classes"][c]["ap"]["0.25"] == pytest.approx(1.0) for c in ten)
+    assert result["ignored_outside_protocol"]["ground_truth"] == sum(c not in SUNRGBD.classes for c in names)
 
 
 def test_without_a_split_every_frame_goes_to_all(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:

@@ -292,6 +292,7 @@ def _class_dependence_p_values(config: SceneConfig) -> np.ndarray:
     return (np.array(shuffled) >= np.array(observed)).mean(axis=0)
 
 
+@pytest.mark.slow  # renders many frames
 def test_materials_do_not_depend_on_the_class() -> None:
     """By default texture kind and brightness are independent of the class (not extreme among
     the shufflings), and with class-typical appearance both depend on it (more than all 200)."""
@@ -299,6 +300,7 @@ def test_materials_do_not_depend_on_the_class() -> None:
     assert (_class_dependence_p_values(SceneConfig(appearance="typical")) == 0.0).all()
 
 
+@pytest.mark.slow  # renders many frames
 def test_typical_appearance_gives_ceramic_toilets_and_dark_screens() -> None:
     """With typical_share 1 every toilet, sink and bathtub is ceramic (bright, unsaturated,
     glossy) in its first slot and every monitor and television dark; the default never ties
@@ -354,6 +356,7 @@ def test_frames_are_deterministic_per_seed(frames) -> None:
     assert not np.array_equal(frames[1].color, frames[0].color)
 
 
+@pytest.mark.slow  # worker processes
 def test_cli_writes_the_same_set_with_any_worker_count(tmp_path) -> None:
     args = ["--frames", "4", "--seed", "5", "--split", "test=0.5", "--size", "96x128"]
     assert main([str(tmp_path / "a"), *args, "--workers", "1"]) == 0

@@ -10,7 +10,7 @@ from a3d.train.augment import augment_colour, augment_depth, augment_frame, augm
 from a3d.train.config import apply_overrides, load_config
 from a3d.train.dataset import BatchDataset, compute_target_stats
 from a3d.train.roidb import build_roidb
-from tests.test_train_scenes import TINY, K, write_scenes
+from tests.helpers.train_scenes import TINY, K, write_scenes
 
 
 def _frame(seed: int = 0) -> tuple[np.ndarray, np.ndarray]:

@@ -9,10 +9,20 @@ import subprocess
 import sys
 import textwrap
 
+import numpy as np
 import pytest
 import torch
 
-from a3d.train.checkpoint import CheckpointError, load_checkpoint, save_checkpoint
+from a3d.train.checkpoint import (
+    CheckpointError,
+    checkpoint_config,
+    load_checkpoint,
+    load_trained,
+    save_checkpoint,
+)
+from a3d.train.config import TrainConfig
+from a3d.train.dataset import TargetStats
+from a3d.train.model import A3DNet, NetConfig
 
 
 def _payload(value: float) -> dict:
@@ -20,8 +30,10 @@ def _payload(value: float) -> dict:
         "iteration": 7,
         "config": '{"solver": {"lr": 0.005}}',
         "model": {"fc.weight": torch.full((3, 4), value), "bn.num_batches_tracked": torch.tensor(3)},
-        "optimizer": {"state": {0: {"momentum_buffer": torch.ones(2)}},
-                      "param_groups": [{"lr": 0.1, "params": [0]}]},
+        "optimizer": {
+            "state": {0: {"momentum_buffer": torch.ones(2)}},
+            "param_groups": [{"lr": 0.1, "params": [0]}],
+        },
         "classes": ["bathtub", "bed"],
     }
 
@@ -128,3 +140,25 @@ def test_kill_during_a_checkpoint_write_keeps_the_previous_one(tmp_path, mode):
     save_checkpoint(path, {"iteration": 3, "config": "{}", "model": {"w": torch.zeros(3)}})
     assert load_checkpoint(path)["iteration"] == 3
     assert [p.name for p in tmp_path.iterdir()] == ["checkpoint.pt"]
+
+
+def test_load_trained_gives_the_network_and_refuses_an_unusable_checkpoint(tmp_path):
+    config = TrainConfig(net=NetConfig(width=0.0625, fuse_channels=16, fc6=32, fc7=32))
+    net = A3DNet(config.net)
+    sizes = torch.rand(19, 3, dtype=torch.float64) + 0.5
+    payload = {"iteration": 1, "config": config.to_json(), "model": net.state_dict(),
+               "target_stats": TargetStats.identity().to_tensors(), "mean_sizes": sizes}  # fmt: skip
+    save_checkpoint(tmp_path / "good.pt", payload)
+    trained = load_trained(tmp_path / "good.pt")
+    assert trained.config == config and not trained.net.training
+    np.testing.assert_array_equal(trained.mean_sizes, sizes.numpy())
+    for name, tensor in net.state_dict().items():
+        assert torch.equal(trained.net.state_dict()[name], tensor)
+    assert checkpoint_config(tmp_path / "good.pt") == config
+
+    save_checkpoint(tmp_path / "no_stats.pt", {k: v for k, v in payload.items() if k != "target_stats"})
+    with pytest.raises(CheckpointError, match=r"no_stats.pt: checkpoint without target_stats"):
+        load_trained(tmp_path / "no_stats.pt")
+    wider = TrainConfig(net=NetConfig(width=0.125, fuse_channels=16, fc6=32, fc7=32))
+    with pytest.raises(CheckpointError, match=r"good.pt: weights do not fit"):
+        load_trained(tmp_path / "good.pt", wider)

@@ -40,10 +40,11 @@ def test_overrides_are_typed():
 @pytest.mark.parametrize(
     ("override", "message"),
     [
-        ("solver.lrr=1", "unknown setting solver.lrr"),
-        ("solver.iterations=1.5", "solver.iterations: expected an integer"),
-        ("data.flip=maybe", "data.flip: expected true or false"),
-        ("solver=3", "solver must be a table"),
+        ("solver.lrr=1", r"--set solver.lrr=1: unknown setting\(s\) solver.lrr \(known: gamma, "),
+        ("solver.iterations=1.5", "solver.iterations must be an integer, got 1.5"),
+        ("data.flip=maybe", "data.flip must be true or false, got 'maybe'"),
+        ("solver=3", "solver must be an object, got 3"),
+        ("proposals.edge_weights=1,2", r"proposals.edge_weights must be a list of 3 values"),
         ("novalue", "expected KEY=VALUE"),
     ],
 )
@@ -60,7 +61,7 @@ def test_files_json_and_toml_with_base_preset(tmp_path):
     assert a.net == load_config("cpu-small").net and a.solver.lr == 0.002
     assert b.solver.lr == 0.002 and b.data.workers == 0
     (tmp_path / "bad.json").write_text('{"solver": {"lr": "fast"}}')
-    with pytest.raises(ValueError, match=r"bad\.json: solver\.lr: expected a number"):
+    with pytest.raises(ValueError, match=r"bad\.json: solver\.lr must be a finite number, got 'fast'"):
         load_config(str(tmp_path / "bad.json"))
     with pytest.raises(ValueError, match="not a config file nor a preset"):
         load_config(str(tmp_path / "missing.json"))

@@ -15,7 +15,7 @@ from a3d.train.config import apply_overrides, load_config
 from a3d.train.dataset import BatchDataset, compute_target_stats, raw_targets
 from a3d.train.roidb import build_roidb
 from a3d.train.sampler import plan_batch
-from tests.test_train_scenes import SIZE, TINY, K, render_scene, write_scenes
+from tests.helpers.train_scenes import SIZE, TINY, K, render_scene, write_scenes
 
 
 @pytest.fixture(scope="module")

@@ -5,9 +5,13 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import pytest
+
 from a3d.train.checkpoint import load_checkpoint
 from a3d.train.loop import read_metrics
-from tests.test_train_scenes import TINY, write_scenes
+from tests.helpers.train_scenes import TINY, write_scenes
+
+pytestmark = pytest.mark.slow  # two training processes over gloo
 
 
 def test_two_gloo_processes_stay_in_sync(tmp_path):
@@ -32,4 +36,3 @@ def test_two_gloo_processes_stay_in_sync(tmp_path):
         assert len(r["digests"]) == 2 and r["digests"][0] == r["digests"][1]
     assert [r["iter"] for r in records if r["kind"] == "train"] == [1, 2, 3, 4]
     assert load_checkpoint(run / "checkpoint.pt")["iteration"] == 4
-

@@ -15,7 +15,7 @@ from a3d.train.dataset import BatchDataset, TargetStats, compute_target_stats
 from a3d.train.inference import TorchDetector, TorchNetwork, write_folder_detections
 from a3d.train.model import A3DNet
 from a3d.train.roidb import build_roidb
-from tests.test_train_scenes import TINY, K, write_scenes
+from tests.helpers.train_scenes import TINY, K, write_scenes
 
 
 @pytest.fixture(scope="module")

@@ -9,7 +9,7 @@ import torch
 from a3d.train.config import apply_overrides, load_config
 from a3d.train.loop import read_metrics, train
 from a3d.train.losses import detection_loss
-from tests.test_train_scenes import TINY, write_scenes
+from tests.helpers.train_scenes import TINY, write_scenes
 
 
 def _inputs():

@@ -21,7 +21,7 @@ from a3d.runtime.structures.frame import GroundTruth
 from a3d.train.config import apply_overrides, load_config
 from a3d.train.loop import train
 from a3d.train.roidb import build_roidb, class_mean_sizes, compute_front_end, label_rois
-from tests.test_train_scenes import TINY, write_scenes
+from tests.helpers.train_scenes import TINY, write_scenes
 
 
 def test_label_rois_known_answers():

@@ -1,4 +1,4 @@
-"""Training checkpoints: atomic writes, weights-only reads, clear refusals.
+"""Training checkpoints: atomic writes, weights-only reads, clear refusals; the trained model.
 
 A checkpoint is a plain ``dict`` written with ``torch.save`` and read back with
 ``torch.load(weights_only=True)``: only tensors, dicts, lists, tuples, strings, numbers, booleans
@@ -12,6 +12,10 @@ Writes are durable atomic writes (a3d.runtime.io.atomic: a temporary file in the
 fsync'ed, renamed over the old checkpoint, the folder fsync'ed), so a crash or ``kill -9`` at any
 moment leaves either the previous checkpoint or the new one, never a torn file. The next save
 removes temporary files that a killed writer left behind (one writer per run folder).
+
+``load_trained`` is the one way from a checkpoint to its network, config, target statistics and
+class mean sizes (validation, the torch reference detector, export, benchmarks);
+``checkpoint_config`` reads the config alone (``a3d-train --resume``).
 """
 
 from __future__ import annotations
@@ -23,12 +27,17 @@ import struct
 import warnings
 import zipfile
 import zlib
+from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from a3d.runtime.errors import ModelError
 from a3d.runtime.io.atomic import atomic_write, remove_stale_temporaries
+from a3d.train.config import TrainConfig
+from a3d.train.dataset import TargetStats
+from a3d.train.model import A3DNet
 
 FORMAT = "a3d-checkpoint"
 VERSION = 1
@@ -93,6 +102,45 @@ def load_checkpoint(path: str | os.PathLike) -> dict:
     if missing:
         raise CheckpointError(f"{path}: a3d checkpoint without {', '.join(missing)}")
     return data
+
+
+def checkpoint_config(path: str | os.PathLike, state: dict | None = None) -> TrainConfig:
+    """The training config stored in checkpoint ``path`` (read unless its ``state`` is given)."""
+    state = load_checkpoint(path) if state is None else state
+    return TrainConfig.from_json(state["config"], str(path))
+
+
+@dataclass(frozen=True)
+class Trained:
+    """A trained model from its checkpoint: the network (eval mode, on the CPU), its training
+    config, target statistics and class mean sizes (19, 3), and the rest of the checkpoint
+    (without model and optimizer state)."""
+
+    net: A3DNet
+    config: TrainConfig
+    stats: TargetStats
+    mean_sizes: np.ndarray
+    state: dict
+
+
+def load_trained(path: str | os.PathLike, config: TrainConfig | None = None) -> Trained:
+    """Read an a3d-train checkpoint; ``config`` replaces the stored one (e.g. other inference
+    settings). CheckpointError "PATH: problem" if it is not usable."""
+    state = load_checkpoint(path)
+    missing = [k for k in ("target_stats", "mean_sizes") if k not in state]
+    if missing:
+        raise CheckpointError(f"{path}: checkpoint without {', '.join(missing)} (not written by a3d-train?)")
+    config = config or checkpoint_config(path, state)
+    net = A3DNet(config.net)
+    try:
+        net.load_state_dict(state["model"])
+    except RuntimeError as e:
+        first = str(e).strip().splitlines()[0]
+        problem = f"weights do not fit the checkpoint's network config ({first})"
+        raise CheckpointError(f"{path}: {problem}") from None
+    stats = TargetStats.from_tensors(state["target_stats"])
+    rest = {k: v for k, v in state.items() if k not in ("model", "optimizer")}
+    return Trained(net.eval(), config, stats, np.asarray(state["mean_sizes"], np.float64), rest)
 
 
 def _check_archive(path: Path) -> None:

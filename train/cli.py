@@ -24,7 +24,7 @@ from pathlib import Path
 
 from a3d.runtime.cli.common import build_parser as command_parser
 from a3d.runtime.cli.common import command
-from a3d.train.checkpoint import load_checkpoint
+from a3d.train.checkpoint import checkpoint_config
 from a3d.train.config import CPU_PRESET, GPU_PRESET, PRESETS, TrainConfig, apply_overrides, load_config
 from a3d.train.loop import CHECKPOINT_NAME, resolve_device, train
 
@@ -69,9 +69,7 @@ def resolve_config(args: argparse.Namespace) -> TrainConfig:
     if args.resume:
         if args.config:
             raise ValueError("--resume takes the configuration from the checkpoint; drop --config")
-        config = TrainConfig.from_json(load_checkpoint(args.out / CHECKPOINT_NAME)["config"],
-                                       str(args.out / CHECKPOINT_NAME))  # fmt: skip
-        config = apply_overrides(config, args.overrides)
+        config = apply_overrides(checkpoint_config(args.out / CHECKPOINT_NAME), args.overrides)
     else:
         config = load_config(config_source(args), args.overrides)
     if args.iters is not None:

@@ -7,16 +7,14 @@ the solver, logging/validation, and inference post-processing. It is built by
     preset (``vgg16`` or a CPU preset)  ->  config file (JSON or TOML)  ->  ``--set a.b=value``
 
 each layer overriding the previous one key by key. A config file may name its base preset with a
-top-level ``"preset"`` key. Values are checked against the dataclass field types; an unknown key
-or a wrong type is a one-line ``ValueError`` naming the key (and the file).
+top-level ``"preset"`` key. Values are checked against the dataclass field types by the settings
+codec the model file's settings use too (a3d.runtime.io.plain_config); an unknown key or a wrong
+type is a one-line ``ValueError`` naming the key (and the file).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import json
-import types
-import typing
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from a3d.runtime.frontend.proposals import ProposalConfig
+from a3d.runtime.io.plain_config import apply_plain, plain_from_dataclass
 from a3d.runtime.pipeline import PipelineConfig
 from a3d.train.model import NetConfig
 
@@ -37,8 +36,8 @@ class DataConfig:
     and all 3D geometry always work at native resolution (a3d.runtime.network.network_input).
     """
 
-    input_scale: float = 1.0
-    context_scale: float = 1.5  # context box = RoI scaled about its centre (docs/conventions.md), clipped
+    input_scale: float = PipelineConfig.input_scale
+    context_scale: float = PipelineConfig.context_scale  # context box = RoI scaled about its centre, clipped
     flip: bool = True
     augment: bool = False  # colour and depth augmentation per training image (a3d.train.augment)
     images_per_batch: int = 2
@@ -46,7 +45,7 @@ class DataConfig:
     fg_fraction: float = 0.25
     fg_iou: float = 0.5  # foreground: 2D IoU >= fg_iou with a visible (gt2d_sel) box
     bg_iou_low: float = 0.1  # background: IoU in [bg_iou_low, fg_iou)
-    depth_truncation_m: float = 10.0  # metres mapped to 255 in the depth trunk's input
+    depth_truncation_m: float = PipelineConfig.depth_truncation_m  # metres mapped to 255 (depth input)
     workers: int = 1  # DataLoader worker processes (0: load in the training process)
     cache_dir: str = ""  # per-frame proposal cache; "" = RUN_DIR/cache
     front_end_workers: int = 0  # processes computing uncached proposals for the RoI database; 0 = all cores
@@ -82,11 +81,11 @@ class LogConfig:
 
 @dataclass
 class InferenceConfig:
-    """Post-processing (docs/conventions.md "Inference and post-processing")."""
+    """Post-processing (docs/conventions.md "Inference and post-processing"); the runtime's defaults."""
 
-    top_k: int = 100  # detections kept per class and image before NMS
-    nms_iou: float = 0.3  # 2D NMS on the proposal boxes, per class
-    min_score: float = 0.0  # detections below this score are dropped (0: none, as the release)
+    top_k: int = PipelineConfig.top_k  # detections kept per class and image before NMS
+    nms_iou: float = PipelineConfig.nms_iou  # 2D NMS on the proposal boxes, per class
+    min_score: float = PipelineConfig.min_score  # detections below this score are dropped (0: none)
     regress_3d: bool = True  # False: zero 3D deltas, i.e. the initial boxes (the "-3dreg" ablation)
 
 
@@ -100,7 +99,7 @@ class TrainConfig:
     inference: InferenceConfig = field(default_factory=InferenceConfig)
 
     def to_dict(self) -> dict:
-        return _to_plain(self)
+        return plain_from_dataclass(self)
 
     def pipeline(self, mean_sizes: np.ndarray) -> PipelineConfig:
         """The runtime pipeline's settings for this model (what the exported model's metadata holds)."""
@@ -153,13 +152,13 @@ def _cpu_small() -> TrainConfig:
 
 def _cpu_tiny() -> TrainConfig:
     """cpu-small's network on a schedule for the first hour: 1500 iterations (lr x0.1 at the same
-    0.76 of the run), checkpoints every 250, validation only at the end; about 10 minutes on 2
-    CPU cores from a few hundred a3d-synth frames (docs/first-hour.md)."""
+    0.76 of the run), checkpoints every 250, validation on 50 frames at the end only; about 11
+    minutes on 2 idle CPU cores (cpu-small's 2.3 iterations per second; docs/first-hour.md)."""
     return apply_values(
         _cpu_small(),
         {
             "solver": {"iterations": 1500, "lr_steps": [1140]},
-            "log": {"checkpoint_every": 250, "val_every": 0},
+            "log": {"checkpoint_every": 250, "val_every": 0, "val_frames": 50},
         },
         "preset cpu-tiny",
     )
@@ -228,89 +227,11 @@ def _parse_toml(text: str) -> dict:
     return tomllib.loads(text)
 
 
-def apply_values(obj, values: Mapping, where: str, prefix: str = ""):
-    """A copy of dataclass ``obj`` with ``values`` (nested mappings) applied, type-checked per field."""
-    if not isinstance(values, Mapping):
-        raise ValueError(f"{where}: {prefix.rstrip('.') or 'config'} must be a table of settings")
-    hints = typing.get_type_hints(type(obj))
-    names = {f.name for f in dataclasses.fields(obj)}
-    changes = {}
-    for key, value in values.items():
-        if key not in names:
-            raise ValueError(f"{where}: unknown setting {prefix}{key} (known: {', '.join(sorted(names))})")
-        current = getattr(obj, key)
-        if dataclasses.is_dataclass(current):
-            changes[key] = apply_values(current, value, where, f"{prefix}{key}.")
-        else:
-            changes[key] = _coerce(value, hints[key], f"{where}: {prefix}{key}")
-    return dataclasses.replace(obj, **changes)
-
-
-def _coerce(value, hint, what: str):
-    """``value`` converted to type ``hint`` (bool/int/float/str, tuples and lists of those, optionals)."""
-    origin = typing.get_origin(hint)
-    args = typing.get_args(hint)
-    if origin in (typing.Union, types.UnionType):
-        if value is None and type(None) in args:
-            return None
-        errors = []
-        for arg in (a for a in args if a is not type(None)):
-            try:
-                return _coerce(value, arg, what)
-            except ValueError as e:
-                errors.append(str(e))
-        raise ValueError(errors[0] if errors else f"{what}: cannot be {value!r}")
-    if origin in (tuple, list):
-        if isinstance(value, str):
-            value = [v for v in value.split(",") if v.strip()]
-        if not isinstance(value, (list, tuple)):
-            raise ValueError(f"{what}: expected a list, got {value!r}")
-        item = args[0] if args else typing.Any
-        return origin(_coerce(v, item, what) for v in value)
-    if hint is typing.Any:
-        return value
-    if dataclasses.is_dataclass(hint):
-        if isinstance(value, hint):
-            return value
-        return apply_values(hint(), value, what.split(": ")[0], what.split(": ", 1)[-1] + ".")
-    if typing.get_origin(hint) is typing.Literal:
-        if value not in args:
-            raise ValueError(f"{what}: expected one of {args}, got {value!r}")
-        return value
-    if hint is bool:
-        if isinstance(value, bool):
-            return value
-        if isinstance(value, str) and value.lower() in ("true", "false", "1", "0", "yes", "no"):
-            return value.lower() in ("true", "1", "yes")
-        raise ValueError(f"{what}: expected true or false, got {value!r}")
-    if hint is int:
-        if isinstance(value, bool) or not isinstance(value, (int, float, str)):
-            raise ValueError(f"{what}: expected an integer, got {value!r}")
-        try:
-            number = float(value)
-        except ValueError:
-            raise ValueError(f"{what}: expected an integer, got {value!r}") from None
-        if not number.is_integer():
-            raise ValueError(f"{what}: expected an integer, got {value!r}")
-        return int(number)
-    if hint is float:
-        if isinstance(value, bool):
-            raise ValueError(f"{what}: expected a number, got {value!r}")
-        try:
-            return float(value)
-        except (TypeError, ValueError):
-            raise ValueError(f"{what}: expected a number, got {value!r}") from None
-    if hint is str:
-        if not isinstance(value, (str, int, float)) or isinstance(value, bool):
-            raise ValueError(f"{what}: expected a string, got {value!r}")
-        return str(value)
-    raise ValueError(f"{what}: settings of type {hint} cannot be set from a config")
-
-
-def _to_plain(obj):
-    """Dataclass tree -> JSON-ready dicts (tuples as lists)."""
-    if dataclasses.is_dataclass(obj):
-        return {f.name: _to_plain(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
-    if isinstance(obj, (list, tuple)):
-        return [_to_plain(v) for v in obj]
-    return obj
+def apply_values(obj, values: Mapping, where: str):
+    """A copy of dataclass ``obj`` with ``values`` (nested mappings) applied, each value read as its
+    field's type (a3d.runtime.io.plain_config, lenient: also strings); ValueError "WHERE: ...".
+    """
+    try:
+        return apply_plain(obj, values, lenient=True, error=ValueError)
+    except ValueError as e:
+        raise ValueError(f"{where}: {e}") from None

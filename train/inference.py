@@ -27,7 +27,7 @@ from a3d.runtime.pipeline import PipelineConfig, detect, detect_frames
 from a3d.runtime.sources.folder import FolderSource
 from a3d.runtime.structures.classes import NUM_OUTPUTS
 from a3d.runtime.structures.frame import Frame
-from a3d.train.checkpoint import load_checkpoint
+from a3d.train.checkpoint import load_trained
 from a3d.train.config import TrainConfig
 from a3d.train.dataset import TargetStats
 from a3d.train.model import A3DNet
@@ -96,13 +96,8 @@ class TorchDetector:
     def from_checkpoint(cls, path: str | os.PathLike, device: torch.device | str = "cpu",
                         config: TrainConfig | None = None) -> TorchDetector:  # fmt: skip
         """Load a training checkpoint; ``config`` replaces the stored one (e.g. inference settings)."""
-        state = load_checkpoint(path)
-        config = config or TrainConfig.from_json(state["config"], str(path))
-        model = A3DNet(config.net)
-        model.load_state_dict(state["model"])
-        model.to(device)
-        stats = TargetStats.from_tensors(state["target_stats"])
-        return cls.build(model, config, stats, state["mean_sizes"].numpy(), device)
+        trained = load_trained(path, config)
+        return cls.build(trained.net.to(device), trained.config, trained.stats, trained.mean_sizes, device)
 
     def detect(self, frame: Frame) -> FrameDetections:
         """Detections of one frame (README detections format, a3d.runtime.io.detections_io)."""

@@ -26,7 +26,6 @@ import json
 import logging
 import os
 import signal
-import sys
 import threading
 import time
 from dataclasses import dataclass
@@ -109,8 +108,9 @@ class _StopRequest:
             raise KeyboardInterrupt
         self.requested = True
         name = signal.Signals(signum).name
-        print(f"\n{name}: stopping after this iteration to save a checkpoint (again: stop now, unsaved)",
-              file=sys.stderr)  # fmt: skip
+        logger.warning(
+            "%s: stopping after this iteration to save a checkpoint (again: stop now, unsaved)", name
+        )
 
 
 def resolve_device(name: str | None) -> torch.device:

@@ -10,6 +10,8 @@ each protocol in turn, prints each table and then their APs at the primary thres
 and writes DIR/PROTOCOL/eval.json and pr_curves.png. The protocols are defined in
 ``a3d.runtime.evaluation.protocols`` and the metric is ``a3d.runtime.evaluation.metric`` (see their
 docstrings). ``--nms`` / ``--no-nms`` override the protocol's 2D NMS threshold (said in the header).
+After the tables, the angle between each line's gravity and the ground truth's
+(a3d.runtime.evaluation.gravity_report: the mAP cannot see it).
 
 The test set is every frame of FOLDER that has ``NAME.gt.json``; a frame with ground truth and no
 detection line has all its objects missed. A detection line for a frame of FOLDER without
@@ -30,6 +32,7 @@ import cv2
 from a3d.runtime.cli.common import build_parser as command_parser
 from a3d.runtime.cli.common import command
 from a3d.runtime.errors import InputError
+from a3d.runtime.evaluation.gravity_report import gravity_report
 from a3d.runtime.evaluation.metric import (
     IOU_THRESHOLDS,
     NMS_IOU,
@@ -276,6 +279,8 @@ def main(argv: list[str] | None = None) -> int:
         print(format_table(result), end="\n\n" if len(results) > 1 else "\n")
     if len(results) > 1:
         print(format_comparison(results))
+    gravity = gravity_report(truth, detections)
+    print(gravity.format())
     if args.out is not None:
         inputs = {
             "folder": str(args.folder.resolve()),
@@ -287,6 +292,7 @@ def main(argv: list[str] | None = None) -> int:
             "frames_without_detections": first.frames_without_detections,
             "skipped_frames_without_gt": skipped,
             "retilted_frames": first.retilted_frames,
+            "gravity": gravity.summary(),
         }
         outs = [args.out / r.config.protocol.name for r in results] if len(results) > 1 else [args.out]
         try:

@@ -17,8 +17,12 @@ partial last one, which ``--resume`` cuts off before it skips the frames already
 ``--resume`` the output starts empty. ``--output -`` writes the lines to stdout; the progress bar
 and all messages go to stderr.
 
-The rerun flags are the SDK's standard ones: with none the viewer is spawned, ``--save`` writes an
-.rrd, ``--headless`` alone logs nothing. Frames are logged as they are processed (colour, depth,
+The rerun flags are the SDK's standard ones: with none the viewer is started (on 127.0.0.1, found
+next to this Python when not on PATH; a3d.runtime.viewer.launch), ``--serve`` serves the web
+viewer and prints its URL, ``--save`` writes an .rrd, ``--headless`` alone logs nothing. The run
+ends with a summary (a3d.runtime.cli.summary); progress is a bar on a terminal, else a line every
+few seconds (a3d.runtime.cli.progress). Live sources and ``--realtime`` work on the newest frame
+only (a3d.runtime.sources.newest); docs/live.md. Frames are logged as they are processed (colour, depth,
 point cloud, detections and, where the frame has it, ground truth).
 
 A bad frame never stops the run: it is named on stderr as ``a3d-run: PATH: problem`` and the rest
@@ -33,6 +37,7 @@ import contextlib
 import itertools
 import logging
 import os
+import signal
 import sys
 import time
 from collections.abc import Callable, Iterator
@@ -45,6 +50,8 @@ from tqdm import tqdm
 
 from a3d.runtime.cli.common import build_parser as command_parser
 from a3d.runtime.cli.common import command
+from a3d.runtime.cli.progress import make_progress
+from a3d.runtime.cli.summary import RunSummary
 from a3d.runtime.errors import InputError
 from a3d.runtime.io.detections_io import format_line, parse_line
 from a3d.runtime.network.model import DetectorModel
@@ -58,8 +65,10 @@ from a3d.runtime.pipeline import (
 )
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.folder import MODEL_FILE
+from a3d.runtime.sources.newest import NewestFrames
 from a3d.runtime.sources.overrides import parse_depth_scale, parse_intrinsics
 from a3d.runtime.sources.registry import FrameSource, SourceOptions, kinds, open_source, recognised
+from a3d.runtime.viewer import launch as viewer_launch
 from a3d.runtime.viewer import options as viewer
 
 if TYPE_CHECKING:
@@ -72,6 +81,7 @@ OVERLAP_NOTE = (
 )
 DEFAULT_MODEL = MODEL_FILE
 DEFAULT_OUTPUT = "detections.jsonl"
+VIEW_MIN_SCORE = 0.5  # bench.view_threshold: precision of the shown boxes 0.53 at 0.5, 0.33 at 0.3
 
 load_model = DetectorModel.load  # the model loader (tests substitute a fake model here)
 
@@ -93,15 +103,28 @@ def build_parser() -> argparse.ArgumentParser:
         "precomputed: NAME.proposals.npz required",
     )
     p.add_argument("--max-proposals", type=int, metavar="N", help="proposals per frame (default: model)")
-    p.add_argument("--score-threshold", type=float, metavar="S", help="drop scores below S (default: model)")
+    p.add_argument(
+        "--score-threshold",
+        type=float,
+        metavar="S",
+        help="write only detections scoring >= S (default: the model's, 0 for the bundled one: every "
+        "per-class top-k detection, which a3d-eval needs to trace the whole precision-recall curve)",
+    )
     p.add_argument("--resume", action="store_true", help="skip the frames the output already has")
     p.add_argument("--max-frames", type=int, metavar="N", help="stop after the first N frames of the source")
     p.add_argument(
         "--view-min-score",
         type=float,
-        default=0.3,
+        default=VIEW_MIN_SCORE,
         metavar="S",
-        help="rerun view: draw detections scoring >= S (all are written to the output)",
+        help="rerun view and summary: detections scoring >= S (all are written to the output; default: "
+        "%(default)s, where about half the shown boxes are right: docs/live.md)",
+    )
+    p.add_argument(
+        "--realtime",
+        action="store_true",
+        help="play a recorded source at its recorded rate (frame time stamps) and, as with a live "
+        "camera, work on the newest frame only, dropping the stale ones",
     )
     p.add_argument(
         "--overlap",
@@ -234,23 +257,33 @@ class FrameReport:
 @command(PROG)
 def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] | None = None) -> int:
     args = _arguments(argv)
+    starts_viewer = viewer_launch.launches_viewer(args)
+    if starts_viewer:
+        viewer_launch.check_can_launch(args)  # no display, no viewer: one line before loading anything
+    elif args.connect:
+        viewer_launch.check_connect_target(args)
     job = _job(args)  # InputError / ModelError: exit 2 before any frame (command)
-    recording = _open_recording(args)
+    launched = viewer_launch.launch(args) if starts_viewer else None
+    recording = _open_recording(args, launched)
     view = viewer.ViewOptions(min_score=args.view_min_score)
     output = _open_output(args.output, append=args.resume)
+    if launched is not None and launched.web_url is not None:
+        print(f"{PROG}: web viewer: open {launched.web_url}", file=sys.stderr, flush=True)
     failures = list(job.source.incomplete)
     for problem in failures:
         print(f"{PROG}: {problem}", file=sys.stderr)
     written = 0
     overlapping = False
     index: dict[str, int] = {}  # frame name -> its position in the source (the rerun timeline)
-    todo = _frames_to_do(job.source, job.done, index, args.shard, args.max_frames)
+    live = NewestFrames(job.source, realtime=args.realtime) if _is_live(args, job.source) else None
+    todo = _frames_to_do(job.source if live is None else live, job.done, index, args.shard, args.max_frames)
     total = None
-    if hasattr(job.source, "__len__"):
+    if live is None and hasattr(job.source, "__len__"):
         k, n = args.shard
         count = len(job.source) if args.max_frames is None else min(len(job.source), args.max_frames)
         total = max(0, len(range(k, count, n)) - len(job.done))
-    bar = tqdm(total=total, desc=PROG, unit="frame", file=sys.stderr, disable=None)
+    bar = make_progress(PROG, total)
+    summary = RunSummary(args.view_min_score)
     try:
         with _threads(1 if args.overlap == "on" else args.threads), _warnings_to_stderr():
             for outcome in _frames(todo, job, args):
@@ -260,21 +293,24 @@ def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] 
                     output.write(format_line(outcome.detections))
                     written += 1
                     written_at = time.perf_counter()
+                    summary.add(outcome.detections)
                     problem = _log(recording, index[outcome.name], outcome, view)
                     logged_at = time.perf_counter()
+                else:
+                    summary.fail()
                 if on_frame is not None:
                     on_frame(FrameReport(outcome, written_at - start, logged_at - written_at))
                 if outcome.overlapped and not overlapping and args.overlap == "auto":
                     overlapping = True
-                    tqdm.write(
-                        f"{PROG}: --overlap auto: {OVERLAP_NOTE.format(n=args.threads)}", file=sys.stderr
-                    )
+                    bar.write(f"{PROG}: --overlap auto: {OVERLAP_NOTE.format(n=args.threads)}")
                 if problem:
                     failures.append(problem)
-                    tqdm.write(f"{PROG}: {problem}", file=sys.stderr)
-                bar.update()
+                    bar.write(f"{PROG}: {problem}")
+                bar.update(failed=outcome.detections is None)
     except KeyboardInterrupt:
         print(f"\n{PROG}: interrupted after {written} frames; --resume continues", file=sys.stderr)
+        if launched is not None and launched.web_url is not None:
+            launched.stop()
         return 130
     except OSError as e:
         print(f"{PROG}: error: {args.output}: cannot write ({e.strerror or e}); stopped", file=sys.stderr)
@@ -284,13 +320,57 @@ def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] 
         bar.close()
         output.close()
         if recording is not None:
-            recording.flush()
-    if recording is not None:
-        viewer.load_view().close_recording(args, recording)  # --serve: keeps serving until Ctrl-C
+            _flush(recording)
     resumed = f", {len(job.done)} already there" if args.resume else ""
     where = "stdout" if args.output == "-" else args.output
+    summary.dropped = None if live is None else live.dropped
+    for line in summary.lines(_outputs(args, where, launched)):
+        print(f"{PROG}: summary: {line}", file=sys.stderr)
     print(f"{PROG}: {written} frames written to {where}{resumed}, {len(failures)} failed", file=sys.stderr)
+    if recording is not None:
+        viewer.load_view().close_recording(args, recording, own_viewer=launched is not None)
+    if launched is not None and launched.web_url is not None:
+        _serve_until_interrupted(launched)
     return 1 if failures else 0
+
+
+def _flush(recording: rr.RecordingStream) -> None:
+    """Send what the viewer has not received yet; a viewer gone mid-run is one line, not a traceback
+    (the detections are written either way)."""
+    try:
+        recording.flush()
+    except RuntimeError as e:
+        print(f"{PROG}: warning: rerun: the viewer did not receive everything ({e})", file=sys.stderr)
+
+
+def _is_live(args: argparse.Namespace, source: FrameSource) -> bool:
+    """Live sources (a camera: ``source.live``) and --realtime runs work on the newest frame only."""
+    return bool(args.realtime or getattr(source, "live", False))
+
+
+def _outputs(args: argparse.Namespace, where: str, launched: viewer_launch.Launched | None) -> list[str]:
+    """Where the run's outputs went, for the summary."""
+    outputs = [f"detections -> {where}"]
+    if args.save:
+        outputs.append(f"recording -> {args.save}")
+    if args.connect:
+        outputs.append(f"viewer -> {args.url or 'the default viewer address'}")
+    if launched is not None:
+        outputs.append(f"viewer -> {launched.web_url or launched.grpc_url}")
+    return outputs
+
+
+def _serve_until_interrupted(launched: viewer_launch.Launched) -> None:
+    """--serve: the web viewer keeps the recording until Ctrl-C (or SIGTERM), then is stopped."""
+    print(f"{PROG}: serving the recording at {launched.web_url}; Ctrl-C to stop", file=sys.stderr, flush=True)
+    signal.signal(signal.SIGTERM, signal.default_int_handler)  # a plain `kill` stops the server too
+    try:
+        while launched.process is not None and launched.process.poll() is None:
+            time.sleep(0.5)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        launched.stop()
 
 
 def _frames(todo: Iterator[FrameLoader], job: _Job, args: argparse.Namespace) -> Iterator[FrameOutcome]:
@@ -374,13 +454,16 @@ def completed_frames(path: Path) -> set[str]:
 # ----------------------------------------------------------------------------- viewer, environment
 
 
-def _open_recording(args: argparse.Namespace) -> rr.RecordingStream | None:
-    """The rerun recording the flags ask for, with the static entities logged; None for none."""
+def _open_recording(
+    args: argparse.Namespace, launched: viewer_launch.Launched | None
+) -> rr.RecordingStream | None:
+    """The rerun recording the flags ask for (to the viewer a3d-run started, if it started one),
+    with the static entities logged; None for none."""
     if not viewer.viewer_requested(args):
         return None
     view = viewer.load_view()  # rerun is imported here, only when a view or recording is asked for
     try:
-        recording = view.open_recording(args)
+        recording = view.open_recording(args, None if launched is None else launched.grpc_url)
         view.log_static(recording)
     except (OSError, RuntimeError, ValueError) as e:
         raise InputError(f"rerun: cannot open the recording ({e})") from None

@@ -6,7 +6,8 @@
      "detections": [{"class": "chair", "score": 0.93, "box2d": [x1, y1, x2, y2],
                      "box2d_amodal": [x1, y1, x2, y2], "box3d": [x, y, z, l, w, h, theta],
                      "corners": [[x, y, z], ... 8 ...]}],
-     "timing": {"stage": seconds, ...}}
+     "timing": {"stage": seconds, ...},
+     "gravity": "estimated", "notes": ["..."]}
 
 ``box3d`` is in the camera frame (metres) with ``theta`` in the tilt frame of the line's
 ``R_tilt``; ``corners`` are its 8 corners in the camera frame (``geometry.box_corners_camera``),
@@ -15,7 +16,14 @@ and ``detections`` (each with a known class, a finite score, ``box2d`` with x2 >
 and ``box3d`` with positive sizes); ``color``, ``depth``, ``corners`` and ``timing`` are optional
 (scoring uses ``box3d`` and ``R_tilt`` only). ``box2d_amodal`` (optional, all detections or
 none) is the amodal 2D box from the network's 2D regressor, clipped to the image. Blank lines
-are skipped; a frame may appear once. Every problem is an ``InputError`` "FILE:LINE: what is wrong".
+are skipped; a frame may appear once.
+
+``gravity`` (optional; lines from before it have none) says where the line's R_tilt came from:
+"given" (the frame's own), "estimated" (from the depth) or "fallback: <method> (<reason>)"
+(a3d.runtime.frontend.gravity.choose_gravity). ``notes`` (optional, a list of strings) says what
+else degraded on the frame: depth mostly missing, no proposals, proposals capped, boxes clamped
+or dropped (a3d.runtime.postprocess.box_limits); an absent list means nothing did.
+Every problem is an ``InputError`` "FILE:LINE: what is wrong".
 """
 
 from __future__ import annotations
@@ -54,6 +62,8 @@ class FrameDetections:
     depth: str | None = None
     timing: dict[str, float] = field(default_factory=dict)
     boxes2d_amodal: np.ndarray | None = None  # (N, 4) amodal 2D boxes (2D regressor), optional
+    gravity: str | None = None  # "given", "estimated" or "fallback: ..."; None in older lines
+    notes: tuple[str, ...] = ()  # what degraded on this frame, one sentence each
 
     @property
     def classes(self) -> list[str]:
@@ -104,6 +114,10 @@ def format_line(det: FrameDetections) -> str:
         )
     ]
     line["timing"] = {k: float(v) for k, v in det.timing.items()}
+    if det.gravity is not None:
+        line["gravity"] = det.gravity
+    if det.notes:
+        line["notes"] = list(det.notes)
     return json.dumps(line, separators=(",", ":"))
 
 
@@ -194,7 +208,15 @@ def parse_line(text: str, where: str) -> FrameDetections:
         depth=_optional_str(obj, "depth", where),
         timing=_timing(obj.get("timing", {}), where),
         boxes2d_amodal=boxes2d_amodal,
+        gravity=_optional_str(obj, "gravity", where),
+        notes=_notes(obj.get("notes", []), where),
     )
+
+
+def _notes(value, where: str) -> tuple[str, ...]:
+    if not isinstance(value, list) or not all(isinstance(note, str) for note in value):
+        raise InputError(f"{where}: 'notes' must be a list of strings")
+    return tuple(value)
 
 
 def _array(value, shape: tuple[int, ...], where: str, what: str) -> np.ndarray:

@@ -31,7 +31,7 @@ import hashlib
 import json
 import math
 import os
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -39,12 +39,13 @@ import numpy as np
 import onnxruntime as ort
 
 from a3d.runtime.errors import ModelError
-from a3d.runtime.frontend.proposals import proposal_config_from_dict
+from a3d.runtime.frontend.proposals import ProposalConfig, proposal_config_from_dict
 from a3d.runtime.io.json_input import is_finite_number, parse_json
+from a3d.runtime.io.plain_config import plain_from_dataclass
 from a3d.runtime.network.preprocess import COLOR_MEAN_BGR, DEPTH_MEAN
 from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES, NUM_OUTPUTS
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2  # 2: min_score (was score_threshold), max_proposals only inside proposals
 METADATA_KEY = "a3d"
 INPUT_NAMES = ("color", "depth", "rois", "context_rois")
 OUTPUT_NAMES = ("class_probs", "deltas3d", "deltas2d")
@@ -62,11 +63,15 @@ class ModelMetadata:
     the initial 3D box size per class. color_mean_bgr, depth_mean, depth_truncation_m: the
     network inputs' preprocessing (a3d.runtime.network.preprocess). input_scale: the frame is resized by
     this factor before the network (boxes with network_input.scale_boxes); context_scale: context
-    box = proposal box scaled about its centre. score_threshold, nms_iou, top_k: post-processing
-    (docs/conventions.md "Inference and post-processing"); max_proposals: proposals per frame.
-    proposal_config: the a3d.runtime.frontend.proposals.ProposalConfig the model was trained with, as a
-    plain dict. content_sha256: the integrity digest (module docstring). provenance: free-form
-    (package version, training config, checkpoint hash, export options, verification numbers).
+    box = proposal box scaled about its centre. min_score, nms_iou, top_k: post-processing
+    (docs/conventions.md "Inference and post-processing"). proposals: the proposal stage's settings the model
+    was trained with, ``max_proposals`` (proposals per frame) among them, stored through the
+    settings codec (a3d.runtime.io.plain_config). content_sha256: the integrity digest (module
+    docstring). provenance: free-form (package version, training config, checkpoint hash, export
+    options, verification numbers).
+
+    Schema 1 files (``score_threshold``, ``max_proposals`` beside ``proposal_config``) are read
+    into the same fields: ``min_score`` and ``proposals`` with its ``max_proposals``.
     """
 
     schema_version: int
@@ -77,19 +82,32 @@ class ModelMetadata:
     depth_truncation_m: float
     input_scale: float
     context_scale: float
-    score_threshold: float
+    min_score: float
     nms_iou: float
     top_k: int
-    max_proposals: int
-    proposal_config: dict[str, Any] = field(default_factory=dict)
+    proposals: ProposalConfig = field(default_factory=ProposalConfig)
     content_sha256: str = ""
     provenance: dict[str, Any] = field(default_factory=dict)
 
+    # The names PipelineConfig.from_metadata reads today (one stored value each).
+    @property
+    def score_threshold(self) -> float:
+        return self.min_score
+
+    @property
+    def max_proposals(self) -> int:
+        return self.proposals.max_proposals
+
+    @property
+    def proposal_config(self) -> dict[str, Any]:
+        return plain_from_dataclass(self.proposals)
+
     def to_json(self) -> str:
-        data = asdict(self)
+        data = {f.name: getattr(self, f.name) for f in fields(self)}
         data["classes"] = list(self.classes)
         data["mean_sizes"] = np.asarray(self.mean_sizes, np.float64).tolist()
         data["color_mean_bgr"] = [float(v) for v in self.color_mean_bgr]
+        data["proposals"] = plain_from_dataclass(self.proposals)
         return json.dumps(data, sort_keys=True, allow_nan=False)
 
     @classmethod
@@ -107,6 +125,8 @@ class ModelMetadata:
                 f"({SCHEMA_VERSION}); upgrade a3d to run this model"
             )
         names = [f.name for f in fields(cls)]
+        if version == 1:
+            names = [n for n in names if n not in ("min_score", "proposals")] + list(_SCHEMA_1_KEYS)
         missing = [n for n in names if n not in data]
         unknown = sorted(set(data) - set(names))
         if missing or unknown:
@@ -114,11 +134,13 @@ class ModelMetadata:
                 f"{where}: a3d metadata keys: missing {missing or 'none'}, unknown {unknown or 'none'}"
             )
         check = _Checker(where)
+        if version == 1:
+            data = _from_schema_1(data, check)
         sizes = check.array(data["mean_sizes"], "mean_sizes", (NUM_CLASSES, 3))
         if not np.all(sizes > 0):
             raise ModelError(f"{where}: a3d metadata mean_sizes must all be positive")
         return cls(
-            schema_version=version,
+            schema_version=SCHEMA_VERSION,  # in memory, an older file's values are in today's fields
             classes=tuple(check.strings(data["classes"], "classes")),
             mean_sizes=sizes,
             color_mean_bgr=tuple(check.array(data["color_mean_bgr"], "color_mean_bgr", (3,)).tolist()),
@@ -126,11 +148,10 @@ class ModelMetadata:
             depth_truncation_m=check.number(data["depth_truncation_m"], "depth_truncation_m", low=0.0),
             input_scale=check.number(data["input_scale"], "input_scale", low=0.0),
             context_scale=check.number(data["context_scale"], "context_scale", low=0.0),
-            score_threshold=check.number(data["score_threshold"], "score_threshold", 0.0, 1.0, closed=True),
+            min_score=check.number(data["min_score"], "min_score", 0.0, 1.0, closed=True),
             nms_iou=check.number(data["nms_iou"], "nms_iou", 0.0, 1.0, closed=True),
             top_k=check.count(data["top_k"], "top_k"),
-            max_proposals=check.count(data["max_proposals"], "max_proposals"),
-            proposal_config=check.proposal_config(data["proposal_config"]),
+            proposals=check.proposals(data["proposals"], "proposals"),
             content_sha256=check.digest(data["content_sha256"], "content_sha256"),
             provenance=check.mapping(data["provenance"], "provenance"),
         )
@@ -308,6 +329,19 @@ def _describe(name: str, dtype: str, shape) -> str:
     return f"{name} {dtype.removeprefix('tensor(').rstrip(')')}[{dims}]"
 
 
+_SCHEMA_1_KEYS = ("score_threshold", "max_proposals", "proposal_config")
+
+
+def _from_schema_1(data: dict[str, Any], check: _Checker) -> dict[str, Any]:
+    """Schema 1 metadata in schema 2's keys: the top-level proposal cap overrode the config's."""
+    data = dict(data)
+    cap = check.count(data.pop("max_proposals"), "max_proposals")
+    proposals = check.proposals(data.pop("proposal_config"), "proposal_config")
+    data["proposals"] = replace(proposals, max_proposals=cap)
+    data["min_score"] = check.number(data.pop("score_threshold"), "score_threshold", 0.0, 1.0, closed=True)
+    return data
+
+
 class _Checker:
     """Type checks of metadata values, each raising a one-line ModelError naming the key."""
 
@@ -332,10 +366,10 @@ class _Checker:
             raise self.fail(key, f"a finite number{bounds}", value)
         return float(value)
 
-    def proposal_config(self, value: Any) -> dict[str, Any]:
-        """The plain settings, kept as they are once they build a valid ProposalConfig."""
-        proposal_config_from_dict(value, f"{self.where}: a3d metadata proposal_config")
-        return value
+    def proposals(self, value: Any, key: str) -> ProposalConfig:
+        if isinstance(value, ProposalConfig):  # schema 1, already converted
+            return value
+        return proposal_config_from_dict(value, f"{self.where}: a3d metadata {key}")
 
     def count(self, value: Any, key: str) -> int:
         if not isinstance(value, int) or isinstance(value, bool) or value < 1:

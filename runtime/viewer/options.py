@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from types import ModuleType
 
 from a3d.runtime.errors import InputError
+from a3d.runtime.viewer.launch import add_bind_arg
 
 
 @dataclass(frozen=True)
@@ -27,7 +28,8 @@ class ViewOptions:
 
 
 def add_viewer_args(parser: argparse.ArgumentParser) -> None:
-    """The rerun SDK's script flags (the names and meaning of ``rr.script_add_args``)."""
+    """The rerun SDK's script flags (the names and meaning of ``rr.script_add_args``), and --bind
+    for the viewer a3d-run starts (a3d.runtime.viewer.launch)."""
     parser.add_argument("--headless", action="store_true", help="no viewer window (alone: nothing is logged)")
     parser.add_argument("--connect", action="store_true", help="send to a running rerun viewer (see --url)")
     parser.add_argument("--serve", action="store_true", help="serve the web viewer and open it in a browser")
@@ -38,6 +40,7 @@ def add_viewer_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--stdout", action="store_true", help="write the recording to stdout, for a pipe into rerun"
     )
+    add_bind_arg(parser)
 
 
 def viewer_requested(args: argparse.Namespace) -> bool:

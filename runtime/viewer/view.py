@@ -36,6 +36,7 @@ from a3d.runtime.viewer.options import ViewOptions
 
 APPLICATION_ID = "a3d"
 DEFAULT_OPTIONS = ViewOptions()
+BOX_LINE_RADIUS_M = 0.006  # box edges about as thick as the cloud's points (radius 8 mm)
 GROUND_TRUTH_RGB = (255, 255, 255)  # ground truth in one neutral colour, apart from the class colours
 
 
@@ -74,16 +75,23 @@ def default_blueprint() -> rrb.Blueprint:
     )
 
 
-def open_recording(args: argparse.Namespace) -> rr.RecordingStream:
-    """Start the recording on the sink the flags name, with the default blueprint."""
+def open_recording(args: argparse.Namespace, grpc_url: str | None = None) -> rr.RecordingStream:
+    """Start the recording on the sink the flags name, with the default blueprint; with
+    ``grpc_url``, on the viewer a3d started there (a3d.runtime.viewer.launch) instead."""
     if args.save:
         Path(args.save).parent.mkdir(parents=True, exist_ok=True)
-    return rr.script_setup(args, APPLICATION_ID, default_blueprint=default_blueprint())
+    if grpc_url is None:
+        return rr.script_setup(args, APPLICATION_ID, default_blueprint=default_blueprint())
+    recording = rr.RecordingStream(APPLICATION_ID)
+    recording.connect_grpc(grpc_url, default_blueprint=default_blueprint())
+    return recording
 
 
-def close_recording(args: argparse.Namespace, rec: rr.RecordingStream) -> None:
-    """With --serve keep serving until Ctrl-C (the SDK's script teardown), then disconnect."""
-    rr.script_teardown(args)
+def close_recording(args: argparse.Namespace, rec: rr.RecordingStream, own_viewer: bool = False) -> None:
+    """With the SDK's --serve keep serving until Ctrl-C (its script teardown), then disconnect; a
+    viewer a3d started (``own_viewer``, a3d.runtime.viewer.launch) keeps the data itself."""
+    if not own_viewer:
+        rr.script_teardown(args)
     rr.disconnect(rec)
 
 
@@ -111,9 +119,14 @@ def _yaw_rotations(theta: np.ndarray) -> list[rr.RotationAxisAngle]:
 def boxes3d_archetype(
     boxes: np.ndarray, R_tilt: np.ndarray, class_ids: np.ndarray, labels: list[str]
 ) -> rr.Boxes3D:
-    """Boxes3D in the world (tilt) frame: centre R_tilt c, half sizes (l, h, w)/2, yaw about y."""
+    """Boxes3D in the world (tilt) frame: centre R_tilt c, half sizes (l, h, w)/2, yaw about y.
+
+    Drawn as thin wireframes (never solid or translucent faces), so the point cloud inside and
+    behind every box stays visible."""
     boxes = np.asarray(boxes, dtype=np.float64).reshape(-1, 7)
     return rr.Boxes3D(
+        fill_mode=rr.components.FillMode.MajorWireframe,
+        radii=BOX_LINE_RADIUS_M,
         centers=boxes[:, :3] @ np.asarray(R_tilt).T,
         half_sizes=boxes[:, [3, 5, 4]] / 2.0,
         rotation_axis_angles=_yaw_rotations(boxes[:, 6]),

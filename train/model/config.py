@@ -10,9 +10,9 @@ paper that changes the head's cost, not the trunks'.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, fields
+from dataclasses import dataclass
 from types import MappingProxyType
-from typing import Any, Literal
+from typing import Literal
 
 from a3d.train.model.vgg import scaled_channels
 
@@ -63,19 +63,6 @@ class NetConfig:
             raise ValueError(f"NetConfig.dropout must be in [0, 1), got {self.dropout}")
         if self.roi_pool not in ("align", "max"):
             raise ValueError(f"NetConfig.roi_pool must be 'align' or 'max', got {self.roi_pool!r}")
-
-    def to_dict(self) -> dict[str, Any]:
-        """Plain JSON-able dict (for checkpoints and ONNX metadata)."""
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> NetConfig:
-        """Inverse of to_dict; unknown keys are an error (a checkpoint from another version)."""
-        known = {f.name for f in fields(cls)}
-        unknown = sorted(set(data) - known)
-        if unknown:
-            raise ValueError(f"NetConfig: unknown keys {unknown} (known: {sorted(known)})")
-        return cls(**data)
 
 
 def _fused_preset(width: float, fc: int) -> NetConfig:

@@ -1,0 +1,80 @@
+"""Boxes that can exist: decoded 3D boxes are bounded before they are written.
+
+The 3D regressor is unbounded: a wild output can put a box's centre behind the camera or give
+it a size no object of its class has. Decoded boxes are therefore clamped, and the count of
+clamped boxes goes into the frame's detections line (``notes``):
+
+- the centre's depth z to at least ``near_m``: the frame's near range, the least valid raw depth
+  (no seen surface is nearer, so no centre of a seen object is, short of one reaching out of the
+  image toward the camera), never below ``MIN_NEAR_M``; a centre at least ``SLIDE_FROM`` of the
+  near range in front of the camera is moved along its viewing ray (the box still projects where
+  the network put it), a nearer one only has its z set (sliding it would throw it far sideways);
+- each size l, w, h to ``[MIN_SIZE_M, max of the class's family]``: the family bounds are
+  generous (the largest objects of SUN RGB-D / NYUv2 annotations of each kind fit with room to
+  spare) so that only regressions that went wrong are touched.
+
+Class families and their largest size (metres):
+
+- ``large`` furniture, 6.0: bathtub, bed, bookshelf, counter, desk, door, dresser, sofa, table;
+- ``small`` objects, 2.5: box, chair, garbage bin, lamp, monitor, night stand, pillow, sink,
+  television, toilet.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from a3d.runtime.structures.classes import CLASSES
+
+MIN_NEAR_M = 0.1
+MIN_SIZE_M = 0.02
+SLIDE_FROM = 0.25  # centres nearer than this share of the near range are not slid along their ray
+FAMILY_MAX_SIZE_M = {"large": 6.0, "small": 2.5}
+LARGE_CLASSES = frozenset(
+    {"bathtub", "bed", "bookshelf", "counter", "desk", "door", "dresser", "sofa", "table"}
+)
+CLASS_MAX_SIZE_M = np.array(
+    [FAMILY_MAX_SIZE_M["large" if name in LARGE_CLASSES else "small"] for name in CLASSES]
+)
+
+
+@dataclass(frozen=True)
+class BoundedBoxes:
+    """``boxes3d`` (K, 7) within the limits; how many had their centre or a size clamped."""
+
+    boxes3d: np.ndarray
+    centres_clamped: int
+    sizes_clamped: int
+
+    def notes(self) -> list[str]:
+        """The line's notes for what was clamped (none when nothing was)."""
+        notes = []
+        if self.centres_clamped:
+            notes.append(f"{self.centres_clamped} box centres clamped to the near range of the depth")
+        if self.sizes_clamped:
+            notes.append(f"{self.sizes_clamped} boxes with a size clamped to their class family's bounds")
+        return notes
+
+
+def near_range(depth: np.ndarray) -> float:
+    """The frame's near range (metres): the least valid raw depth, at least MIN_NEAR_M."""
+    valid = depth[depth > 0]
+    return max(MIN_NEAR_M, float(valid.min())) if valid.size else MIN_NEAR_M
+
+
+def bound_boxes(boxes3d: np.ndarray, class_idx: np.ndarray, near_m: float) -> BoundedBoxes:
+    """Clamp (K, 7) camera-frame boxes of 0-based classes ``class_idx``; see the module docstring."""
+    boxes = np.array(boxes3d, dtype=np.float64).reshape(-1, 7)
+    z = boxes[:, 2]
+    behind = z < near_m
+    ahead = behind & (z >= SLIDE_FROM * near_m)
+    boxes[ahead, :3] *= (near_m / z[ahead])[:, None]  # slide along the ray to depth near_m
+    boxes[behind & ~ahead, 2] = near_m
+    upper = CLASS_MAX_SIZE_M[np.asarray(class_idx, np.int64)][:, None]
+    sizes = boxes[:, 3:6]
+    bounded = np.clip(sizes, MIN_SIZE_M, upper)
+    resized = (bounded != sizes).any(axis=1)
+    boxes[:, 3:6] = bounded
+    return BoundedBoxes(boxes, int(behind.sum()), int(resized.sum()))

@@ -1,0 +1,1 @@
+"""Frame folders, fake models and configs shared by several test modules."""
