@@ -5,6 +5,7 @@
             [--resume] [--overlap [auto|on|off]] [--headless] [--connect] [--url URL] [--serve]
             [--save FILE.rrd] [--stdout]
             [--intrinsics FX,FY,CX,CY | fr1 | fr2 | fr3] [--depth-scale S] [--resize-depth] [--shard K/N]
+            [--color-topic TOPIC] [--depth-topic TOPIC] [--max-frames N]
 
 SOURCE is a frame source (a3d.runtime.sources.registry: an a3d frame folder, README "Frame
 format", and the other kinds registered there; --source-format forces one); for a folder the
@@ -33,6 +34,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import itertools
 import logging
 import os
 import signal
@@ -65,7 +67,7 @@ from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.folder import MODEL_FILE
 from a3d.runtime.sources.newest import NewestFrames
 from a3d.runtime.sources.overrides import parse_depth_scale, parse_intrinsics
-from a3d.runtime.sources.registry import FrameSource, SourceOptions, kinds, open_source
+from a3d.runtime.sources.registry import FrameSource, SourceOptions, kinds, open_source, recognised
 from a3d.runtime.viewer import launch as viewer_launch
 from a3d.runtime.viewer import options as viewer
 
@@ -89,6 +91,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("source", type=Path, help="frame source: an a3d frame folder or another registered kind")
     p.add_argument("--source-format", choices=kinds(), help="the kind of SOURCE (default: recognised)")
     p.add_argument("--model", type=Path, help=f"model file (default: FOLDER/{DEFAULT_MODEL})")
+    p.add_argument("--color-topic", metavar="TOPIC", help="bag: the colour topic (default: the only one)")
+    p.add_argument("--depth-topic", metavar="TOPIC", help="bag: the depth topic (default: the only one)")
     p.add_argument("--output", default=DEFAULT_OUTPUT, help="JSON lines file, '-': stdout")
     p.add_argument("--threads", type=int, default=2, help="CPU threads, OpenCV and ONNX Runtime")
     p.add_argument(
@@ -107,6 +111,7 @@ def build_parser() -> argparse.ArgumentParser:
         "per-class top-k detection, which a3d-eval needs to trace the whole precision-recall curve)",
     )
     p.add_argument("--resume", action="store_true", help="skip the frames the output already has")
+    p.add_argument("--max-frames", type=int, metavar="N", help="stop after the first N frames of the source")
     p.add_argument(
         "--view-min-score",
         type=float,
@@ -152,13 +157,15 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
     args = parser.parse_args(argv)
     if args.threads < 1:
         parser.error("--threads must be at least 1")
+    if args.max_frames is not None and args.max_frames < 1:
+        parser.error("--max-frames must be at least 1")
     if args.max_proposals is not None and args.max_proposals < 1:
         parser.error("--max-proposals must be at least 1")
     if args.score_threshold is not None and not 0.0 <= args.score_threshold <= 1.0:
         parser.error("--score-threshold must be in [0, 1]")
     if args.output == "-" and (args.resume or args.stdout):
         parser.error("--output - cannot be combined with --resume or --stdout")
-    if not args.source.exists() and ":" not in str(args.source):  # "realsense:SERIAL" names no file
+    if not args.source.exists() and ":" not in str(args.source) and not recognised(args.source):
         parser.error(f"{args.source}: no such file or folder")
     args.shard = _shard(parser, args.shard)
     if args.model is None:
@@ -190,12 +197,14 @@ class _Job:
 
 def _job(args: argparse.Namespace) -> _Job:
     """Open the source, load the model and read the output to resume (InputError / ModelError)."""
+    topics = {"color_topic": args.color_topic, "depth_topic": args.depth_topic}
     options = SourceOptions(
         intrinsics=None if args.intrinsics is None else parse_intrinsics(args.intrinsics),
         depth_scale=None if args.depth_scale is None else parse_depth_scale(args.depth_scale),
         resize_depth=args.resize_depth,
         with_proposals=args.proposals != "compute",
         with_truth=viewer.viewer_requested(args),
+        extra={key: value for key, value in topics.items() if value is not None},
     )
     source = open_source(args.source, options, args.source_format)
     # With --overlap on one thread prepares frames, so the network gets one fewer (no oversubscription).
@@ -211,16 +220,27 @@ def _job(args: argparse.Namespace) -> _Job:
 
 
 def _frames_to_do(
-    source: FrameSource, done: set[str], index: dict[str, int], shard: tuple[int, int] = (0, 1)
+    source: FrameSource,
+    done: set[str],
+    index: dict[str, int],
+    shard: tuple[int, int] = (0, 1),
+    limit: int | None = None,
 ) -> Iterator[FrameLoader]:
-    """The source's frames of this ``shard`` (K, N): positions K, K + N, ..., lazily, less those
-    already done; ``index`` learns each frame's position as it goes (so a live source is never
-    drained ahead of the run)."""
+    """The source's frames of this ``shard`` (K, N) among its first ``limit`` (all for None):
+    positions K, K + N, ..., lazily, less those already done; ``index`` learns each frame's
+    position as it goes (so a live source is never drained ahead of the run). The source's
+    iterator is closed when this one is, so a camera is stopped however the run ends."""
     k, n = shard
-    for position, loader in enumerate(source):
-        index[loader.name] = position
-        if position % n == k and loader.name not in done:
-            yield loader
+    frames = iter(source)
+    try:
+        for position, loader in enumerate(itertools.islice(frames, limit)):
+            index[loader.name] = position
+            if position % n == k and loader.name not in done:
+                yield loader
+    finally:
+        close = getattr(frames, "close", None)
+        if close is not None:
+            close()
 
 
 @dataclass(frozen=True)
@@ -256,11 +276,12 @@ def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] 
     overlapping = False
     index: dict[str, int] = {}  # frame name -> its position in the source (the rerun timeline)
     live = NewestFrames(job.source, realtime=args.realtime) if _is_live(args, job.source) else None
-    todo = _frames_to_do(job.source if live is None else live, job.done, index, args.shard)
+    todo = _frames_to_do(job.source if live is None else live, job.done, index, args.shard, args.max_frames)
     total = None
     if live is None and hasattr(job.source, "__len__"):
         k, n = args.shard
-        total = max(0, len(range(k, len(job.source), n)) - len(job.done))
+        count = len(job.source) if args.max_frames is None else min(len(job.source), args.max_frames)
+        total = max(0, len(range(k, count, n)) - len(job.done))
     bar = make_progress(PROG, total)
     summary = RunSummary(args.view_min_score)
     try:
@@ -295,6 +316,7 @@ def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] 
         print(f"{PROG}: error: {args.output}: cannot write ({e.strerror or e}); stopped", file=sys.stderr)
         return 1
     finally:
+        todo.close()
         bar.close()
         output.close()
         if recording is not None:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import os
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from importlib import import_module
 from pathlib import Path
 from typing import Protocol
 
@@ -66,6 +67,11 @@ def register(kind: SourceKind) -> None:
 
 def kinds() -> list[str]:
     return list(_KINDS)
+
+
+def recognised(spec: str | os.PathLike) -> bool:
+    """Whether a registered kind claims SOURCE (which need not be a file: ``realsense``)."""
+    return any(kind.claims(os.fspath(spec)) for kind in _KINDS.values())
 
 
 def open_source(spec: str | os.PathLike, options: SourceOptions, kind: str | None = None) -> FrameSource:
@@ -149,5 +155,35 @@ register(
         _claims_sunrgbd,
         _open_sunrgbd,
         "SUN RGB-D: release frame folders (or a tree of them), or VoteNet's sunrgbd_trainval",
+    )
+)
+
+
+def _in_module(module: str, name: str, describe: str) -> SourceKind:
+    """A kind whose ``claims`` and ``open_source`` live in ``a3d.runtime.sources.MODULE``, imported
+    only when first asked (the module imports its optional extra only when a source is opened)."""
+
+    def claims(spec: str) -> bool:
+        return import_module(f"a3d.runtime.sources.{module}").claims(spec)
+
+    def open_(spec: str, options: SourceOptions) -> FrameSource:
+        return import_module(f"a3d.runtime.sources.{module}").open_source(spec, options)
+
+    return SourceKind(name, claims, open_, describe)
+
+
+register(
+    _in_module(
+        "bag",
+        "bag",
+        "a ROS 1 .bag, a ROS 2 bag folder or a RealSense SDK .bag recording (needs: pip install 'a3d[bag]')",
+    )
+)
+register(
+    _in_module(
+        "realsense",
+        "realsense",
+        "realsense, realsense:SERIAL or realsense:RECORDING for an Intel RealSense camera "
+        "(needs: pip install 'a3d[realsense]')",
     )
 )

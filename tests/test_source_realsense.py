@@ -1,0 +1,330 @@
+"""The RealSense source (a3d.runtime.sources.realsense) without a camera.
+
+Mostly through a fake ``pyrealsense2`` at the SDK boundary (the calls a3d makes, with the SDK's
+shapes: pipeline, config, align, framesets, stream profiles, the depth sensor's scale) that
+serves a3d-synth frames: a3d-run's detections equal those of the same frames as a frame folder,
+``--max-frames`` and Ctrl-C stop the run with whole lines and the pipeline stopped, and a missing
+SDK or camera is one line. Where the real pyrealsense2 imports, the SDK also records those
+frames from a software device and plays the recording back through the same source.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+import types
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from a3d.runtime.cli import run as run_cli
+from a3d.runtime.io.detections_io import parse_line
+from tests.synth_frames import K, assert_same_detections, folder_frames, write_synth_folder
+
+DEPTH_SCALE = 0.001
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_synth_folder(tmp_path_factory.mktemp("frames"))
+
+
+class _Frame:
+    def __init__(self, pixels: np.ndarray, layout: str) -> None:
+        self.pixels, self.layout = pixels, layout
+
+    def get_data(self) -> np.ndarray:
+        return self.pixels
+
+    def get_profile(self) -> types.SimpleNamespace:
+        return types.SimpleNamespace(format=lambda: self.layout)
+
+    def __bool__(self) -> bool:
+        return True
+
+
+class _Frameset:
+    def __init__(self, color: _Frame, depth: _Frame, ms: float) -> None:
+        self.color, self.depth, self.ms = color, depth, ms
+
+    def get_color_frame(self) -> _Frame:
+        return self.color
+
+    def get_depth_frame(self) -> _Frame:
+        return self.depth
+
+    def get_timestamp(self) -> float:
+        return self.ms
+
+
+def fake_sdk(frames: list, serials: tuple[str, ...] = ("123",), interrupt_at: int | None = None):
+    """A ``pyrealsense2`` stand-in serving ``frames`` ((BGR, uint16 depth) pairs, depth already
+    aligned); ``log`` records the calls a3d made. ``interrupt_at``: raise KeyboardInterrupt (as
+    Ctrl-C does) when that frame is waited for."""
+    rs = types.ModuleType("pyrealsense2")
+    rs.log = log = []
+    rs.stream = types.SimpleNamespace(depth="depth", color="color")
+    rs.format = types.SimpleNamespace(rgb8="rgb8", bgr8="bgr8", z16="z16")
+    rs.camera_info = types.SimpleNamespace(serial_number="serial_number")
+
+    class Device:
+        def __init__(self, serial: str) -> None:
+            self.serial = serial
+
+        def get_info(self, what: str) -> str:
+            assert what == "serial_number"
+            return self.serial
+
+        def first_depth_sensor(self) -> types.SimpleNamespace:
+            return types.SimpleNamespace(get_depth_scale=lambda: DEPTH_SCALE)
+
+    class Config:
+        def enable_device(self, serial: str) -> None:
+            log.append(("enable_device", serial))
+
+        def enable_stream(self, stream: str, *layout: str) -> None:
+            log.append(("enable_stream", stream, *layout))
+
+    class Pipeline:
+        def __init__(self) -> None:
+            self.served = 0
+
+        def start(self, config: Config) -> types.SimpleNamespace:
+            log.append(("start",))
+            intr = types.SimpleNamespace(width=160, height=120, fx=K.fx, fy=K.fy, ppx=K.cx, ppy=K.cy)
+            video = types.SimpleNamespace(get_intrinsics=lambda: intr)
+            stream = types.SimpleNamespace(as_video_stream_profile=lambda: video)
+            return types.SimpleNamespace(get_device=lambda: Device(serials[0]), get_stream=lambda s: stream)
+
+        def try_wait_for_frames(self, timeout_ms: int) -> tuple[bool, _Frameset | None]:
+            if self.served == interrupt_at:
+                raise KeyboardInterrupt
+            if self.served >= len(frames):
+                return False, None  # a live camera that stalled
+            color, depth = frames[self.served]
+            self.served += 1
+            return True, _Frameset(_Frame(color, "bgr8"), _Frame(depth, "z16"), 1000.0 * self.served)
+
+        def stop(self) -> None:
+            log.append(("stop",))
+
+    class Align:
+        def __init__(self, to: str) -> None:
+            assert to == "color"  # depth aligned to colour, as a3d needs
+
+        def process(self, frameset: _Frameset) -> _Frameset:
+            log.append(("align",))
+            return frameset
+
+    rs.context = lambda: types.SimpleNamespace(query_devices=lambda: [Device(s) for s in serials])
+    rs.config, rs.pipeline, rs.align = Config, Pipeline, Align
+    return rs
+
+
+def run(source: str, model: Path, output: Path, *flags: str) -> int:
+    return run_cli.main([source, "--model", str(model), "--output", str(output), "--headless", *flags])
+
+
+def test_live_frames_give_the_folders_detections(
+    folder: Path, tmp_path: Path, tiny_model: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    rs = fake_sdk(folder_frames(folder), serials=("111", "123"))
+    monkeypatch.setitem(sys.modules, "pyrealsense2", rs)
+    assert run(str(folder), tiny_model, tmp_path / "folder.jsonl") == 0
+    # The fake camera stalls after the three frames: reported as one failed frame, exit 1.
+    assert run("realsense:123", tiny_model, tmp_path / "camera.jsonl") == 1
+    assert_same_detections(tmp_path / "camera.jsonl", tmp_path / "folder.jsonl")
+    assert ("enable_device", "123") in rs.log and ("enable_stream", "color", "rgb8") in rs.log
+    assert rs.log.count(("align",)) == 3 and rs.log[-1] == ("stop",)
+
+
+def test_max_frames_stops_the_camera(
+    folder: Path, tmp_path: Path, tiny_model: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    rs = fake_sdk(folder_frames(folder))
+    monkeypatch.setitem(sys.modules, "pyrealsense2", rs)
+    output = tmp_path / "camera.jsonl"
+    assert run("realsense", tiny_model, output, "--max-frames", "2") == 0
+    names = [parse_line(line, "out").frame for line in output.read_text().splitlines()]
+    assert names == ["realsense_000000", "realsense_000001"]
+    assert rs.log.count(("align",)) == 2 and rs.log[-1] == ("stop",)
+
+
+def test_ctrl_c_leaves_whole_lines_and_a_stopped_camera(
+    folder: Path,
+    tmp_path: Path,
+    tiny_model: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture,
+) -> None:
+    rs = fake_sdk(folder_frames(folder), interrupt_at=2)
+    monkeypatch.setitem(sys.modules, "pyrealsense2", rs)
+    output = tmp_path / "camera.jsonl"
+    assert run("realsense", tiny_model, output) == 130
+    data = output.read_text()
+    assert data.endswith("\n") and len(data.splitlines()) == 2
+    assert rs.log[-1] == ("stop",)
+    assert "interrupted after 2 frames" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("spec", "serials", "says"),
+    [
+        ("realsense", (), "realsense: no RealSense camera connected"),
+        ("realsense:999", ("123", "456"), "realsense:999: no camera with serial 999 (connected: 123, 456)"),
+    ],
+)
+def test_camera_absent_is_one_line_exit_2_nothing_written(
+    tmp_path: Path,
+    tiny_model: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture,
+    spec: str,
+    serials: tuple,
+    says: str,
+) -> None:
+    monkeypatch.setitem(sys.modules, "pyrealsense2", fake_sdk([], serials=serials))
+    output = tmp_path / "camera.jsonl"
+    assert run(spec, tiny_model, output) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [f"a3d-run: error: {says}"]
+    assert not output.exists()
+
+
+def test_missing_sdk_names_the_extra(
+    tmp_path: Path, tiny_model: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+) -> None:
+    monkeypatch.setitem(sys.modules, "pyrealsense2", None)  # import fails as if not installed
+    output = tmp_path / "camera.jsonl"
+    assert run("realsense", tiny_model, output) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1
+    assert err[0].startswith("a3d-run: error: realsense: the RealSense source needs pyrealsense2: ")
+    assert "pip install 'a3d[realsense]'" in err[0]
+    assert not output.exists()
+
+
+@pytest.fixture
+def real_sdk() -> types.ModuleType:
+    """The installed pyrealsense2, or skip (not installed, or its libusb is missing)."""
+    try:
+        import pyrealsense2
+    except ImportError as e:
+        pytest.skip(f"pyrealsense2 does not import here ({e})")
+    return pyrealsense2
+
+
+def record_with_the_sdk(rs, path: Path, frames: list) -> None:
+    """Record (colour BGR, depth uint16 mm) frames as the SDK records a camera: a software device
+    with a depth and a colour sensor (same intrinsics, identity extrinsics) and ``rs.recorder``."""
+    h, w = frames[0][1].shape
+    device = rs.software_device()
+    sensors = device.add_sensor("Depth"), device.add_sensor("Color")
+    profiles = []
+    for sensor, (kind, uid, bpp, layout) in zip(
+        sensors,
+        ((rs.stream.depth, 0, 2, rs.format.z16), (rs.stream.color, 1, 3, rs.format.rgb8)),
+        strict=True,
+    ):
+        intrinsics = rs.intrinsics()
+        intrinsics.width, intrinsics.height = w, h
+        intrinsics.fx, intrinsics.fy, intrinsics.ppx, intrinsics.ppy = K.fx, K.fy, K.cx, K.cy
+        intrinsics.model, intrinsics.coeffs = rs.distortion.none, [0.0] * 5
+        stream = rs.video_stream()
+        stream.type, stream.index, stream.uid, stream.width, stream.height = kind, 0, uid, w, h
+        stream.fps, stream.bpp, stream.fmt, stream.intrinsics = 30, bpp, layout, intrinsics
+        profiles.append(sensor.add_video_stream(stream))
+    identity = rs.extrinsics()
+    identity.rotation, identity.translation = [1.0, 0, 0, 0, 1.0, 0, 0, 0, 1.0], [0.0, 0.0, 0.0]
+    profiles[0].register_extrinsics_to(profiles[1], identity)
+    sensors[0].add_read_only_option(rs.option.depth_units, DEPTH_SCALE)
+    recorder = rs.recorder(str(path), device)
+    queue = rs.frame_queue(10)
+    for sensor, profile in zip(sensors, profiles, strict=True):
+        sensor.open(profile)
+        sensor.start(queue)
+    for i, (color, depth) in enumerate(frames):
+        for sensor, profile, pixels in zip(sensors, profiles, (depth, color[..., ::-1]), strict=True):
+            frame = rs.software_video_frame()
+            frame.pixels = np.ascontiguousarray(pixels)
+            frame.bpp = pixels.itemsize * (3 if pixels.ndim == 3 else 1)
+            frame.stride, frame.timestamp, frame.frame_number = frame.bpp * w, i * 1000 / 30, i
+            frame.domain, frame.profile = (
+                rs.timestamp_domain.hardware_clock,
+                profile.as_video_stream_profile(),
+            )
+            sensor.on_video_frame(frame)
+        time.sleep(1 / 30)  # recorded at the camera's rate: the SDK's playback replays arrival times
+    for sensor in sensors:
+        sensor.stop()
+        sensor.close()
+    del recorder  # the recording is written when the recorder goes
+
+
+def test_the_sdk_plays_its_own_recording_through_the_source(
+    real_sdk: types.ModuleType, folder: Path, tmp_path: Path, tiny_model: Path
+) -> None:
+    rs = real_sdk
+    frames = folder_frames(folder)
+    recording = tmp_path / "recording.db3"  # pyrealsense2 >= 2.56 records ROS 2 (.db3); older: .bag
+    record_with_the_sdk(rs, recording, frames)
+    from a3d.runtime.sources.realsense import RealSenseSource
+    from a3d.runtime.sources.registry import SourceOptions
+
+    source = RealSenseSource(f"realsense:{recording}", SourceOptions())
+    assert source.depth_scale == pytest.approx(DEPTH_SCALE)
+    assert source.intrinsics.fx == pytest.approx(K.fx, rel=1e-6)
+    got = [loader.load() for loader in source]
+    assert len(got) >= 2  # the SDK's syncer may drop the first frameset
+    for frame in got:
+        i = next(i for i, (color, _) in enumerate(frames) if np.array_equal(frame.color, color))
+        depth = frames[i][1].astype(np.float32) / 1000
+        both = (frame.depth > 0) & (depth > 0)
+        assert both.sum() >= 0.95 * (depth > 0).sum()  # rs.align keeps (nearly) every pixel here
+        assert np.mean(frame.depth[both] == depth[both]) >= 0.99
+    output = tmp_path / "recording.jsonl"
+    assert run(f"realsense:{recording}", tiny_model, output) == 0
+    assert 2 <= len(output.read_text().splitlines()) <= len(frames)  # the syncer's drop varies by run
+
+
+def test_the_sdk_reads_the_layout_of_the_sdk_bags_the_bag_tests_write(
+    real_sdk: types.ModuleType, folder: Path, tmp_path: Path
+) -> None:
+    """The RealSense-layout bag of tests/test_source_bag.py played by the SDK itself: the SDK
+    finds both streams with the intrinsics, and the depth-to-colour extrinsics, that a3d's bag
+    reader takes from it (the SDK is the authority on what its ``tf/0`` topics mean)."""
+    pytest.importorskip("rosbags")
+    import cv2
+
+    from a3d.runtime.sources.registry import SourceOptions, open_source
+    from a3d.synth.depth_camera import offset_depth_camera
+    from tests.bag_files import write_sdk_bag
+
+    rs = real_sdk
+    calibration, depth_size = offset_depth_camera(folder_frames(folder)[0][1].shape)
+    frames = [(color, np.full(depth_size, 2000, np.uint16)) for color, _ in folder_frames(folder)]
+    path = tmp_path / "sdk.bag"
+    turn = cv2.Rodrigues(np.array([0.01, -0.02, 0.005]))[0]
+    write_sdk_bag(path, frames, K, calibration, reference_to_color=(turn, np.array([0.01, 0.0, 0.0])))
+    plan = open_source(path, SourceOptions()).plan
+
+    config = rs.config()
+    config.enable_device_from_file(str(path), False)
+    pipeline = rs.pipeline()
+    profile = pipeline.start(config)
+    try:
+        depth = profile.get_stream(rs.stream.depth).as_video_stream_profile()
+        color = profile.get_stream(rs.stream.color).as_video_stream_profile()
+        extrinsics = depth.get_extrinsics_to(color)
+        R = np.array(extrinsics.rotation).reshape(3, 3).T  # the SDK's rotation is column-major
+        np.testing.assert_allclose(R, plan.calibration.R, atol=1e-6)
+        np.testing.assert_allclose(extrinsics.translation, plan.calibration.t, atol=1e-6)
+        for sdk, ours in (
+            (depth.get_intrinsics(), plan.calibration.depth_intrinsics),
+            (color.get_intrinsics(), K),
+        ):
+            assert (sdk.fx, sdk.fy, sdk.ppx, sdk.ppy) == pytest.approx(
+                (ours.fx, ours.fy, ours.cx, ours.cy), rel=1e-6
+            )
+    finally:
+        pipeline.stop()
