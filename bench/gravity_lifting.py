@@ -52,6 +52,7 @@ from a3d.runtime.sources.folder import (
     read_ground_truth,
     read_instances,
 )
+from a3d.runtime.structures.boxes import boxes_array
 from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES
 from a3d.runtime.structures.frame import GroundTruth
 from a3d.runtime.structures.geometry import Intrinsics, iou_2d, iou_3d
@@ -233,7 +234,7 @@ def _oracle_map(oracle: dict, mean_sizes: np.ndarray):
     for name, (truth, class_ids, scores, boxes2d, centers, R_tilt) in oracle.items():
         boxes3d = initial_boxes(centers, mean_sizes)[np.arange(len(class_ids)), class_ids]
         truths[name] = truth
-        detections[name] = FrameDetections(name, R_tilt, class_ids, scores, boxes2d, boxes3d.reshape(-1, 7))
+        detections[name] = FrameDetections(name, R_tilt, class_ids, scores, boxes2d, boxes_array(boxes3d))
     return evaluate(truths, detections)
 
 

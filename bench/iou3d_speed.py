@@ -4,16 +4,17 @@ import time
 
 import numpy as np
 
+from a3d.runtime.structures.boxes import BOX_DIM, CENTER, SIZE, THETA
 from a3d.runtime.structures.geometry import iou_3d, rtilt_from_pitch_roll
 
 rng = np.random.default_rng(0)
 
 
 def boxes(n):
-    b = np.empty((n, 7))
-    b[:, :3] = rng.uniform([-1.5, -0.5, 1.5], [1.5, 1.0, 5.0], (n, 3))
-    b[:, 3:6] = rng.uniform(0.3, 2.0, (n, 3))
-    b[:, 6] = rng.uniform(-np.pi / 2, np.pi / 2, n)
+    b = np.empty((n, BOX_DIM))
+    b[:, CENTER] = rng.uniform([-1.5, -0.5, 1.5], [1.5, 1.0, 5.0], (n, 3))
+    b[:, SIZE] = rng.uniform(0.3, 2.0, (n, 3))
+    b[:, THETA] = rng.uniform(-np.pi / 2, np.pi / 2, n)
     return b
 
 
