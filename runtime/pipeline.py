@@ -39,7 +39,7 @@ import typing
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
-from typing import Any, Literal, Protocol
+from typing import TYPE_CHECKING, Literal, Protocol
 
 import numpy as np
 
@@ -48,7 +48,7 @@ from a3d.runtime.frontend.depth import fill_depth_info
 from a3d.runtime.frontend.frame_proposals import frame_proposals
 from a3d.runtime.frontend.gravity import choose_gravity
 from a3d.runtime.frontend.lifting import lift
-from a3d.runtime.frontend.proposals import ProposalConfig, Proposals, proposal_config_from_dict
+from a3d.runtime.frontend.proposals import ProposalConfig, Proposals
 from a3d.runtime.io.detections_io import FrameDetections
 from a3d.runtime.network.network_input import network_inputs, scale_boxes
 from a3d.runtime.postprocess.box_limits import bound_boxes, near_range
@@ -59,6 +59,9 @@ from a3d.runtime.structures.boxes import BOX_DIM
 from a3d.runtime.structures.classes import NUM_OUTPUTS
 from a3d.runtime.structures.frame import Frame
 from a3d.runtime.structures.geometry import box_corners_camera, context_boxes
+
+if TYPE_CHECKING:
+    from a3d.runtime.network.model import ModelMetadata
 
 ProposalSource = Literal["auto", "compute", "precomputed"]
 PROPOSAL_SOURCES: tuple[str, ...] = typing.get_args(ProposalSource)
@@ -85,13 +88,12 @@ class PipelineConfig:
     ``depth_truncation_m`` the depth mapped to 255; ``top_k`` / ``nms_iou`` / ``min_score`` the
     post-processing; ``proposal_source``: "auto" uses a frame's precomputed proposals where it
     has them, "compute" always runs a3d.runtime.frontend.proposals, "precomputed" requires them;
-    ``max_proposals`` caps computed and precomputed proposals alike (the first ones are kept).
+    ``proposals.max_proposals`` caps computed and precomputed proposals alike (the first ones kept).
     """
 
     mean_sizes: np.ndarray
     proposals: ProposalConfig = field(default_factory=ProposalConfig)
     proposal_source: ProposalSource = "auto"
-    max_proposals: int = 2000
     input_scale: float = 1.0
     context_scale: float = 1.5
     depth_truncation_m: float = 10.0
@@ -102,7 +104,7 @@ class PipelineConfig:
     @classmethod
     def from_metadata(
         cls,
-        metadata: Any,
+        metadata: ModelMetadata,
         *,
         proposal_source: ProposalSource = "auto",
         max_proposals: int | None = None,
@@ -110,19 +112,17 @@ class PipelineConfig:
     ) -> PipelineConfig:
         """The model's settings (a3d.runtime.network.model.ModelMetadata, checked by DetectorModel.load),
         with the command line's overrides."""
-        limit = int(metadata.max_proposals if max_proposals is None else max_proposals)
-        proposals = proposal_config_from_dict(metadata.proposal_config)
+        limit = metadata.proposals.max_proposals if max_proposals is None else int(max_proposals)
         return cls(
             mean_sizes=np.asarray(metadata.mean_sizes, np.float64),
-            proposals=replace(proposals, max_proposals=limit),
+            proposals=replace(metadata.proposals, max_proposals=limit),
             proposal_source=proposal_source,
-            max_proposals=limit,
             input_scale=float(metadata.input_scale),
             context_scale=float(metadata.context_scale),
             depth_truncation_m=float(metadata.depth_truncation_m),
             top_k=int(metadata.top_k),
             nms_iou=float(metadata.nms_iou),
-            min_score=float(metadata.score_threshold if min_score is None else min_score),
+            min_score=float(metadata.min_score if min_score is None else min_score),
         )
 
 

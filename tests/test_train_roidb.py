@@ -181,7 +181,7 @@ def test_the_training_front_end_equals_the_runtime_pipeline(scenes, tmp_path, fo
         write_precomputed_proposals(folder / f"{ref.name}.proposals.npz", pre)
         ref = list_frames(folder)[0]
     front, filled = compute_front_end(ref, read_ground_truth(ref), intrinsics, config)
-    pipeline = PipelineConfig(np.ones((NUM_CLASSES, 3)), proposals=config, max_proposals=config.max_proposals)
+    pipeline = PipelineConfig(np.ones((NUM_CLASSES, 3)), proposals=config)
     prepared = prepare(read_frame(ref, intrinsics, with_proposals=True), pipeline)
     assert 0 < len(front.proposal_boxes) <= 5
     np.testing.assert_array_equal(front.proposal_boxes, prepared.boxes)

@@ -106,7 +106,6 @@ class TrainConfig:
         return PipelineConfig(
             mean_sizes=np.asarray(mean_sizes, np.float64),
             proposals=self.proposals,
-            max_proposals=self.proposals.max_proposals,
             input_scale=self.data.input_scale,
             context_scale=self.data.context_scale,
             depth_truncation_m=self.data.depth_truncation_m,

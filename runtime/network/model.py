@@ -90,19 +90,6 @@ class ModelMetadata:
     content_sha256: str = ""
     provenance: dict[str, Any] = field(default_factory=dict)
 
-    # The names PipelineConfig.from_metadata reads today (one stored value each).
-    @property
-    def score_threshold(self) -> float:
-        return self.min_score
-
-    @property
-    def max_proposals(self) -> int:
-        return self.proposals.max_proposals
-
-    @property
-    def proposal_config(self) -> dict[str, Any]:
-        return plain_from_dataclass(self.proposals)
-
     def to_json(self) -> str:
         data = {f.name: getattr(self, f.name) for f in fields(self)}
         data["classes"] = list(self.classes)
