@@ -50,7 +50,7 @@ from a3d.runtime.frontend.gravity import choose_gravity
 from a3d.runtime.frontend.lifting import lift
 from a3d.runtime.frontend.proposals import ProposalConfig, Proposals
 from a3d.runtime.io.detections_io import FrameDetections
-from a3d.runtime.network.network_input import network_inputs, scale_boxes
+from a3d.runtime.network.network_input import frame_network_inputs
 from a3d.runtime.postprocess.box_limits import bound_boxes, near_range
 from a3d.runtime.postprocess.select import decode_detections, select_detections
 from a3d.runtime.sources.base import FrameLoader
@@ -58,7 +58,7 @@ from a3d.runtime.sources.proposals_file import PrecomputedProposals
 from a3d.runtime.structures.boxes import BOX_DIM
 from a3d.runtime.structures.classes import NUM_OUTPUTS
 from a3d.runtime.structures.frame import Frame
-from a3d.runtime.structures.geometry import box_corners_camera, context_boxes
+from a3d.runtime.structures.geometry import box_corners_camera
 
 if TYPE_CHECKING:
     from a3d.runtime.network.model import ModelMetadata
@@ -197,11 +197,9 @@ def prepare(frame: Frame, config: PipelineConfig, timing: dict[str, float] | Non
         if not len(boxes):
             notes.append("no proposals: none has depth to lift it")
     clock.lap("lifting")
-    scale, truncation = config.input_scale, config.depth_truncation_m
-    color, depth, (sx, sy) = network_inputs(frame.color, filled, scale, truncation)
-    context = context_boxes(boxes, frame.image_size, config.context_scale)
-    rois = scale_boxes(boxes, sx, sy).astype(np.float32)
-    context_rois = scale_boxes(context, sx, sy).astype(np.float32)
+    color, depth, rois, context_rois = frame_network_inputs(
+        frame.color, filled, boxes, config.input_scale, config.depth_truncation_m, config.context_scale
+    )
     clock.lap("network_input")
     R_tilt = np.asarray(gravity.R_tilt, np.float64)
     inputs = (color[None], depth[None], rois, context_rois)
