@@ -31,6 +31,7 @@ import numpy as np  # noqa: E402
 
 from a3d.runtime.evaluation.metric import EvalConfig, FrameTruth, evaluate  # noqa: E402
 from a3d.runtime.io.detections_io import FrameDetections, read_detections, write_detections  # noqa: E402
+from a3d.runtime.structures.boxes import SIZE
 from a3d.runtime.structures.classes import NUM_CLASSES, class_index  # noqa: E402
 from a3d.runtime.structures.geometry import NYU_CROP_INTRINSICS, NYU_CROP_SIZE, rtilt_from_pitch_roll  # noqa: E402
 
@@ -85,7 +86,7 @@ def make_set(
             copies = np.repeat(objects, 3, axis=0)[:per_class]
             noise = rng.normal(0, 1, copies.shape) * [0.15, 0.05, 0.2, 0.1, 0.1, 0.05, 0.3]
             noisy = copies + noise
-            noisy[:, 3:6] = np.maximum(noisy[:, 3:6], 0.05)
+            noisy[:, SIZE] = np.maximum(noisy[:, SIZE], 0.05)
             rows = c * per_class + np.arange(len(copies))
             det_boxes[rows] = noisy
             scores[rows] = rng.uniform(0.3, 1.0, len(copies))

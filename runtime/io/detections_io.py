@@ -39,7 +39,7 @@ import numpy as np
 from a3d.runtime.errors import InputError
 from a3d.runtime.io.atomic import atomic_write_bytes
 from a3d.runtime.io.json_input import is_finite_number, parse_json
-from a3d.runtime.structures.boxes import BOX_DIM
+from a3d.runtime.structures.boxes import BOX_DIM, SIZE
 from a3d.runtime.structures.classes import CLASSES
 from a3d.runtime.structures.geometry import box_corners_camera, check_rotation
 
@@ -192,7 +192,7 @@ def parse_line(text: str, where: str) -> FrameDetections:
     for name, values in (("score", scores), ("box2d", boxes2d), ("box3d", boxes3d)):
         _require(np.isfinite(values), where, f"'{name}' is not finite")
     _require(boxes2d[:, 2:] >= boxes2d[:, :2], where, "box2d has x2 < x1 or y2 < y1")
-    _require(boxes3d[:, 3:6] > 0, where, "box3d has a size l, w or h <= 0")
+    _require(boxes3d[:, SIZE] > 0, where, "box3d has a size l, w or h <= 0")
     corners = _optional_rows(dets, "corners", (8, 3), where)
     boxes2d_amodal = _optional_rows(dets, "box2d_amodal", (4,), where)
     if boxes2d_amodal is not None:

@@ -45,6 +45,7 @@ import scipy.io
 
 from a3d.runtime.errors import InputError
 from a3d.runtime.sources.folder import NPY_MILLIMETRE_MEDIAN, read_color_bytes
+from a3d.runtime.structures.boxes import SIZE
 from a3d.runtime.structures.classes import normalize_class_name
 from a3d.runtime.structures.frame import GroundTruth
 from a3d.runtime.structures.geometry import (
@@ -149,7 +150,7 @@ def read_annotation(
         corners.append(c)
         boxes2d.append(box)
     boxes3d = boxes_from_corners_tilt(np.reshape(corners, (-1, 8, 3)), R_tilt)
-    flat = np.flatnonzero(~(boxes3d[:, 3:6] > 0).all(axis=1))
+    flat = np.flatnonzero(~(boxes3d[:, SIZE] > 0).all(axis=1))
     if flat.size:
         raise InputError(f"{path}: the 3D box of object {classes[flat[0]]!r} is flat (a zero size)")
     amodal = project_boxes_to_2d(boxes3d, R_tilt, K, image_size)
