@@ -31,7 +31,7 @@ import numpy as np  # noqa: E402
 
 from a3d.runtime.evaluation.metric import EvalConfig, FrameTruth, evaluate  # noqa: E402
 from a3d.runtime.io.detections_io import FrameDetections, read_detections, write_detections  # noqa: E402
-from a3d.runtime.structures.boxes import SIZE
+from a3d.runtime.structures.boxes import SIZE  # noqa: E402
 from a3d.runtime.structures.classes import NUM_CLASSES, class_index  # noqa: E402
 from a3d.runtime.structures.geometry import NYU_CROP_INTRINSICS, NYU_CROP_SIZE, rtilt_from_pitch_roll  # noqa: E402
 
