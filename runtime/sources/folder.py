@@ -52,6 +52,7 @@ from a3d.runtime.io.image_io import (
 )
 from a3d.runtime.io.json_input import parse_json
 from a3d.runtime.io.npy import npy_header
+from a3d.runtime.sources.arrays import MILLIMETRE, depth_units_to_metres
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.proposals_file import read_precomputed_proposals
 from a3d.runtime.structures.boxes import BOX_DIM
@@ -339,7 +340,7 @@ def _open_depth(path: Path) -> tuple[tuple[int, int], Callable[[], np.ndarray]]:
                 f"{path}: depth values look like metres, not millimetres "
                 f"(median valid value {np.median(valid):g}); a depth PNG holds uint16 millimetres"
             )
-        return millimetres.astype(np.float32) / np.float32(MM_PER_M)
+        return depth_units_to_metres(millimetres, MILLIMETRE)
 
     return header.size, load
 
@@ -659,7 +660,7 @@ class FolderSource:
     truth (a bad ``NAME.gt.json`` then costs the frame only its ground truth, with a warning).
     """
 
-    depth_scale = 1.0 / MM_PER_M  # a depth PNG's unit (--depth-scale replaces it; .npy depth is metres)
+    depth_scale = MILLIMETRE  # a depth PNG's unit (--depth-scale replaces it; .npy depth is metres)
 
     def __init__(self, folder: str | os.PathLike, *, with_proposals: bool = True, with_truth: bool = False):
         listing = scan_folder(folder)
