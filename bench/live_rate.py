@@ -3,32 +3,35 @@
 a3d-synth frames of held-out seeds are rendered in memory at 480 x 640 (a Kinect-like camera,
 fx = fy = 525) and run through a3d.runtime.pipeline (prepare / infer / finish) with the bundled
 model (samples/model.onnx, 2 threads) and at most 500 proposals, for each proposal setting in
-VARIANTS: the model's own, and cheaper ones (coarser working resolution, fewer superpixels,
-fewer grouping strategies). Per variant it prints the median time of every stage (wall, ms),
-the front end (depth fill + gravity + proposals + lifting; target <= 40 ms), the end-to-end
-frames/s (1 / median frame time), proposal recall@0.5 (share of ground-truth visible 2D boxes
-matched by a proposal at IoU >= 0.5) and mAP@0.25 over the 19 classes
-(a3d.runtime.evaluation.metric), so a speed-up's cost in accuracy is seen beside it. The
-front end's process CPU time (the prepare stage, one thread) is printed beside its wall time:
-on a loaded machine it is the steadier measure of the work itself.
+VARIANTS: the model's own, a3d-run's live front end, and others spelled out (coarser working
+resolution, fewer superpixels, fewer grouping strategies, fewer pair candidates). Per variant it
+prints the median time of every stage (wall, ms), the front end (depth fill + gravity +
+proposals + lifting; target <= 40 ms), the end-to-end frames/s (1 / median frame time), proposal
+recall@0.5 (share of ground-truth visible 2D boxes matched by a proposal at IoU >= 0.5) and
+mAP@0.25 over the 19 classes (a3d.runtime.evaluation.metric), so a speed-up's cost in accuracy
+is seen beside it. The front end's process CPU time (the prepare stage) is printed beside its
+wall time: on a loaded machine it is the steadier measure of the work itself.
 
-    .venv/bin/python -m bench.live_rate [--first 910000] [--count 12] [--variants model fast]
+    .venv/bin/python -m bench.live_rate [--first 910000] [--count 12] [--variants model live s4n300k6p150]
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import re
 import time
 from dataclasses import replace
 
 import numpy as np
 
 from a3d.runtime.evaluation.metric import FrameTruth, evaluate
+from a3d.runtime.frontend.proposals import live_proposals
 from a3d.runtime.network.model import DetectorModel
 from a3d.runtime.pipeline import STAGES, PipelineConfig, finish, infer, prepare
 from a3d.runtime.structures.frame import Frame
 from a3d.runtime.structures.geometry import Intrinsics, iou_2d
+from bench.edge_report import cpu_description
 
 SIZE = (480, 640)
 CAMERA = Intrinsics(525.0, 525.0, 319.5, 239.5)
@@ -37,15 +40,24 @@ MAX_PROPOSALS = 500
 
 
 def _variant(config: PipelineConfig, name: str) -> PipelineConfig:
-    """The proposal setting ``name`` on top of the model's."""
+    """The proposal setting ``name`` on top of the model's: ``model``, ``live`` (a3d-run's live front end,
+    a3d.runtime.frontend.proposals.live_proposals), or ``sS[nN][kK][pP]`` for working
+    resolution 1/S, about N superpixels, the first K grouping strategies and pairs among the best P regions
+    (e.g. ``s4n300k6p150``)."""
     p = config.proposals
-    settings = {
-        "model": p,
-        "scale3": replace(p, scale=3),
-        "scale4": replace(p, scale=4),
-        "fast": replace(p, scale=4, strategies=p.strategies[:6]),
-    }
-    return replace(config, proposals=settings[name])
+    if name == "model":
+        return config
+    if name == "live":
+        return replace(config, proposals=live_proposals(p))
+    match = re.fullmatch(r"s(\d+)(?:n(\d+))?(?:k(\d+))?(?:p(\d+))?", name)
+    if match is None:
+        raise SystemExit(f"--variants: {name!r} is neither 'model' nor sS[nN][kK][pP]")
+    scale, n, k, parts = match.groups()
+    superpixels = replace(p.superpixels, n_segments=int(n)) if n else p.superpixels
+    strategies = p.strategies[: int(k)] if k else p.strategies
+    pairs = replace(p.pairs, parts=int(parts)) if parts else p.pairs
+    proposals = replace(p, scale=int(scale), superpixels=superpixels, strategies=strategies, pairs=pairs)
+    return replace(config, proposals=proposals)
 
 
 def main() -> None:
@@ -53,7 +65,7 @@ def main() -> None:
     parser.add_argument("--first", type=int, default=910_000, help="first seed (held out of training)")
     parser.add_argument("--count", type=int, default=12)
     parser.add_argument("--model", default="samples/model.onnx")
-    parser.add_argument("--variants", nargs="+", default=["model", "scale3", "scale4", "fast"])
+    parser.add_argument("--variants", nargs="+", default=["model", "live"])
     args = parser.parse_args()
     from a3d.synth.scene import SceneConfig, generate_frame
 
@@ -69,7 +81,8 @@ def main() -> None:
     print(
         f"{args.count} a3d-synth frames at {SIZE[0]} x {SIZE[1]}, seeds {args.first}+, model {args.model}, "
     )
-    print(f"at most {MAX_PROPOSALS} proposals, 2 threads; load average {os.getloadavg()[0]:.1f}")
+    print(f"at most {MAX_PROPOSALS} proposals, 2 threads; {cpu_description()}")
+    print(f"load average {os.getloadavg()[0]:.1f}")
     for name in args.variants:
         config = _variant(base, name)
         times: dict[str, list[float]] = {}

@@ -19,7 +19,7 @@ from typing import Any
 
 from a3d.runtime.io.detections_io import FrameDetections
 from a3d.runtime.network.model import DetectorModel
-from a3d.runtime.pipeline import FrameOutcome, PipelineConfig, ProposalSource, detect, detect_frames
+from a3d.runtime.pipeline import FrameOutcome, FrontEnd, PipelineConfig, ProposalSource, detect, detect_frames
 from a3d.runtime.sources.arrays import IntrinsicsLike, frame_from_arrays
 from a3d.runtime.sources.base import FrameLoader, frame_loader
 from a3d.runtime.structures.frame import Frame
@@ -41,12 +41,18 @@ class Detector:
         score_threshold: float | None = None,
         max_proposals: int | None = None,
         proposals: ProposalSource = "auto",
+        front_end: FrontEnd = "model",
     ) -> Detector:
         """Open and check a model file (ModelError naming it if unusable); the settings default to
-        the model's own (its metadata), each overridable as on a3d-run's command line."""
+        the model's own (its metadata), each overridable as on a3d-run's command line
+        (``front_end="live"``: the faster proposals a3d-run uses for cameras)."""
         model = DetectorModel.load(path, threads=threads)
         config = PipelineConfig.from_metadata(
-            model.metadata, proposal_source=proposals, max_proposals=max_proposals, min_score=score_threshold
+            model.metadata,
+            proposal_source=proposals,
+            max_proposals=max_proposals,
+            min_score=score_threshold,
+            front_end=front_end,
         )
         return cls(model, config)
 

@@ -48,7 +48,7 @@ from a3d.runtime.frontend.depth import fill_depth_info
 from a3d.runtime.frontend.frame_proposals import frame_proposals
 from a3d.runtime.frontend.gravity import choose_gravity
 from a3d.runtime.frontend.lifting import lift
-from a3d.runtime.frontend.proposals import ProposalConfig, Proposals
+from a3d.runtime.frontend.proposals import ProposalConfig, Proposals, live_proposals
 from a3d.runtime.io.detections_io import FrameDetections
 from a3d.runtime.network.network_input import frame_network_inputs
 from a3d.runtime.postprocess.box_limits import bound_boxes, near_range
@@ -65,6 +65,8 @@ if TYPE_CHECKING:
 
 ProposalSource = Literal["auto", "compute", "precomputed"]
 PROPOSAL_SOURCES: tuple[str, ...] = typing.get_args(ProposalSource)
+FrontEnd = Literal["model", "live"]
+FRONT_ENDS: tuple[str, ...] = typing.get_args(FrontEnd)
 MOSTLY_MISSING = 0.5  # a frame with more of its depth missing than this says so in its line
 logger = logging.getLogger(__name__)
 STAGES = ("read", "depth_fill", "gravity", "proposals", "lifting", "network_input", "network", "postprocess")
@@ -88,7 +90,9 @@ class PipelineConfig:
     ``depth_truncation_m`` the depth mapped to 255; ``top_k`` / ``nms_iou`` / ``min_score`` the
     post-processing; ``proposal_source``: "auto" uses a frame's precomputed proposals where it
     has them, "compute" always runs a3d.runtime.frontend.proposals, "precomputed" requires them;
-    ``proposals.max_proposals`` caps computed and precomputed proposals alike (the first ones kept).
+    ``proposals.max_proposals`` caps computed and precomputed proposals alike (the first ones kept);
+    ``front_end`` "model" computes proposals with the model's settings, "live" with
+    a3d.runtime.frontend.proposals.live_proposals (about 4x faster, for cameras).
     """
 
     mean_sizes: np.ndarray
@@ -109,13 +113,17 @@ class PipelineConfig:
         proposal_source: ProposalSource = "auto",
         max_proposals: int | None = None,
         min_score: float | None = None,
+        front_end: FrontEnd = "model",
     ) -> PipelineConfig:
         """The model's settings (a3d.runtime.network.model.ModelMetadata, checked by DetectorModel.load),
         with the command line's overrides."""
         limit = metadata.proposals.max_proposals if max_proposals is None else int(max_proposals)
+        proposals = replace(metadata.proposals, max_proposals=limit)
+        if front_end not in FRONT_ENDS:
+            raise ValueError(f"front_end: expected one of {', '.join(FRONT_ENDS)}, got {front_end!r}")
         return cls(
             mean_sizes=np.asarray(metadata.mean_sizes, np.float64),
-            proposals=replace(metadata.proposals, max_proposals=limit),
+            proposals=live_proposals(proposals) if front_end == "live" else proposals,
             proposal_source=proposal_source,
             input_scale=float(metadata.input_scale),
             context_scale=float(metadata.context_scale),

@@ -47,11 +47,19 @@ def cpu_flags(cpuinfo: str | None = None) -> frozenset[str]:
     return frozenset()
 
 
+def int8_dot_products(flags: frozenset[str] | None = None) -> list[str]:
+    """The int8 dot-product instructions among ``flags`` (default: this machine's). Where there is
+    one, ONNX Runtime's int8 kernels add exactly; AVX2's saturate an intermediate 16-bit sum, so an
+    int8 model's scores differ slightly between the two kinds of CPU."""
+    flags = cpu_flags() if flags is None else flags
+    return [name for name in INT8_DOT_PRODUCT if name in flags]
+
+
 def export_advice(flags: frozenset[str] | None = None) -> ExportAdvice:
     """int8 where the CPU has an int8 dot product or AVX2, fp32 otherwise (module docstring);
     ``flags`` default to this machine's (``cpu_flags``)."""
     flags = cpu_flags() if flags is None else flags
-    dot = [name for name in INT8_DOT_PRODUCT if name in flags]
+    dot = int8_dot_products(flags)
     if dot:
         return ExportAdvice(
             "int8", f"int8 dot products ({', '.join(dot)}): int8 + SVD about 3-4x faster than fp32"
