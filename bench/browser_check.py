@@ -8,6 +8,11 @@ of the class colours of the boxes. Opt-in, slow (~1 min), not part of the test s
 
     .venv/bin/python -m bench.browser_check RUN.rrd --out /tmp/a3d_screens/web.png [--wait 45]
     .venv/bin/python -m bench.browser_check RUN.rrd --out /tmp/a3d_screens/native.png --native
+    .venv/bin/python -m bench.browser_check --a3d-run samples --out /tmp/a3d_screens/serve.png
+
+``--a3d-run SOURCE`` checks the product's own route: ``a3d-run SOURCE --serve`` runs, prints the
+URL of the web viewer it serves (on 127.0.0.1, checked), and Chromium opens exactly that URL; the
+classes expected on screen are those of the last frame's detections at a3d-run's view threshold.
 
 ``--native`` is the faster second route: the native viewer headless on Mesa's lavapipe Vulkan
 (``apt-get install -y mesa-vulkan-drivers``), ``rerun FILE --headless --screenshot-to``.
@@ -44,6 +49,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from a3d.runtime.cli.run import VIEW_MIN_SCORE
 from a3d.runtime.structures.classes import CLASS_COLORS_RGB, CLASSES
 
 RERUN = Path(sys.prefix) / "bin" / "rerun"
@@ -346,8 +352,6 @@ def browser_screenshot(
     recording: Path, out: Path, *, port: int, web_port: int, wait_s: float, chromium: Path
 ) -> str:
     """Serve ``recording``, let Chromium render the web viewer for ``wait_s``, save a PNG; return the URL."""
-    if not chromium.exists():
-        raise SetupError(f"{chromium} missing: run `apt-get update && apt-get install -y chromium` (as root)")
     disable_analytics(RERUN)
     with tempfile.TemporaryDirectory(prefix="a3d_browser_") as tmp:
         tmp_dir = Path(tmp)
@@ -359,36 +363,74 @@ def browser_screenshot(
             printed = wait_for_log(server_log, r"connect at (http://\S+)", deadline, server).group(1)
             wait_for_port(web_port, deadline, server, "rerun's web viewer")
             url = viewer_url(printed, port)
-            devtools_port = free_port()
-            browser = [str(chromium), *CHROMIUM_FLAGS, f"--user-data-dir={tmp_dir / 'profile'}"]
-            browser += [f"--remote-debugging-port={devtools_port}", f"--window-size={WINDOW[0]},{WINDOW[1]}"]
-            with process_group([*browser, "about:blank"], tmp_dir / "chromium.log") as chrome:
-                wait_for_port(devtools_port, time.monotonic() + 60, chrome, "Chromium's DevTools")
-                ws = WebSocket(page_socket_url(devtools_port, time.monotonic() + 30), timeout_s=10)
-                try:
-                    tools = DevTools(ws)
-                    tools.call("Runtime.enable")
-                    tools.call("Page.enable")
-                    tools.call("Network.enable")
-                    tools.call(
-                        "Emulation.setDeviceMetricsOverride",
-                        width=WINDOW[0],
-                        height=WINDOW[1],
-                        deviceScaleFactor=1,
-                        mobile=False,
-                    )
-                    tools.call("Page.navigate", url=url)
-                    tools.idle(wait_s)
-                    shot = tools.call("Page.captureScreenshot", timeout_s=60, format="png")
-                finally:
-                    ws.close()
-                for line in tools.console[-10:]:
-                    print(f"  console: {line.strip().splitlines()[0][:200]}")
-                for blocked in sorted(set(tools.off_loopback)):
-                    print(f"  blocked off-loopback request: {blocked[:200]}")
+            chromium_screenshot(url, out, wait_s=wait_s, chromium=chromium, tmp_dir=tmp_dir)
+    return url
+
+
+def a3d_run_screenshot(
+    source: Path, model: Path, out: Path, *, wait_s: float, chromium: Path, timeout_s: float
+) -> tuple[str, list[str]]:
+    """``a3d-run SOURCE --serve``: the URL it prints, opened in Chromium once the run is done and
+    serving; returns the URL and the classes of the last frame's detections the view shows."""
+    disable_analytics(RERUN)
+    with tempfile.TemporaryDirectory(prefix="a3d_serve_") as tmp:
+        tmp_dir = Path(tmp)
+        detections, log = tmp_dir / "detections.jsonl", tmp_dir / "a3d-run.log"
+        run = [str(Path(sys.prefix) / "bin" / "a3d-run"), str(source), "--model", str(model), "--serve"]
+        run += ["--output", str(detections)]
+        with process_group(run, log) as served:
+            deadline = time.monotonic() + timeout_s
+            url = wait_for_log(log, r"serving the recording at (http://\S+);", deadline, served).group(1)
+            host = urllib.parse.urlsplit(url).hostname
+            if host != LOOPBACK:
+                raise SetupError(f"a3d-run --serve printed {url}: not on {LOOPBACK}")
+            chromium_screenshot(url, out, wait_s=wait_s, chromium=chromium, tmp_dir=tmp_dir)
+        return url, shown_classes(detections)
+
+
+def shown_classes(detections: Path, min_score: float = VIEW_MIN_SCORE) -> list[str]:
+    """Class names of the last frame's detections that a3d-run's view shows (score >= its default
+    --view-min-score): the viewer opens at the end of the timeline."""
+    lines = detections.read_text().splitlines()
+    if not lines:
+        raise SetupError(f"{detections}: a3d-run wrote no detections")
+    last = json.loads(lines[-1])
+    return sorted({d["class"] for d in last["detections"] if d["score"] >= min_score})
+
+
+def chromium_screenshot(url: str, out: Path, *, wait_s: float, chromium: Path, tmp_dir: Path) -> None:
+    """Open ``url`` in headless Chromium, let it render for ``wait_s`` and save a PNG of the page."""
+    if not chromium.exists():
+        raise SetupError(f"{chromium} missing: run `apt-get update && apt-get install -y chromium` (as root)")
+    devtools_port = free_port()
+    browser = [str(chromium), *CHROMIUM_FLAGS, f"--user-data-dir={tmp_dir / 'profile'}"]
+    browser += [f"--remote-debugging-port={devtools_port}", f"--window-size={WINDOW[0]},{WINDOW[1]}"]
+    with process_group([*browser, "about:blank"], tmp_dir / "chromium.log") as chrome:
+        wait_for_port(devtools_port, time.monotonic() + 60, chrome, "Chromium's DevTools")
+        ws = WebSocket(page_socket_url(devtools_port, time.monotonic() + 30), timeout_s=10)
+        try:
+            tools = DevTools(ws)
+            tools.call("Runtime.enable")
+            tools.call("Page.enable")
+            tools.call("Network.enable")
+            tools.call(
+                "Emulation.setDeviceMetricsOverride",
+                width=WINDOW[0],
+                height=WINDOW[1],
+                deviceScaleFactor=1,
+                mobile=False,
+            )
+            tools.call("Page.navigate", url=url)
+            tools.idle(wait_s)
+            shot = tools.call("Page.captureScreenshot", timeout_s=60, format="png")
+        finally:
+            ws.close()
+        for line in tools.console[-10:]:
+            print(f"  console: {line.strip().splitlines()[0][:200]}")
+        for blocked in sorted(set(tools.off_loopback)):
+            print(f"  blocked off-loopback request: {blocked[:200]}")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_bytes(base64.b64decode(shot["data"]))
-    return url
 
 
 def native_screenshot(recording: Path, out: Path, *, timeout_s: float) -> None:
@@ -481,9 +523,19 @@ def recording_classes(recording: Path) -> list[str]:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
-        "recording", type=Path, help="an .rrd from a3d-run --save (or bench/make_demo_recording.py)"
+        "recording",
+        type=Path,
+        nargs="?",
+        help="an .rrd from a3d-run --save (or bench/make_demo_recording.py); not with --a3d-run",
     )
     parser.add_argument("--out", type=Path, required=True, help="the screenshot PNG to write")
+    parser.add_argument(
+        "--a3d-run",
+        type=Path,
+        metavar="SOURCE",
+        help="run `a3d-run SOURCE --serve` and open the URL it prints (instead of serving a recording)",
+    )
+    parser.add_argument("--model", type=Path, default=Path("samples/model.onnx"), help="--a3d-run's model")
     parser.add_argument("--port", type=int, default=0, help="rerun's gRPC port (0: a free one)")
     parser.add_argument(
         "--web-viewer-port", type=int, default=0, help="the web viewer's HTTP port (0: a free one)"
@@ -492,33 +544,40 @@ def main(argv: Sequence[str] | None = None) -> int:
         "--wait", type=float, default=45.0, help="seconds the page renders before the screenshot"
     )
     parser.add_argument("--native", action="store_true", help="native headless viewer on lavapipe instead")
-    parser.add_argument("--timeout", type=float, default=120.0, help="--native: seconds before giving up")
+    parser.add_argument(
+        "--timeout", type=float, default=120.0, help="--native, --a3d-run: seconds before giving up"
+    )
     parser.add_argument("--chromium", type=Path, default=CHROMIUM)
     args = parser.parse_args(argv)
-    if not args.recording.is_file():
+    if (args.recording is None) == (args.a3d_run is None):
+        parser.error("give either a recording or --a3d-run SOURCE")
+    if args.recording is not None and not args.recording.is_file():
         print(f"{args.recording}: no such file", file=sys.stderr)
         return 2
     started = time.monotonic()
     try:
-        if args.native:
+        if args.a3d_run is not None:
+            url, expected = a3d_run_screenshot(
+                args.a3d_run, args.model, args.out, wait_s=args.wait, chromium=args.chromium,
+                timeout_s=args.timeout,
+            )  # fmt: skip
+            print(f"a3d-run --serve printed {url} -> {args.out}")
+        elif args.native:
             native_screenshot(args.recording, args.out, timeout_s=args.timeout)
             print(f"native viewer -> {args.out}")
         else:
             port = args.port or free_port()
             web_port = args.web_viewer_port or free_port()
             url = browser_screenshot(
-                args.recording,
-                args.out,
-                port=port,
-                web_port=web_port,
-                wait_s=args.wait,
+                args.recording, args.out, port=port, web_port=web_port, wait_s=args.wait,
                 chromium=args.chromium,
-            )
+            )  # fmt: skip
             print(f"{url} -> {args.out}")
     except (SetupError, subprocess.TimeoutExpired, OSError) as err:
         print(f"browser_check: {err}", file=sys.stderr)
         return 2
-    expected = recording_classes(args.recording)
+    if args.a3d_run is None:
+        expected = recording_classes(args.recording)
     stats = screenshot_stats(args.out)
     ok = stats.looks_rendered(expected)
     print(

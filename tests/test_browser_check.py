@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import base64
 import hashlib
+import json
 import os
 import socket
 import struct
@@ -204,3 +205,38 @@ def test_native_headless_viewer_shows_the_boxes(tmp_path: Path) -> None:
     stats, classes = _check(tmp_path, "--native", timeout=180)
     assert stats.dominant_fraction < 0.9 and stats.distinct_colours > 500
     assert all(stats.class_pixels.get(name, 0) >= 500 for name in classes), stats.class_pixels
+
+
+@pytest.mark.slow  # a3d-run on the samples, then a headless browser
+@pytest.mark.skipif(not (OPT_IN and bc.CHROMIUM.exists()), reason="opt-in: A3D_BROWSER_TEST=1 and chromium")
+def test_a3d_run_serve_prints_a_loopback_url_that_chromium_opens(tmp_path: Path) -> None:
+    out = tmp_path / "serve.png"
+    run = subprocess.run(
+        [sys.executable, "-m", "bench.browser_check", "--a3d-run", "samples", "--out", str(out)],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=400,
+    )
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert "a3d-run --serve printed http://127.0.0.1:9090/?url=" in run.stdout
+    left = [
+        p.info["cmdline"] for p in psutil.process_iter(["cmdline"]) if "--serve" in (p.info["cmdline"] or [])
+    ]
+    assert left == [], f"processes left running: {left}"
+    stats = bc.screenshot_stats(out)
+    assert stats.dominant_fraction < 0.9 and stats.distinct_colours > 500
+
+
+def test_shown_classes_are_the_last_frames_above_the_view_threshold(tmp_path: Path) -> None:
+    lines = [
+        {"frame": "a", "detections": [{"class": "bed", "score": 0.9}]},
+        {"frame": "b", "detections": [{"class": "chair", "score": 0.7}, {"class": "lamp", "score": 0.2},
+                                      {"class": "chair", "score": 0.6}, {"class": "door", "score": 0.5}]},
+    ]  # fmt: skip
+    path = tmp_path / "det.jsonl"
+    path.write_text("".join(json.dumps(line) + "\n" for line in lines))
+    assert bc.shown_classes(path) == ["chair", "door"]
+    path.write_text("")
+    with pytest.raises(bc.SetupError, match="wrote no detections"):
+        bc.shown_classes(path)
