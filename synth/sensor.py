@@ -78,6 +78,23 @@ def clumpy_uniform(rng: np.random.Generator, shape: tuple[int, int], sigma: floa
     return 1.0 / (1.0 + np.exp(-1.702 * g))
 
 
+def axial_noise(
+    rng: np.random.Generator, z: np.ndarray, fx: float, s: DepthSensor = DepthSensor()
+) -> np.ndarray:
+    """float32 depth with the sensor's axial error only (Gaussian, partly correlated, then snapped
+    to the disparity steps of a camera of focal length ``fx``): no holes (0 in z stays 0)."""
+    H, W = z.shape
+    fb = fx * s.baseline
+    white = gaussian(rng, (H, W))
+    smooth = cv2.GaussianBlur(gaussian(rng, (H, W)), (0, 0), 2.0) * np.float32(2.0 * 2.0 * np.sqrt(np.pi))
+    # sigma(z) is the sensor's total axial error; the disparity rounding below adds step^2 / 12 of variance
+    step = z * z / (fb * s.subpixel)
+    sigma = np.sqrt(np.maximum(depth_sigma(z, s) ** 2 - step * step / 12, (0.3 * depth_sigma(z, s)) ** 2))
+    noisy = z + sigma.astype(np.float32) * (np.float32(0.7) * white + np.float32(0.7) * smooth)
+    disp = np.round(fb / np.maximum(noisy, 0.1) * s.subpixel) / s.subpixel
+    return np.where(z > 0, fb / np.maximum(disp, 1e-3), 0.0).astype(np.float32)
+
+
 def sense_depth(
     rng: np.random.Generator,
     z: np.ndarray,
@@ -89,14 +106,7 @@ def sense_depth(
     """Noisy, quantised, holey float32 depth from the exact depth z (H, W)."""
     H, W = z.shape
     fb = fx * s.baseline
-    white = gaussian(rng, (H, W))
-    smooth = cv2.GaussianBlur(gaussian(rng, (H, W)), (0, 0), 2.0) * np.float32(2.0 * 2.0 * np.sqrt(np.pi))
-    # sigma(z) is the sensor's total axial error; the disparity rounding below adds step^2 / 12 of variance
-    step = z * z / (fb * s.subpixel)
-    sigma = np.sqrt(np.maximum(depth_sigma(z, s) ** 2 - step * step / 12, (0.3 * depth_sigma(z, s)) ** 2))
-    noisy = z + sigma.astype(np.float32) * (np.float32(0.7) * white + np.float32(0.7) * smooth)
-    disp = np.round(fb / np.maximum(noisy, 0.1) * s.subpixel) / s.subpixel
-    out = (fb / np.maximum(disp, 1e-3)).astype(np.float32)
+    out = axial_noise(rng, z, fx, s)
     drop = (z < s.min_depth) | (z > s.max_depth)
     drop |= projector_shadow(z, fb)
     zp = np.pad(z, 1, mode="edge")  # depth discontinuities: a jump to one of the 4-neighbours
