@@ -92,7 +92,8 @@ class PipelineConfig:
     has them, "compute" always runs a3d.runtime.frontend.proposals, "precomputed" requires them;
     ``proposals.max_proposals`` caps computed and precomputed proposals alike (the first ones kept);
     ``front_end`` "model" computes proposals with the model's settings, "live" with
-    a3d.runtime.frontend.proposals.live_proposals (about 4x faster, for cameras).
+    a3d.runtime.frontend.proposals.live_proposals (about 4x faster and at most 500, for cameras);
+    an explicit ``max_proposals`` overrides either.
     """
 
     mean_sizes: np.ndarray
@@ -117,13 +118,14 @@ class PipelineConfig:
     ) -> PipelineConfig:
         """The model's settings (a3d.runtime.network.model.ModelMetadata, checked by DetectorModel.load),
         with the command line's overrides."""
-        limit = metadata.proposals.max_proposals if max_proposals is None else int(max_proposals)
-        proposals = replace(metadata.proposals, max_proposals=limit)
         if front_end not in FRONT_ENDS:
             raise ValueError(f"front_end: expected one of {', '.join(FRONT_ENDS)}, got {front_end!r}")
+        proposals = live_proposals(metadata.proposals) if front_end == "live" else metadata.proposals
+        if max_proposals is not None:
+            proposals = replace(proposals, max_proposals=int(max_proposals))
         return cls(
             mean_sizes=np.asarray(metadata.mean_sizes, np.float64),
-            proposals=live_proposals(proposals) if front_end == "live" else proposals,
+            proposals=proposals,
             proposal_source=proposal_source,
             input_scale=float(metadata.input_scale),
             context_scale=float(metadata.context_scale),

@@ -35,6 +35,8 @@ def test_front_end_is_a_pipeline_setting_with_a_checked_value() -> None:
     meta = fake_metadata()
     assert PipelineConfig.from_metadata(meta).proposals == meta.proposals
     assert PipelineConfig.from_metadata(meta, front_end="live").proposals == live_proposals(meta.proposals)
+    asked = PipelineConfig.from_metadata(meta, front_end="live", max_proposals=900).proposals
+    assert asked == replace(live_proposals(meta.proposals), max_proposals=900)  # --max-proposals wins
     with pytest.raises(ValueError, match="front_end"):
         PipelineConfig.from_metadata(meta, front_end="fast")  # type: ignore[arg-type]
 

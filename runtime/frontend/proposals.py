@@ -106,6 +106,7 @@ _LIMITS = {  # settings narrower than plain_config's defaults (ints in [0, MAX_C
 }  # fmt: skip
 
 
+LIVE_MAX_PROPOSALS = 500
 LIVE_SCALE = 4
 LIVE_SUPERPIXELS = 300
 LIVE_STRATEGIES = 6
@@ -113,13 +114,15 @@ LIVE_PAIR_PARTS = 150
 
 
 def live_proposals(config: ProposalConfig) -> ProposalConfig:
-    """The live front end's cheaper version of a model's proposal settings: a quarter of the
-    resolution, about 300 superpixels, the first six grouping strategies and pairs among the best
-    150 regions. On held-out 480 x 640 a3d-synth frames it cuts the proposals from about 100 ms to
-    about 24 ms for a few points of recall@0.5 and under a point of mAP@0.25 (bench.live_rate,
-    docs/live.md); the model's own settings stay the default for recorded frames."""
+    """The live front end's cheaper version of a model's proposal settings: at most 500 proposals
+    (the network's time grows with them), a quarter of the resolution, about 300 superpixels, the
+    first six grouping strategies and pairs among the best 150 regions. On held-out 480 x 640
+    a3d-synth frames it cuts the proposals from about 110 ms to about 24 ms for a few points of
+    recall@0.5 and no mAP@0.25 (bench.live_rate, docs/live.md); the model's own settings stay the
+    default for recorded frames."""
     return replace(
         config,
+        max_proposals=min(config.max_proposals, LIVE_MAX_PROPOSALS),
         scale=LIVE_SCALE,
         superpixels=replace(config.superpixels, n_segments=LIVE_SUPERPIXELS),
         strategies=config.strategies[:LIVE_STRATEGIES],
