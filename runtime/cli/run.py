@@ -81,7 +81,10 @@ OVERLAP_MODES = ("auto", "on", "off")
 OVERLAP_NOTE = (
     "the front end is the longer part: next frames prepared in the background, the network on {n} - 1 threads"
 )
-LIVE_NOTE = "live source: the live front end (faster proposals: docs/live.md); --front-end model: the model's"
+LIVE_NOTE = (
+    "live source: using the live front end (faster proposals, docs/live.md); "
+    "--front-end model keeps the model's own"
+)
 DEFAULT_MODEL = MODEL_FILE
 DEFAULT_OUTPUT = "detections.jsonl"
 VIEW_MIN_SCORE = 0.5  # bench.view_threshold: precision of the shown boxes 0.53 at 0.5, 0.33 at 0.3
