@@ -71,3 +71,23 @@ def test_realtime_needs_time_stamps_and_passes_bad_frames_on_as_problems() -> No
     [bad] = NewestFrames([FrameLoader("bad", "x.png", broken)], realtime=True)
     with pytest.raises(InputError, match=r"^x.png: unreadable$"):
         bad.load()
+
+
+def test_a_run_that_stops_taking_frames_stops_the_source() -> None:
+    """--max-frames or Ctrl-C: the reader thread stops and the source's cleanup runs (a camera's
+    pipeline.stop()), instead of a camera left streaming into a thread nobody reads."""
+    closed = []
+
+    def camera():
+        try:
+            for i in range(1000):
+                time.sleep(0.002)
+                yield frame_loader(_frame(i, None))
+        finally:
+            closed.append(True)
+
+    live = NewestFrames(camera())
+    frames = iter(live)
+    taken = [next(frames), next(frames)]
+    frames.close()
+    assert len(taken) == 2 and closed == [True]

@@ -10,6 +10,7 @@ frames from a software device and plays the recording back through the same sour
 
 from __future__ import annotations
 
+import re
 import sys
 import time
 import types
@@ -19,6 +20,7 @@ import numpy as np
 import pytest
 
 from a3d.runtime.cli import run as run_cli
+from a3d.runtime.errors import InputError
 from a3d.runtime.io.detections_io import parse_line
 from tests.synth_frames import K, assert_same_detections, folder_frames, write_synth_folder
 
@@ -58,10 +60,14 @@ class _Frameset:
         return self.ms
 
 
-def fake_sdk(frames: list, serials: tuple[str, ...] = ("123",), interrupt_at: int | None = None):
+def fake_sdk(
+    frames: list, serials: tuple[str, ...] = ("123",), interrupt_at: int | None = None, period: float = 0.6
+):
     """A ``pyrealsense2`` stand-in serving ``frames`` ((BGR, uint16 depth) pairs, depth already
-    aligned); ``log`` records the calls a3d made. ``interrupt_at``: raise KeyboardInterrupt (as
-    Ctrl-C does) when that frame is waited for."""
+    aligned), one every ``period`` seconds like a camera (slower than the tiny model needs, so a
+    run takes every frame; 0 serves them at once and the run drops the stale ones); ``log``
+    records the calls a3d made. ``interrupt_at``: raise KeyboardInterrupt (as Ctrl-C does) when
+    that frame is waited for."""
     rs = types.ModuleType("pyrealsense2")
     rs.log = log = []
     rs.stream = types.SimpleNamespace(depth="depth", color="color")
@@ -102,6 +108,7 @@ def fake_sdk(frames: list, serials: tuple[str, ...] = ("123",), interrupt_at: in
                 raise KeyboardInterrupt
             if self.served >= len(frames):
                 return False, None  # a live camera that stalled
+            time.sleep(period)
             color, depth = frames[self.served]
             self.served += 1
             return True, _Frameset(_Frame(color, "bgr8"), _Frame(depth, "z16"), 1000.0 * self.served)
@@ -133,8 +140,17 @@ def test_live_frames_give_the_folders_detections(
     monkeypatch.setitem(sys.modules, "pyrealsense2", rs)
     assert run(str(folder), tiny_model, tmp_path / "folder.jsonl") == 0
     # The fake camera stalls after the three frames: reported as one failed frame, exit 1.
-    assert run("realsense:123", tiny_model, tmp_path / "camera.jsonl") == 1
-    assert_same_detections(tmp_path / "camera.jsonl", tmp_path / "folder.jsonl")
+    # A camera is live: the run takes its newest frame, so a slow first frame (the model warming
+    # up) may drop one; every frame written equals the folder's frame of the same index.
+    assert run("realsense:123", tiny_model, tmp_path / "camera.jsonl", "--front-end", "model") == 1
+    camera = (tmp_path / "camera.jsonl").read_text().splitlines()
+    folder_lines = (tmp_path / "folder.jsonl").read_text().splitlines()
+    assert len(camera) >= 2
+    for line in camera:
+        index = int(parse_line(line, "camera").frame.removeprefix("realsense_"))
+        (tmp_path / "one_camera.jsonl").write_text(line + "\n")
+        (tmp_path / "one_folder.jsonl").write_text(folder_lines[index] + "\n")
+        assert_same_detections(tmp_path / "one_camera.jsonl", tmp_path / "one_folder.jsonl", count=1)
     assert ("enable_device", "123") in rs.log and ("enable_stream", "color", "rgb8") in rs.log
     assert rs.log.count(("align",)) == 3 and rs.log[-1] == ("stop",)
 
@@ -148,7 +164,27 @@ def test_max_frames_stops_the_camera(
     assert run("realsense", tiny_model, output, "--max-frames", "2") == 0
     names = [parse_line(line, "out").frame for line in output.read_text().splitlines()]
     assert names == ["realsense_000000", "realsense_000001"]
-    assert rs.log.count(("align",)) == 2 and rs.log[-1] == ("stop",)
+    # the camera is stopped; its reader may have taken one frame more meanwhile (a live source)
+    assert 2 <= rs.log.count(("align",)) <= 3 and rs.log[-1] == ("stop",)
+
+
+def test_a_camera_is_live_newest_frame_and_live_front_end(
+    folder: Path,
+    tmp_path: Path,
+    tiny_model: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture,
+) -> None:
+    rs = fake_sdk(folder_frames(folder) * 4, period=0.0)  # 12 frames at once: faster than any run
+    monkeypatch.setitem(sys.modules, "pyrealsense2", rs)
+    output = tmp_path / "camera.jsonl"
+    assert run("realsense", tiny_model, output) == 1  # the stall at the end is one failed frame
+    err = capsys.readouterr().err
+    assert run_cli.LIVE_NOTE in err
+    dropped = re.search(r"(\d+) stale frames dropped", err)
+    assert dropped and int(dropped.group(1)) >= 1
+    written = len(output.read_text().splitlines())
+    assert written + int(dropped.group(1)) == 12  # every frame either processed or counted as dropped
 
 
 def test_ctrl_c_leaves_whole_lines_and_a_stopped_camera(
@@ -261,6 +297,9 @@ def record_with_the_sdk(rs, path: Path, frames: list) -> None:
     del recorder  # the recording is written when the recorder goes
 
 
+PLAYS = 5
+
+
 def test_the_sdk_plays_its_own_recording_through_the_source(
     real_sdk: types.ModuleType, folder: Path, tmp_path: Path, tiny_model: Path
 ) -> None:
@@ -271,11 +310,20 @@ def test_the_sdk_plays_its_own_recording_through_the_source(
     from a3d.runtime.sources.realsense import RealSenseSource
     from a3d.runtime.sources.registry import SourceOptions
 
-    source = RealSenseSource(f"realsense:{recording}", SourceOptions())
-    assert source.depth_scale == pytest.approx(DEPTH_SCALE)
-    assert source.intrinsics.fx == pytest.approx(K.fx, rel=1e-6)
-    got = [loader.load() for loader in source]
-    assert len(got) >= 2  # the SDK's syncer may drop the first frameset
+    # pyrealsense2 2.59's playback of so short a recording sometimes delivers no frameset at all
+    # (about 1 play in 4 here, whatever the real-time and pause settings): the source reports that
+    # as a failed frame, and the test plays the recording up to PLAYS times.
+    for _ in range(PLAYS):
+        source = RealSenseSource(f"realsense:{recording}", SourceOptions())
+        assert source.depth_scale == pytest.approx(DEPTH_SCALE)
+        assert source.intrinsics.fx == pytest.approx(K.fx, rel=1e-6)
+        loaders = list(source)
+        if len(loaders) >= 2:  # the SDK's syncer may drop the first frameset
+            break
+        with pytest.raises(InputError, match="the SDK's playback delivered no frames"):
+            loaders[0].load()
+    got = [loader.load() for loader in loaders]
+    assert len(got) >= 2
     for frame in got:
         i = next(i for i, (color, _) in enumerate(frames) if np.array_equal(frame.color, color))
         depth = frames[i][1].astype(np.float32) / 1000
@@ -283,8 +331,12 @@ def test_the_sdk_plays_its_own_recording_through_the_source(
         assert both.sum() >= 0.95 * (depth > 0).sum()  # rs.align keeps (nearly) every pixel here
         assert np.mean(frame.depth[both] == depth[both]) >= 0.99
     output = tmp_path / "recording.jsonl"
-    assert run(f"realsense:{recording}", tiny_model, output) == 0
-    assert 2 <= len(output.read_text().splitlines()) <= len(frames)  # the syncer's drop varies by run
+    for _ in range(PLAYS):
+        code = run(f"realsense:{recording}", tiny_model, output)
+        if code == 0:  # exit 1: the playback delivered no frames
+            break
+    assert code == 0
+    assert 1 <= len(output.read_text().splitlines()) <= len(frames)  # the syncer's drop varies by run
 
 
 def test_the_sdk_reads_the_layout_of_the_sdk_bags_the_bag_tests_write(

@@ -4,7 +4,8 @@ A camera delivers frames at its own rate whether or not the detector keeps up; h
 every frame in order would make it fall further behind with each one. ``NewestFrames`` wraps a
 source: a background thread takes the source's loaders as they come and keeps only the newest;
 the run takes that one when it is ready for a frame, and each loader replaced before the run
-took it is counted in ``dropped``.
+took it is counted in ``dropped``. When the run stops taking frames (``--max-frames``, Ctrl-C,
+an error) the thread stops reading and closes the source, so a camera's pipeline is stopped.
 
 ``realtime=True`` makes a recorded source (a bag, a folder with time stamps) behave like the
 camera that recorded it: the thread reads each frame and releases it at its recorded time
@@ -23,6 +24,7 @@ from a3d.runtime.errors import InputError
 from a3d.runtime.sources.base import FrameLoader, frame_loader
 
 _DONE = object()
+STOP_TIMEOUT_S = 10.0  # how long the run waits for the source to stop once it takes no more frames
 
 
 class NewestFrames:
@@ -37,21 +39,28 @@ class NewestFrames:
         self._pending: object | None = None
         self._ready = threading.Condition()
         self._error: BaseException | None = None
+        self._stop = threading.Event()
 
     def __iter__(self) -> Iterator[FrameLoader]:
         grabber = threading.Thread(target=self._grab, name="a3d-newest-frame", daemon=True)
         grabber.start()
-        while True:
+        try:
+            while True:
+                with self._ready:
+                    self._ready.wait_for(lambda: self._pending is not None)
+                    item, self._pending = self._pending, None
+                    self._ready.notify_all()
+                if item is _DONE:
+                    if self._error is not None:
+                        raise self._error
+                    return
+                assert isinstance(item, FrameLoader)
+                yield item
+        finally:  # the run stopped taking frames (--max-frames, Ctrl-C, the end): stop the source too
+            self._stop.set()
             with self._ready:
-                self._ready.wait_for(lambda: self._pending is not None)
-                item, self._pending = self._pending, None
                 self._ready.notify_all()
-            if item is _DONE:
-                if self._error is not None:
-                    raise self._error
-                return
-            assert isinstance(item, FrameLoader)
-            yield item
+            grabber.join(timeout=STOP_TIMEOUT_S)
 
     def _publish(self, item: object) -> None:
         with self._ready:
@@ -62,8 +71,11 @@ class NewestFrames:
 
     def _grab(self) -> None:
         start = first = None
+        frames = iter(self.source)
         try:
-            for loader in self.source:
+            for loader in frames:
+                if self._stop.is_set():
+                    break
                 if not self.realtime:
                     self._publish(loader)
                     continue
@@ -86,8 +98,12 @@ class NewestFrames:
                 self._publish(frame_loader(frame))
         except BaseException as error:  # the source itself failed: the run ends with it
             self._error = error
+        finally:
+            close = getattr(frames, "close", None)
+            if close is not None:
+                close()  # a generator source runs its cleanup now (a camera's pipeline.stop())
         with self._ready:  # the end is never dropped, and never drops the last frame
-            self._ready.wait_for(lambda: self._pending is None)
+            self._ready.wait_for(lambda: self._pending is None or self._stop.is_set())
             self._pending = _DONE
             self._ready.notify_all()
 

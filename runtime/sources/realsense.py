@@ -10,6 +10,9 @@ registration of their own; intrinsics are the colour stream's (the SDK's pixel c
 centres at integer coordinates, is a3d's), the depth scale the depth sensor's
 (``get_depth_scale()``); ``--intrinsics`` / ``--depth-scale`` override them. A live camera
 streams until ``--max-frames`` or Ctrl-C; the pipeline is stopped whichever way the run ends.
+A camera is a live source (``live``): the run takes its newest frame and the live front end. The
+SDK's playback of a recording sometimes delivers no frameset at all (pyrealsense2 2.59, short
+recordings); a recording that gave none is reported as a failed frame, not as an empty run.
 """
 
 from __future__ import annotations
@@ -50,6 +53,7 @@ class RealSenseSource:
         self.rs = _import_sdk(spec)
         target = spec.partition(":")[2]
         self.recording = Path(target) if target and Path(target).is_file() else None
+        self.live = self.recording is None  # a camera streams whether or not the run keeps up
         config = self.rs.config()
         if self.recording is not None:
             config.enable_device_from_file(str(self.recording), False)  # no repeat: the file ends the run
@@ -94,6 +98,9 @@ class RealSenseSource:
                 if not ok:
                     if self.recording is None:
                         problem = f"{self.spec}: no frames for {FRAME_TIMEOUT_MS / 1000:g} s; stopped"
+                        yield FrameLoader(f"{SCHEME}_{index:06d}", self.spec, _fail(problem))
+                    elif index == 0:
+                        problem = f"{self.spec}: the SDK's playback delivered no frames (try again)"
                         yield FrameLoader(f"{SCHEME}_{index:06d}", self.spec, _fail(problem))
                     return
                 frame = self._frame(self.align.process(frames), index)
