@@ -53,6 +53,7 @@ from a3d.runtime.cli.run import VIEW_MIN_SCORE
 from a3d.runtime.structures.classes import CLASS_COLORS_RGB, CLASSES
 
 RERUN = Path(sys.prefix) / "bin" / "rerun"
+A3D_RUN = Path(sys.prefix) / "bin" / "a3d-run"
 CHROMIUM = Path("/usr/bin/chromium")
 LOOPBACK = "127.0.0.1"
 WINDOW = (1600, 1000)
@@ -376,7 +377,7 @@ def a3d_run_screenshot(
     with tempfile.TemporaryDirectory(prefix="a3d_serve_") as tmp:
         tmp_dir = Path(tmp)
         detections, log = tmp_dir / "detections.jsonl", tmp_dir / "a3d-run.log"
-        run = [str(Path(sys.prefix) / "bin" / "a3d-run"), str(source), "--model", str(model), "--serve"]
+        run = [str(A3D_RUN), str(source), "--model", str(model), "--serve"]
         run += ["--output", str(detections)]
         with process_group(run, log) as served:
             deadline = time.monotonic() + timeout_s
