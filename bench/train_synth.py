@@ -98,6 +98,18 @@ def detect_and_score(checkpoint: Path, test_dir: Path, out: Path, overrides: lis
     }
 
 
+def run_and_score(model: Path, test_dir: Path, out: Path) -> dict:
+    """An exported model's detections of the test frames through a3d-run (--headless, the model's
+    own settings), scored by a3d-eval: detect_and_score's numbers for an ONNX file."""
+    out.mkdir(parents=True, exist_ok=True)
+    detect_s = run([str(BIN / "a3d-run"), str(test_dir), "--model", str(model), "--output",
+                    str(out / "detections.jsonl"), "--headless"], log=out / "run.log")  # fmt: skip
+    eval_s = run([str(BIN / "a3d-eval"), str(test_dir), "--detections", str(out / "detections.jsonl"),
+                  "--out", str(out / "eval")], log=out / "eval.log")  # fmt: skip
+    report = json.loads((out / "eval" / "eval.json").read_text())
+    return {**scores_of(report), "detect_seconds": detect_s, "eval_seconds": eval_s}
+
+
 def scores_of(report: dict) -> dict:
     """mAP@0.25 (19 classes, present classes), mAP@0.5, per-class AP@0.25 and the annotated frame
     count of an a3d-eval report (eval.json)."""

@@ -2,6 +2,7 @@
 
     .venv/bin/python -m bench.transfer --out out/bench_transfer [--worlds plain,clutter,kinect-v1,tof]
         [--frames 300] [--test-share 0.2] [--scale 1] [--config cpu-small] [--iters N] [--set KEY=VALUE ...]
+        [--model WORLD=MODEL ...] [--test WORLD=FOLDER ...]
 
 A model that fits its own world can still fail on another: a held-out split of the training
 world measures fit, not transfer. For each world (``WORLDS``: a3d-synth options, e.g. without
@@ -11,6 +12,12 @@ trained model on every world's test split (torch-path detections, a3d-eval) and,
 split has frames without annotations, counts the detections >= 0.5 on them
 (bench/false_positives.py). ``--scale`` shrinks the frames (the NYUv2 crop size, or the camera
 presets' size) for quick runs.
+
+``--model WORLD=MODEL`` takes an existing model as WORLD's instead of training one: an exported
+ONNX file (scored through a3d-run --headless with its own settings, e.g. a bundled int8 model)
+or a run folder or checkpoint (torch path). ``--test WORLD=FOLDER`` takes an existing folder of
+frames with ground truth as WORLD's test split (e.g. 350 held-out frames). A world with both is
+not rendered at all.
 
 The table: rows the training world, columns the test world, mAP@0.25 over the 19 classes. The
 drop of A -> B is mAP(B -> B) - mAP(A -> B): what training on A instead of B costs on B. Written
@@ -25,11 +32,12 @@ import sys
 from pathlib import Path
 
 from bench.false_positives import count_false_positives
-from bench.train_synth import detect_and_score, synthesize, train
+from bench.train_synth import detect_and_score, run_and_score, synthesize, train
 
 NYU_SIZE = (427, 561)
 WORLDS: dict[str, list[str]] = {
     "plain": [],
+    "plain-v1": ["--sensor", "kinect-v1"],  # the first bundled model's world (README "Training")
     "clutter": ["--clutter", "30", "--empty-share", "0.1"],
     "typical": ["--appearance", "typical"],
     "kinect-v1": ["--camera-mix", "kinect-v1"],
@@ -47,6 +55,25 @@ def world_options(name: str, scale: float) -> list[str]:
         return [*options, "--camera-scale", str(scale)]
     h, w = (max(16, round(s * scale)) for s in NYU_SIZE)
     return [*options, "--size", f"{h}x{w}"]
+
+
+def world_paths(pairs: list[str], flag: str, worlds: list[str]) -> dict[str, Path]:
+    """``WORLD=PATH`` arguments of ``flag`` as {world: path}; ValueError names the bad one."""
+    paths = {}
+    for pair in pairs:
+        world, sep, path = pair.partition("=")
+        if not sep or world not in worlds or not Path(path).exists():
+            raise ValueError(f"{flag} {pair!r}: give WORLD=PATH with WORLD one of --worlds and PATH existing")
+        paths[world] = Path(path)
+    return paths
+
+
+def score(model: Path, test_dir: Path, out: Path, device: str) -> dict:
+    """mAP and timings of ``model`` (ONNX file, run folder or checkpoint) on ``test_dir``."""
+    if model.suffix == ".onnx":
+        return run_and_score(model, test_dir, out)
+    checkpoint = model / "checkpoint.pt" if model.is_dir() else model
+    return detect_and_score(checkpoint, test_dir, out, device=device)
 
 
 def drops(table: dict[str, dict[str, float]]) -> dict[str, dict[str, float]]:
@@ -81,11 +108,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE")
     parser.add_argument("--iters", type=int)
     parser.add_argument("--device")
+    parser.add_argument("--model", dest="models", action="append", default=[], metavar="WORLD=MODEL",
+                        help="WORLD's model (ONNX, run folder, checkpoint), not trained")  # fmt: skip
+    parser.add_argument("--test", dest="tests", action="append", default=[], metavar="WORLD=FOLDER",
+                        help="WORLD's test frames (a folder with ground truth)")  # fmt: skip
     args = parser.parse_args(argv)
     worlds = [w.strip() for w in args.worlds.split(",") if w.strip()]
     unknown = [w for w in worlds if w not in WORLDS]
     if unknown or len(worlds) < 2:
         parser.error(f"--worlds: give two or more of {', '.join(WORLDS)} (got {args.worlds!r})")
+    try:
+        models = world_paths(args.models, "--model", worlds)
+        tests = world_paths(args.tests, "--test", worlds)
+    except ValueError as e:
+        parser.error(str(e))
 
     summary: dict = {
         "worlds": {w: WORLDS[w] for w in worlds},
@@ -95,30 +131,25 @@ def main(argv: list[str] | None = None) -> int:
         "scale": args.scale,
         "scores": {},
         "false_positives": {},
+        "models": {w: str(p) for w, p in models.items()},
+        "tests": {w: str(p) for w, p in tests.items()},
     }
     for w in worlds:  # the data first: every model is tested on every world
-        synthesize(
-            args.out / w / "data", args.frames, args.seed, args.test_share, world_options(w, args.scale)
-        )
+        if w not in models or w not in tests:
+            synthesize(
+                args.out / w / "data", args.frames, args.seed, args.test_share, world_options(w, args.scale)
+            )
     table: dict[str, dict[str, float]] = {}
     for a in worlds:
-        run_dir = args.out / a / "run"
+        model = models.get(a, args.out / a / "run")
         sets = [*args.sets, f"data.cache_dir={args.out / a / 'cache'}"]
-        if not (run_dir / "checkpoint.pt").is_file():
-            train(
-                args.out / a / "data" / "train",
-                run_dir,
-                args.config,
-                sets,
-                args.iters,
-                None,
-                False,
-                args.device,
-            )
+        if a not in models and not (model / "checkpoint.pt").is_file():
+            train(args.out / a / "data" / "train", model, args.config, sets, args.iters, None, False,
+                  args.device)  # fmt: skip
         table[a] = {}
         for b in worlds:
-            test_dir, out = args.out / b / "data" / "test", args.out / a / f"on_{b}"
-            scores = detect_and_score(run_dir / "checkpoint.pt", test_dir, out, device=args.device or "cpu")
+            test_dir, out = tests.get(b, args.out / b / "data" / "test"), args.out / a / f"on_{b}"
+            scores = score(model, test_dir, out, args.device or "cpu")
             table[a][b] = scores["map25_all"]
             summary["scores"][f"{a}->{b}"] = scores
             summary["false_positives"][f"{a}->{b}"] = count_false_positives(

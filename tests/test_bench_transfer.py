@@ -9,15 +9,17 @@ from pathlib import Path
 
 import pytest
 
+from a3d.runtime.cli import eval as eval_cli
+from a3d.runtime.evaluation.metric import EvalConfig, evaluate
 from a3d.runtime.io.detections_io import read_detections
 from a3d.runtime.sources.folder import list_frames, read_ground_truth
 from a3d.synth.cli import main as synth_main
 from a3d.train.config import apply_overrides, load_config
 from bench import background_rois, false_positives, transfer
+from tests.helpers.samples import PINNED_DETECTIONS, SAMPLE_MODEL, SAMPLES
 from tests.helpers.train_scenes import TINY
 
 pytestmark = pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")
-SAMPLE_MODEL = Path(__file__).resolve().parents[1] / "samples" / "model.onnx"
 
 
 def _empty_names(folder: Path) -> set[str]:
@@ -65,6 +67,30 @@ def test_transfer_table_and_false_positives_end_to_end(tmp_path: Path, monkeypat
         expected = sum(int((dets[n].scores >= 0.5).sum()) for n in empty)
         assert fp["empty_frames"] == len(empty) and fp["detections"] == expected
         assert fp["per_frame"] == pytest.approx(expected / len(empty))
+
+
+def test_transfer_scores_given_models_on_given_test_folders(tmp_path: Path) -> None:
+    """--model and --test: nothing rendered or trained; an ONNX model is scored through a3d-run
+    with its own settings (the samples' score equals that of the pinned a3d-run output), the same
+    model scores the same on every row, and a bad WORLD=PATH is refused in one line."""
+    args = ["--frames", "2", "--seed", "3", "--world", "real", "--empty-share", "0.5", "--split", "test=1"]
+    assert synth_main([str(tmp_path / "set"), *args, "--camera-scale", "0.25"]) == 0
+    out = tmp_path / "out"
+    given = [f"--model=plain={SAMPLE_MODEL}", f"--model=real={SAMPLE_MODEL}", f"--test=plain={SAMPLES}",
+             f"--test=real={tmp_path / 'set' / 'test'}"]  # fmt: skip
+    assert transfer.main(["--out", str(out), "--worlds", "plain,real", *given]) == 0
+    assert not list(out.glob("*/data")) and not list(out.glob("*/run"))
+    report = json.loads((out / "transfer.json").read_text())
+    table = report["map25"]
+    assert table["plain"] == table["real"] and report["drop"]["real"]["plain"] == 0.0
+    truth, _ = eval_cli.load_truth(SAMPLES)
+    pinned = {d.frame: d for d in read_detections(PINNED_DETECTIONS)}
+    expected = evaluate(truth, pinned, EvalConfig()).map_all(0.25)
+    assert table["plain"]["plain"] == pytest.approx(expected, abs=1e-9)
+    assert report["false_positives"]["plain->real"]["empty_frames"] == 1
+    with pytest.raises(SystemExit) as refused:
+        transfer.main(["--out", str(out), "--worlds", "plain,real", "--model=kitchen=x.onnx"])
+    assert refused.value.code == 2
 
 
 def test_false_positives_runs_a3d_run_on_the_empty_frames(tmp_path: Path) -> None:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -11,21 +10,12 @@ import pytest
 
 from a3d.runtime import Detector
 from a3d.runtime.cli import run as run_cli
-from a3d.runtime.network.cpu_support import int8_dot_products
 from a3d.runtime.postprocess.box_limits import bound_boxes, near_range
 from a3d.runtime.sources.arrays import ArrayError
 from a3d.runtime.sources.folder import FolderSource, read_meta
 from a3d.runtime.structures.classes import class_index
-
-ROOT = Path(__file__).resolve().parents[1]
-SAMPLES = ROOT / "samples"
-# a3d-run's output on the samples before the redesign, on each kind of CPU (the int8 model's scores
-# differ slightly between int8 dot products and AVX2: a3d.runtime.network.cpu_support)
-PINNED = (
-    Path(__file__).parent
-    / "data"
-    / f"samples_detections_{'int8_dot' if int8_dot_products() else 'avx2'}.jsonl"
-)
+from tests.helpers.samples import PINNED_DETECTIONS as PINNED
+from tests.helpers.samples import SAMPLES
 
 
 @pytest.fixture(scope="module")
