@@ -69,6 +69,7 @@ def test_transfer_table_and_false_positives_end_to_end(tmp_path: Path, monkeypat
         assert fp["per_frame"] == pytest.approx(expected / len(empty))
 
 
+@pytest.mark.slow  # four a3d-run calls
 def test_transfer_scores_given_models_on_given_test_folders(tmp_path: Path) -> None:
     """--model and --test: nothing rendered or trained; an ONNX model is scored through a3d-run
     with its own settings (the samples' score equals that of the pinned a3d-run output), the same
