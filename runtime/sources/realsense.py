@@ -95,12 +95,12 @@ class RealSenseSource:
         try:
             while True:
                 ok, frames = self.pipeline.try_wait_for_frames(FRAME_TIMEOUT_MS)
-                if not ok:
+                if not ok:  # a camera that stalled, or a recording's end (a failure if it gave nothing)
                     if self.recording is None:
                         problem = f"{self.spec}: no frames for {FRAME_TIMEOUT_MS / 1000:g} s; stopped"
-                        yield FrameLoader(f"{SCHEME}_{index:06d}", self.spec, _fail(problem))
-                    elif index == 0:
+                    else:
                         problem = f"{self.spec}: the SDK's playback delivered no frames (try again)"
+                    if self.recording is None or index == 0:
                         yield FrameLoader(f"{SCHEME}_{index:06d}", self.spec, _fail(problem))
                     return
                 frame = self._frame(self.align.process(frames), index)
