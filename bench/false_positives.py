@@ -8,7 +8,9 @@ mAP says nothing about frames with nothing to find; a model that calls every cab
 loses little mAP on rooms of the 19 classes and is useless in a real one. This counts, on the
 frames of FOLDER whose ground truth lists no object (frames without a ground-truth file are
 left out: nothing says they are empty), the detections at or above the threshold: per frame
-(mean and maximum), the share of frames with any, and per class. Detections come from
+(mean and maximum), the share of frames with any, and per class. Beside it, over every annotated
+frame, how many detections reach the threshold and which share of them is right (3D IoU >= 0.25,
+a3d-eval's matching): what the threshold means to a user. Detections come from
 ``--detections`` (the README detections format, e.g. a3d-run's output) or from running
 ``a3d-run --headless`` with ``--model`` (written to OUT, default FOLDER/../false_positives.jsonl).
 Prints the report and writes it as JSON next to the detections (``.report.json``).
@@ -23,8 +25,12 @@ import sys
 from collections import Counter
 from pathlib import Path
 
+from a3d.runtime.evaluation.metric import EvalConfig, evaluate
+from a3d.runtime.evaluation.truth import load_truth
 from a3d.runtime.io.detections_io import read_detections
 from a3d.runtime.sources.folder import list_frames, read_ground_truth
+
+IOU = 0.25
 
 BIN = Path(sys.executable).parent
 
@@ -68,6 +74,17 @@ def count_false_positives(folder: Path, detections: Path, threshold: float = 0.5
     }
 
 
+def right_share(folder: Path, detections: Path, threshold: float = 0.5) -> dict:
+    """Detections >= ``threshold`` on the annotated frames of ``folder`` and how many are right."""
+    truth, _ = load_truth(folder)
+    found = {d.frame: d for d in read_detections(detections) if d.frame in truth}
+    result = evaluate(truth, found, EvalConfig(iou_thresholds=(IOU,)))
+    kept = [c.true_positives(IOU)[c.scores >= threshold] for c in result.classes]
+    right, total = sum(int(k.sum()) for k in kept), sum(len(k) for k in kept)
+    share = right / total if total else None
+    return {"frames": len(truth), "detections": total, "right": right, "share": share, "iou": IOU}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("folder", type=Path, help="a frame folder with ground truth")
@@ -91,6 +108,8 @@ def main(argv: list[str] | None = None) -> int:
             return 1
     try:
         report = count_false_positives(args.folder, detections, args.threshold)
+        if report is not None:
+            report["all_frames"] = right_share(args.folder, detections, args.threshold)
     except (OSError, ValueError) as e:
         print(f"false_positives: {e}", file=sys.stderr)
         return 1
@@ -99,8 +118,12 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     detections.with_suffix(".report.json").write_text(json.dumps(report, indent=1))
     print(json.dumps(report, indent=1))
+    every = report["all_frames"]
+    share = "none" if every["share"] is None else f"{100 * every['share']:.0f}% right"
     print(f"detections >= {args.threshold} per empty frame: {report['per_frame']:.2f} "
-          f"over {report['empty_frames']} frames (max {report['max_per_frame']})")  # fmt: skip
+          f"over {report['empty_frames']} frames (max {report['max_per_frame']}); over all "
+          f"{every['frames']} frames {every['detections']} detections >= {args.threshold}, "
+          f"{share}")  # fmt: skip
     return 0
 
 

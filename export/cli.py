@@ -2,6 +2,7 @@
 
     a3d-export CHECKPOINT -o model.onnx [--verify-frames FOLDER] [--svd RANK]
                [--int8 --calib FOLDER [--calib-frames N]] [--opset 18] [--score-threshold S]
+               [--score-calibration FOLDER]
 
 1. load the checkpoint (a3d.train.checkpoint), optionally factorise fc6/fc7 (``--svd``, svd.py);
 2. export the runtime graph with the target statistics folded in (onnx_export.py), onnx.checker;
@@ -11,7 +12,9 @@
    reported too;
 4. ``--int8``: static QDQ quantisation calibrated on ``--calib`` frames (quantize.py), checked
    to load and give finite outputs, its difference to torch reported;
-5. write the model with its metadata (metadata.py; the verification numbers go into the
+5. ``--score-calibration``: run the final model through the runtime on FOLDER's annotated frames
+   and fit its per-class score calibration (score_calibration.py) into the metadata;
+6. write the model with its metadata (metadata.py; the verification numbers go into the
    provenance) atomically to ``-o``, load it back, and print the a3d-run command that uses it.
 
 Exit codes: 0 ok, 1 verification failed, 2 usage or bad input (one line naming the file).
@@ -39,6 +42,7 @@ from a3d.export.onnx_export import (
     save_model,
 )
 from a3d.export.quantize import CALIB_ROIS, quantize_int8
+from a3d.export.score_calibration import REPORT_THRESHOLD, calibrate
 from a3d.export.svd import svd_compress
 from a3d.export.verify import (
     DELTA_RTOL,
@@ -89,6 +93,13 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="S",
         help="detections below S are dropped at run time (default: the training config's)",
     )
+    p.add_argument(
+        "--score-calibration",
+        type=Path,
+        metavar="FOLDER",
+        help="fit the per-class score calibration on FOLDER's annotated frames (held out from "
+        "training, same world): a score then says how likely a detection is right",
+    )
     p.add_argument("--threads", type=int, default=2, help="ONNX Runtime threads for verification")
     return p
 
@@ -103,6 +114,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--calib-frames and --threads must be positive")
     if args.score_threshold is not None and not 0.0 <= args.score_threshold <= 1.0:
         parser.error(f"--score-threshold must be in [0, 1], got {args.score_threshold}")
+    if args.score_calibration is not None and not args.score_calibration.is_dir():
+        parser.error(f"--score-calibration {args.score_calibration}: no such folder")
     try:
         path = export(args)
     except VerificationError as e:
@@ -115,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def export(args: argparse.Namespace) -> Path:
-    """Steps 1-5 of the module docstring; returns the path written."""
+    """Steps 1-6 of the module docstring; returns the path written."""
     trained = load_trained(args.checkpoint)
     if trained.config.net.roi_pool != "align":
         raise ExportError(
@@ -161,6 +174,11 @@ def export(args: argparse.Namespace) -> Path:
             model, options["calibration"], report["int8_vs_torch"] = _int8(
                 args, calibration, torch_net, metadata, inputs, work
             )
+        if args.score_calibration is not None:
+            final = _open(model, metadata, work / "final.onnx", args.threads)
+            calibration, options["score_calibration"] = calibrate(final, args.score_calibration, PROG)
+            metadata = dataclasses.replace(metadata, score_calibration=calibration)
+            _log(f"score calibration: {_describe_calibration(options['score_calibration'])}")
     provenance = {**metadata.provenance, "export": {**metadata.provenance["export"], **options}}
     metadata = dataclasses.replace(metadata, provenance={**provenance, "verification": report})
     save_model(model, metadata, args.output)
@@ -187,6 +205,17 @@ def _int8(
         raise VerificationError(f"the int8 model gives non-finite outputs ({quantized.describe()})")
     calibration_info = {"folder": str(args.calib.resolve()), "frames": frames, "rois_per_frame": CALIB_ROIS}
     return model, calibration_info, quantized.to_dict()
+
+
+def _describe_calibration(report: dict) -> str:
+    shares = report[f"right_share_at_{REPORT_THRESHOLD}"]
+    parts = [
+        f"{s['detections']} score >= {REPORT_THRESHOLD} with the {name} scores, "
+        + ("none" if s["right_share"] is None else f"{100 * s['right_share']:.0f}% of them right")
+        for name, s in shares.items()
+    ]
+    return (f"{report['detections']} detections on {report['frames']} frames, {report['right']} right "
+            f"(3D IoU >= {report['iou']}); " + "; ".join(parts))  # fmt: skip
 
 
 def _open(model: onnx.ModelProto, metadata: ModelMetadata, path: Path, threads: int) -> DetectorModel:

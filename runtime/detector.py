@@ -42,10 +42,12 @@ class Detector:
         max_proposals: int | None = None,
         proposals: ProposalSource = "auto",
         front_end: FrontEnd = "model",
+        raw_scores: bool = False,
     ) -> Detector:
         """Open and check a model file (ModelError naming it if unusable); the settings default to
         the model's own (its metadata), each overridable as on a3d-run's command line
-        (``front_end="live"``: the faster proposals a3d-run uses for cameras)."""
+        (``front_end="live"``: the faster proposals a3d-run uses for cameras; ``raw_scores``: the
+        softmax scores, without the model's score calibration)."""
         model = DetectorModel.load(path, threads=threads)
         config = PipelineConfig.from_metadata(
             model.metadata,
@@ -53,6 +55,7 @@ class Detector:
             max_proposals=max_proposals,
             min_score=score_threshold,
             front_end=front_end,
+            raw_scores=raw_scores,
         )
         return cls(model, config)
 

@@ -12,7 +12,8 @@ can overlap the network call of another:
    inputs: the trunk images at the model's
    ``input_scale`` and the proposal and context RoIs in the resized image's pixel coordinates;
 2. ``infer``: one ONNX Runtime call per frame (both trunks once, the head over all RoIs at once);
-3. ``finish``: per-class top-k and 2D NMS, class-specific 3D boxes and amodal 2D boxes
+3. ``finish``: the model's score calibration (postprocess.score_calibration), per-class top-k
+   and 2D NMS, class-specific 3D boxes and amodal 2D boxes
    (a3d.runtime.postprocess.select) bounded to boxes that can exist (postprocess.box_limits),
    corners, and the frame's detections line, with its gravity source and notes.
 
@@ -52,6 +53,7 @@ from a3d.runtime.frontend.proposals import ProposalConfig, Proposals, live_propo
 from a3d.runtime.io.detections_io import FrameDetections
 from a3d.runtime.network.network_input import frame_network_inputs
 from a3d.runtime.postprocess.box_limits import bound_boxes, near_range
+from a3d.runtime.postprocess.score_calibration import ScoreCalibration
 from a3d.runtime.postprocess.select import decode_detections, select_detections
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.proposals_file import PrecomputedProposals
@@ -93,7 +95,9 @@ class PipelineConfig:
     ``proposals.max_proposals`` caps computed and precomputed proposals alike (the first ones kept);
     ``front_end`` "model" computes proposals with the model's settings, "live" with
     a3d.runtime.frontend.proposals.live_proposals (about 4x faster and at most 500, for cameras);
-    an explicit ``max_proposals`` overrides either.
+    an explicit ``max_proposals`` overrides either. ``score_calibration`` maps the network's class
+    scores before top-k, threshold and NMS (the model's own, a3d.runtime.postprocess.score_calibration;
+    None: the softmax as it is).
     """
 
     mean_sizes: np.ndarray
@@ -105,6 +109,7 @@ class PipelineConfig:
     top_k: int = 100
     nms_iou: float = 0.3
     min_score: float = 0.0
+    score_calibration: ScoreCalibration | None = None
 
     @classmethod
     def from_metadata(
@@ -115,9 +120,10 @@ class PipelineConfig:
         max_proposals: int | None = None,
         min_score: float | None = None,
         front_end: FrontEnd = "model",
+        raw_scores: bool = False,
     ) -> PipelineConfig:
         """The model's settings (a3d.runtime.network.model.ModelMetadata, checked by DetectorModel.load),
-        with the command line's overrides."""
+        with the command line's overrides (``raw_scores``: leave the model's score calibration off)."""
         if front_end not in FRONT_ENDS:
             raise ValueError(f"front_end: expected one of {', '.join(FRONT_ENDS)}, got {front_end!r}")
         proposals = live_proposals(metadata.proposals) if front_end == "live" else metadata.proposals
@@ -133,6 +139,7 @@ class PipelineConfig:
             top_k=int(metadata.top_k),
             nms_iou=float(metadata.nms_iou),
             min_score=float(metadata.min_score if min_score is None else min_score),
+            score_calibration=None if raw_scores else metadata.score_calibration,
         )
 
 
@@ -267,8 +274,11 @@ def infer(model: NetworkRunner, prepared: PreparedFrame) -> NetworkOutput:
 def finish(prepared: PreparedFrame, out: NetworkOutput, config: PipelineConfig) -> FrameDetections:
     """Stage 3: selection, decoding and corners; the frame's detections line."""
     clock = _Clock(prepared.timing)
+    class_scores = out.probs[:, 1:]
+    if config.score_calibration is not None:
+        class_scores = config.score_calibration.apply(class_scores)
     rows, class_idx, scores = select_detections(
-        out.probs[:, 1:], prepared.boxes, config.top_k, config.min_score, config.nms_iou
+        class_scores, prepared.boxes, config.top_k, config.min_score, config.nms_iou
     )
     boxes3d, amodal = decode_detections(
         rows,

@@ -109,7 +109,29 @@ def test_false_positives_runs_a3d_run_on_the_empty_frames(tmp_path: Path) -> Non
     assert report["empty_frames"] == 2
     assert report["detections"] == sum(int((d.scores >= 0.5).sum()) for d in dets)
     assert sum(report["by_class"].values()) == report["detections"]
+    every = report["all_frames"]  # no object to get right in rooms without one
+    assert every["frames"] == 2 and every["detections"] == report["detections"] and every["right"] == 0
     assert false_positives.main([str(folder), "--detections", str(tmp_path / "missing.jsonl")]) == 1
+
+
+def test_right_share_counts_the_detections_the_evaluator_matched() -> None:
+    """On the samples' pinned output: at threshold 0 every detection counts and the right ones are
+    the true positives behind a3d-eval's recall; a higher threshold keeps fewer, a larger share right."""
+    from a3d.runtime.evaluation.metric import EvalConfig, evaluate
+    from a3d.runtime.evaluation.truth import load_truth
+
+    truth, _ = load_truth(SAMPLES)
+    result = evaluate(
+        truth, {d.frame: d for d in read_detections(PINNED_DETECTIONS)}, EvalConfig(iou_thresholds=(0.25,))
+    )
+    everything = false_positives.right_share(SAMPLES, PINNED_DETECTIONS, 0.0)
+    assert everything["detections"] == sum(c.num_det for c in result.classes)
+    assert everything["right"] == round(
+        sum(c.recall[0.25][-1] * c.num_gt for c in result.classes if c.num_det)
+    )
+    confident = false_positives.right_share(SAMPLES, PINNED_DETECTIONS, 0.5)
+    assert 0 < confident["detections"] < everything["detections"]
+    assert confident["share"] > everything["share"]
 
 
 def test_background_rois_at_bound_zero_keep_the_empty_rooms(tmp_path: Path) -> None:

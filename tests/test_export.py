@@ -204,10 +204,23 @@ def test_cli_prints_the_run_command_and_refuses_bad_usage(run, capsys, tmp_path:
     assert cli.main([str(run.checkpoint), "-o", str(tmp_path / "m.onnx"), "--svd", "0"]) == 2
     assert "--svd 0: the rank must be a positive integer" in capsys.readouterr().err
     assert not (tmp_path / "m.onnx").exists()
+    with pytest.raises(SystemExit) as info:
+        cli.main([str(run.checkpoint), "-o", str(tmp_path / "m.onnx"), "--score-calibration", "absent"])
+    assert info.value.code == 2 and "--score-calibration absent: no such folder" in capsys.readouterr().err
     command = run.stdout["float"].strip().splitlines()[-1]
     assert command.startswith("a3d-run FRAMES --model ") and str(run.float.resolve()) in command
     suggested = run_cli.build_parser().parse_args(shlex.split(command)[1:])
     assert not viewer_requested(suggested)  # runs on a machine without a display
+
+
+def test_a_score_calibration_that_cannot_be_fitted_writes_nothing(run, capsys, tmp_path: Path) -> None:
+    """The random network gets no detection right on the frames: nothing says where 0.5 lies.
+    (The fit itself, on the bundled model: tests/test_score_calibration.py.)"""
+    out = tmp_path / "calibrated.onnx"
+    assert cli.main([str(run.checkpoint), "-o", str(out), "--score-calibration", str(run.frames)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert err.startswith(f"a3d-export: error: {run.frames}: cannot fit the score calibration: ")
+    assert "0 right: need both right and wrong ones" in err and not out.exists()
 
 
 def test_max_roi_pooling_networks_are_refused(run, capsys, tmp_path: Path) -> None:

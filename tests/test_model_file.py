@@ -30,6 +30,7 @@ from a3d.runtime.network.model import (
     content_digest,
 )
 from a3d.runtime.network.preprocess import COLOR_MEAN_BGR, DEPTH_MEAN
+from a3d.runtime.postprocess.score_calibration import ScoreCalibration
 from a3d.runtime.structures.classes import CLASSES
 
 RNG = np.random.default_rng(7)
@@ -257,6 +258,45 @@ def test_schema_1_metadata_reads_into_todays_fields() -> None:
     assert metadata.schema_version == SCHEMA_VERSION and metadata.min_score == old["score_threshold"]
     assert metadata.proposals.max_proposals == old["max_proposals"]
     assert metadata.proposals.superpixels.n_segments == old["proposal_config"]["superpixels"]["n_segments"]
+    assert metadata.score_calibration is None
     again = json.loads(metadata.to_json())
     assert "score_threshold" not in again and "max_proposals" not in again and "proposal_config" not in again
     assert ModelMetadata.from_json(metadata.to_json(), "again").proposals == metadata.proposals
+
+
+CALIBRATION = ScoreCalibration(np.linspace(0.5, 2.0, 19), np.linspace(-2.0, 1.0, 19), 0.25)
+
+
+def test_a_score_calibration_round_trips_and_schema_2_files_have_none(tmp_path: Path) -> None:
+    path = tmp_path / "calibrated.onnx"
+    save_model(_graph_model(), _metadata(score_calibration=CALIBRATION), path)
+    got = DetectorModel.load(path, threads=1).metadata.score_calibration
+    np.testing.assert_array_equal(got.slope, CALIBRATION.slope)
+    np.testing.assert_array_equal(got.intercept, CALIBRATION.intercept)
+    assert got.iou == 0.25
+    schema_2 = json.loads(_metadata(content_sha256="0" * 64).to_json())
+    del schema_2["score_calibration"]
+    schema_2["schema_version"] = 2
+    assert ModelMetadata.from_json(json.dumps(schema_2), "v2").score_calibration is None
+    schema_2["score_calibration"] = None  # a key schema 2 did not have
+    with pytest.raises(ModelError, match=r"unknown \['score_calibration'\]"):
+        ModelMetadata.from_json(json.dumps(schema_2), "v2")
+
+
+@pytest.mark.parametrize(
+    ("calibration", "expected"),
+    [
+        ({"slope": [1.0] * 19, "intercept": [0.0] * 19}, "null or an object of slope, intercept and iou"),
+        (
+            {"slope": [1.0] * 5, "intercept": [0.0] * 19, "iou": 0.25},
+            "score_calibration.slope must be a (19,)",
+        ),
+        ({"slope": [1.0] * 18 + [-1.0], "intercept": [0.0] * 19, "iou": 0.25}, "slope must be positive"),
+        ({"slope": [1.0] * 19, "intercept": [0.0] * 19, "iou": 1.5}, "score_calibration.iou must be"),
+    ],
+)
+def test_a_malformed_score_calibration_is_refused(
+    tmp_path: Path, model_file: Path, calibration, expected
+) -> None:
+    edit = lambda d: json.dumps({**d, "score_calibration": calibration})  # noqa: E731
+    assert expected in _refusal(_with_metadata_text(model_file, tmp_path / "bad.onnx", edit))

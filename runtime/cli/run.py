@@ -2,7 +2,7 @@
 
     a3d-run FOLDER [--model model.onnx] [--output detections.jsonl] [--threads 2]
             [--proposals auto|compute|precomputed] [--max-proposals N] [--front-end model|live]
-            [--score-threshold S]
+            [--score-threshold S] [--raw-scores]
             [--resume] [--overlap [auto|on|off]] [--headless] [--connect] [--url URL] [--serve]
             [--save FILE.rrd] [--stdout]
             [--intrinsics FX,FY,CX,CY | fr1 | fr2 | fr3] [--depth-scale S] [--resize-depth] [--shard K/N]
@@ -122,6 +122,12 @@ def build_parser() -> argparse.ArgumentParser:
         help="write only detections scoring >= S (default: the model's, 0 for the bundled one: every "
         "per-class top-k detection, which a3d-eval needs to trace the whole precision-recall curve)",
     )
+    p.add_argument(
+        "--raw-scores",
+        action="store_true",
+        help="write the network's softmax scores, without the model's score calibration (a model "
+        'exported with --score-calibration: README "Exporting a model")',
+    )
     p.add_argument("--resume", action="store_true", help="skip the frames the output already has")
     p.add_argument("--max-frames", type=int, metavar="N", help="stop after the first N frames of the source")
     p.add_argument(
@@ -230,6 +236,7 @@ def _job(args: argparse.Namespace) -> _Job:
         max_proposals=args.max_proposals,
         min_score=args.score_threshold,
         front_end=front_end,
+        raw_scores=args.raw_scores,
     )
     done = completed_frames(Path(args.output)) if args.resume else set()
     return _Job(source, done, model, config)

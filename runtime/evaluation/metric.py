@@ -108,6 +108,11 @@ class ClassResult:
         """Whether the class has ground truth in the set, i.e. whether its AP means anything."""
         return self.num_gt > 0
 
+    def true_positives(self, threshold: float) -> np.ndarray:
+        """(num_det,) bool in ranked order: which detections the matching at ``threshold`` counted right."""
+        ranks = np.arange(1, self.num_det + 1)
+        return np.diff(np.rint(self.precision[threshold] * ranks), prepend=0.0) > 0.5
+
     def curve_corners(self, threshold: float) -> np.ndarray:
         """(K, 3) rows (recall, precision, score) at each true positive and at the last detection.
 

@@ -43,10 +43,13 @@ from a3d.runtime.frontend.proposals import ProposalConfig, proposal_config_from_
 from a3d.runtime.io.json_input import is_finite_number, parse_json
 from a3d.runtime.io.plain_config import plain_from_dataclass
 from a3d.runtime.network.preprocess import COLOR_MEAN_BGR, DEPTH_MEAN
+from a3d.runtime.postprocess.score_calibration import ScoreCalibration
 from a3d.runtime.structures.boxes import BOX_DIM
 from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES, NUM_OUTPUTS
 
-SCHEMA_VERSION = 2  # 2: min_score (was score_threshold), max_proposals only inside proposals
+SCHEMA_VERSION = (
+    3  # 2: min_score (was score_threshold), max_proposals only inside proposals; 3: score_calibration
+)
 METADATA_KEY = "a3d"
 INPUT_NAMES = ("color", "depth", "rois", "context_rois")
 OUTPUT_NAMES = ("class_probs", "deltas3d", "deltas2d")
@@ -67,12 +70,15 @@ class ModelMetadata:
     box = proposal box scaled about its centre. min_score, nms_iou, top_k: post-processing
     (docs/conventions.md "Inference and post-processing"). proposals: the proposal stage's settings the model
     was trained with, ``max_proposals`` (proposals per frame) among them, stored through the
-    settings codec (a3d.runtime.io.plain_config). content_sha256: the integrity digest (module
-    docstring). provenance: free-form (package version, training config, checkpoint hash, export
-    options, verification numbers).
+    settings codec (a3d.runtime.io.plain_config). score_calibration: the per-class map from the
+    network's score to the chance a detection is right (a3d.runtime.postprocess.score_calibration),
+    None for a model that reports the softmax score as it is. content_sha256: the integrity digest
+    (module docstring). provenance: free-form (package version, training config, checkpoint hash,
+    export options, verification numbers).
 
     Schema 1 files (``score_threshold``, ``max_proposals`` beside ``proposal_config``) are read
-    into the same fields: ``min_score`` and ``proposals`` with its ``max_proposals``.
+    into the same fields: ``min_score`` and ``proposals`` with its ``max_proposals``; schema 1
+    and 2 files have no score calibration.
     """
 
     schema_version: int
@@ -87,6 +93,7 @@ class ModelMetadata:
     nms_iou: float
     top_k: int
     proposals: ProposalConfig = field(default_factory=ProposalConfig)
+    score_calibration: ScoreCalibration | None = None
     content_sha256: str = ""
     provenance: dict[str, Any] = field(default_factory=dict)
 
@@ -96,6 +103,9 @@ class ModelMetadata:
         data["mean_sizes"] = np.asarray(self.mean_sizes, np.float64).tolist()
         data["color_mean_bgr"] = [float(v) for v in self.color_mean_bgr]
         data["proposals"] = plain_from_dataclass(self.proposals)
+        data["score_calibration"] = (
+            None if self.score_calibration is None else self.score_calibration.to_dict()
+        )
         return json.dumps(data, sort_keys=True, allow_nan=False)
 
     @classmethod
@@ -115,6 +125,8 @@ class ModelMetadata:
         names = [f.name for f in fields(cls)]
         if version == 1:
             names = [n for n in names if n not in ("min_score", "proposals")] + list(_SCHEMA_1_KEYS)
+        if version < 3:
+            names.remove("score_calibration")
         missing = [n for n in names if n not in data]
         unknown = sorted(set(data) - set(names))
         if missing or unknown:
@@ -140,6 +152,7 @@ class ModelMetadata:
             nms_iou=check.number(data["nms_iou"], "nms_iou", 0.0, 1.0, closed=True),
             top_k=check.count(data["top_k"], "top_k"),
             proposals=check.proposals(data["proposals"], "proposals"),
+            score_calibration=check.calibration(data.get("score_calibration"), "score_calibration"),
             content_sha256=check.digest(data["content_sha256"], "content_sha256"),
             provenance=check.mapping(data["provenance"], "provenance"),
         )
@@ -358,6 +371,17 @@ class _Checker:
         if isinstance(value, ProposalConfig):  # schema 1, already converted
             return value
         return proposal_config_from_dict(value, f"{self.where}: a3d metadata {key}")
+
+    def calibration(self, value: Any, key: str) -> ScoreCalibration | None:
+        if value is None:
+            return None
+        if not isinstance(value, dict) or sorted(value) != ["intercept", "iou", "slope"]:
+            raise self.fail(key, "null or an object of slope, intercept and iou", value)
+        slope = self.array(value["slope"], f"{key}.slope", (NUM_CLASSES,))
+        if not np.all(slope > 0):
+            raise self.fail(f"{key}.slope", "positive numbers", value["slope"])
+        intercept = self.array(value["intercept"], f"{key}.intercept", (NUM_CLASSES,))
+        return ScoreCalibration(slope, intercept, self.number(value["iou"], f"{key}.iou", 0.0, 1.0))
 
     def count(self, value: Any, key: str) -> int:
         if not isinstance(value, int) or isinstance(value, bool) or value < 1:
