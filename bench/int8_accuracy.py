@@ -28,7 +28,8 @@ Time: each export and a3d-run takes a minute or two for a CPU preset on 200 fram
 bootstrap about 4 s per resample there (4 evaluations).
 
 Writes WORK/VARIANT.onnx (the SVD ones named with their rank, e.g. svd128+int8.onnx),
-WORK/VARIANT.jsonl, WORK/eval_VARIANT/eval.json and WORK/summary.json; ``--reuse`` keeps the
+WORK/VARIANT/detections.jsonl, WORK/VARIANT/eval/eval.json (bench.train_synth.run_and_score, with
+the a3d-run and a3d-eval logs beside them) and WORK/summary.json; ``--reuse`` keeps the
 exports and detections already in WORK (e.g. to try another rank; they must come from the same
 checkpoint and frames).
 """
@@ -37,15 +38,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
-import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
 
-from bench.edge_speed import BIN, export_model, frame_subset
+from bench.edge_speed import export_model, frame_subset
+from bench.train_synth import run_and_score
 
 TARGET_POINTS = 1.0
 PRIMARY_IOU = 0.25
@@ -61,21 +60,6 @@ def default_rank(checkpoint: Path) -> int:
     from a3d.train.checkpoint import checkpoint_config
 
     return max(1, checkpoint_config(checkpoint).net.fc6 // 4)
-
-
-def detect_and_score(model: Path, frames: Path, detections: Path, threads: int, reuse: bool) -> dict:
-    """a3d-run (unless ``reuse`` finds its output) then a3d-eval on ``frames``: eval.json's "map"
-    entry and the run's wall seconds (NaN when reused)."""
-    seconds = math.nan
-    if not (reuse and detections.is_file()):
-        start = time.perf_counter()
-        subprocess.run([str(BIN / "a3d-run"), str(frames), "--model", str(model), "--output", str(detections),
-                        "--threads", str(threads), "--headless"], check=True)  # fmt: skip
-        seconds = time.perf_counter() - start
-    out = detections.with_name(f"eval_{detections.stem}")
-    subprocess.run([str(BIN / "a3d-eval"), str(frames), "--detections", str(detections), "--out", str(out)],
-                   check=True, stdout=subprocess.DEVNULL)  # fmt: skip
-    return {"map": json.loads((out / "eval.json").read_text())["map"], "run_seconds": seconds}
 
 
 def bootstrap_maps(
@@ -140,23 +124,23 @@ def main(argv: list[str] | None = None) -> int:
         if not (args.reuse and model.is_file()):
             export_model(args.checkpoint, model, frames, calib=args.calib, calib_frames=args.calib_frames,
                          threads=args.threads, **options)  # fmt: skip
-        detections[name] = args.work / f"{stem}.jsonl"
-        results[name] = detect_and_score(model, frames, detections[name], args.threads, args.reuse)
+        results[name] = run_and_score(model, frames, args.work / stem, args.threads, args.reuse)
+        detections[name] = args.work / stem / "detections.jsonl"
     intervals = bootstrap_costs(frames, detections, args.bootstrap) if args.bootstrap else {}
 
     key = f"{PRIMARY_IOU:g}"
-    base = results["fp32"]["map"][key]
+    base = results["fp32"]
     print(f"\nmAP@{key} of {args.checkpoint} on {frames}, SVD rank {args.svd} (percent; cost = fp32 minus "
           f"the variant, points; 90 % bootstrap interval over {args.bootstrap} resamples)")  # fmt: skip
     print(f"  {'variant':10s}{'19 classes':>11s}{'cost':>7s}{'interval':>16s}{'present':>9s}{'cost':>7s}"
           f"{'a3d-run s':>10s}")  # fmt: skip
     for name, result in results.items():
-        m = result["map"][key]
-        costs = [100 * (base[k] - m[k]) for k in ("all_classes", "present_classes")]
+        costs = [100 * (base[k] - result[k]) for k in ("map25_all", "map25_present")]
         interval = "[{:+.2f}, {:+.2f}]".format(*intervals[name]) if name in intervals else ""
-        print(f"  {name:10s}{100 * m['all_classes']:11.2f}{costs[0]:+7.2f}{interval:>16s}"
-              f"{100 * m['present_classes']:9.2f}{costs[1]:+7.2f}{result['run_seconds']:10.1f}")  # fmt: skip
-    cost = 100 * (base["all_classes"] - results["svd+int8"]["map"][key]["all_classes"])
+        seconds = result["detect_seconds"]
+        print(f"  {name:10s}{100 * result['map25_all']:11.2f}{costs[0]:+7.2f}{interval:>16s}"
+              f"{100 * result['map25_present']:9.2f}{costs[1]:+7.2f}{seconds:10.1f}")  # fmt: skip
+    cost = 100 * (base["map25_all"] - results["svd+int8"]["map25_all"])
     ok = cost <= TARGET_POINTS
     verdict = "PASS" if ok else "FAIL"
     print(f"  [{verdict}] svd {args.svd} + int8 costs <= {TARGET_POINTS} mAP point: {cost:+.2f}")

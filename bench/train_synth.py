@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import subprocess
 import sys
 import time
@@ -98,13 +99,21 @@ def detect_and_score(checkpoint: Path, test_dir: Path, out: Path, overrides: lis
     }
 
 
-def run_and_score(model: Path, test_dir: Path, out: Path) -> dict:
+def run_and_score(
+    model: Path, test_dir: Path, out: Path, threads: int | None = None, reuse: bool = False
+) -> dict:
     """An exported model's detections of the test frames through a3d-run (--headless, the model's
-    own settings), scored by a3d-eval: detect_and_score's numbers for an ONNX file."""
+    own settings; ``threads`` ONNX Runtime threads, default a3d-run's) in OUT/detections.jsonl,
+    scored by a3d-eval in OUT/eval: detect_and_score's numbers for an ONNX file. With ``reuse``
+    detections already in OUT are scored again (detect_seconds NaN)."""
     out.mkdir(parents=True, exist_ok=True)
-    detect_s = run([str(BIN / "a3d-run"), str(test_dir), "--model", str(model), "--output",
-                    str(out / "detections.jsonl"), "--headless"], log=out / "run.log")  # fmt: skip
-    eval_s = run([str(BIN / "a3d-eval"), str(test_dir), "--detections", str(out / "detections.jsonl"),
+    detections = out / "detections.jsonl"
+    detect_s = math.nan
+    if not (reuse and detections.is_file()):
+        command = [str(BIN / "a3d-run"), str(test_dir), "--model", str(model), "--output", str(detections),
+                   "--headless", *(["--threads", str(threads)] if threads else [])]  # fmt: skip
+        detect_s = run(command, log=out / "run.log")
+    eval_s = run([str(BIN / "a3d-eval"), str(test_dir), "--detections", str(detections),
                   "--out", str(out / "eval")], log=out / "eval.log")  # fmt: skip
     report = json.loads((out / "eval" / "eval.json").read_text())
     return {**scores_of(report), "detect_seconds": detect_s, "eval_seconds": eval_s}
