@@ -44,7 +44,7 @@ def test_summary_counts_what_a_user_should_see() -> None:
     summary.fail()
     assert summary.lines(["detections -> d.jsonl", "recording -> r.rrd"], now=102.0) == [
         "4 frames (1 failed) in 2.0 s, 2.00 frames/s",
-        "detections scoring >= 0.5 (the viewer's threshold): chair 3, table 1",
+        "detections scoring >= 0.5 (the viewer's threshold; softmax scores): chair 3, table 1",
         "gravity fallbacks on 2 frames (sources: estimated 1, fallback: camera axes 1, "
         "fallback: filled depth 1); "
         "frames with notes: 'depth mostly missing: N' 1, 'proposals capped at N' 2",
@@ -68,6 +68,16 @@ def test_progress_lines_every_interval_and_at_the_end() -> None:
     assert isinstance(make_progress("a3d-run", None, io.StringIO()), LineProgress)  # not a terminal
 
 
+def test_the_summary_says_when_the_scores_are_calibrated() -> None:
+    summary = RunSummary(min_score=0.5, calibrated=True, started=0.0)
+    summary.add(_line(["chair"], [0.7], "given"))
+    line = summary.lines([], now=1.0)[1]
+    assert line == (
+        "detections scoring >= 0.5 (the viewer's threshold; "
+        "calibrated scores: the chance a detection is right): chair 1"
+    )
+
+
 def test_a3d_run_prints_progress_and_the_summary_when_stderr_is_not_a_terminal(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -89,7 +99,7 @@ def test_a3d_run_prints_progress_and_the_summary_when_stderr_is_not_a_terminal(
         line.removeprefix("a3d-run: summary: ") for line in err if line.startswith("a3d-run: summary: ")
     ]
     assert summary[0].startswith("6 frames (0 failed) in ") and summary[0].endswith(" frames/s")
-    assert summary[1].startswith("detections scoring >= 0.5 (the viewer's threshold): ")
+    assert summary[1].startswith("detections scoring >= 0.5 (the viewer's threshold; softmax scores): ")
     assert summary[2].startswith("gravity fallbacks on 0 frames (sources: given 6)")
     assert summary[3] == f"outputs: detections -> {out}"
     assert err[-1] == f"a3d-run: 6 frames written to {out}, 0 failed"

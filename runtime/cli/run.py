@@ -306,7 +306,7 @@ def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] 
         count = len(job.source) if args.max_frames is None else min(len(job.source), args.max_frames)
         total = max(0, len(range(k, count, n)) - len(job.done))
     bar = make_progress(PROG, total)
-    summary = RunSummary(args.view_min_score)
+    summary = RunSummary(args.view_min_score, calibrated=job.config.score_calibration is not None)
     try:
         with _threads(1 if args.overlap == "on" else args.threads), _warnings_to_stderr():
             for outcome in _frames(todo, job, args):

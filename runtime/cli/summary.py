@@ -2,7 +2,9 @@
 
 Each frame's line holds ~200 detections with scores down to the written threshold; the summary
 counts, per class, only those at or above the viewer's threshold (``--view-min-score``, the
-score above which most shown boxes are right), so that a user sees what was found. It also
+score above which most shown boxes are right), so that a user sees what was found, and says
+which scores they are: the model's calibrated ones (the chance a detection is right,
+a3d.runtime.postprocess.score_calibration) or the network's softmax. It also
 counts the frames whose gravity was a fallback (by method) and the frames whose line carries
 notes, and gives the run's rate. The lines start with ``a3d-run: summary:``; the run's last
 line stays "N frames written to OUTPUT, M failed".
@@ -25,6 +27,7 @@ class RunSummary:
     """Accumulates the processed frames of a run (``add``) and the failed ones (``fail``)."""
 
     min_score: float
+    calibrated: bool = False  # the scores are the model's calibrated ones
     started: float = field(default_factory=time.monotonic)
     frames: int = 0
     failed: int = 0
@@ -53,9 +56,10 @@ class RunSummary:
         sources = ", ".join(f"{source} {n}" for source, n in sorted(self.gravity.items())) or "no frame"
         notes = ", ".join(f"'{kind}' {n}" for kind, n in sorted(self.noted.items())) or "none"
         dropped = "" if self.dropped is None else f", {self.dropped} stale frames dropped"
+        scores = "calibrated scores: the chance a detection is right" if self.calibrated else "softmax scores"
         return [
             f"{done} frames ({self.failed} failed{dropped}) in {elapsed:.1f} s, {rate:.2f} frames/s",
-            f"detections scoring >= {self.min_score:g} (the viewer's threshold): {found}",
+            f"detections scoring >= {self.min_score:g} (the viewer's threshold; {scores}): {found}",
             f"gravity fallbacks on {fallbacks} frames (sources: {sources}); frames with notes: {notes}",
             f"outputs: {'; '.join(outputs)}",
         ]
