@@ -3,6 +3,8 @@ the pipeline, and that it leaves every class's ranking, hence every AP, as it wa
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -158,3 +160,43 @@ def test_calibrate_fits_the_bundled_model_on_the_samples_and_reports_what_it_saw
     # fitted on these frames, the calibrated scores >= 0.5 are right at least half the time
     assert shares["calibrated"]["right_share"] >= 0.5
     assert shares["softmax"]["detections"] > 0
+
+
+def test_a3d_run_writes_calibrated_scores_and_raw_scores_on_request(tmp_path, capsys) -> None:
+    """The bundled network with a calibration in its file, through a3d-run: the same detections as
+    without, scores mapped; --raw-scores gives the softmax back; the summary says which."""
+    import onnx
+
+    from a3d.export.onnx_export import save_model
+    from a3d.runtime.cli import run as run_cli
+    from a3d.runtime.io.detections_io import read_detections
+    from a3d.runtime.network.model import DetectorModel
+    from tests.helpers.samples import SAMPLE_MODEL, SAMPLES
+
+    rng = np.random.default_rng(5)
+    cal = ScoreCalibration(rng.uniform(1.0, 2.0, NUM_CLASSES), rng.normal(-1, 0.5, NUM_CLASSES), 0.25)
+    metadata = DetectorModel.load(SAMPLE_MODEL, threads=1).metadata
+    model = tmp_path / "calibrated.onnx"
+    save_model(onnx.load(str(SAMPLE_MODEL)), replace(metadata, score_calibration=cal), model)
+    lines = {}
+    for name, extra in (("plain", ["--model", str(SAMPLE_MODEL)]), ("calibrated", ["--model", str(model)]),
+                        ("raw", ["--model", str(model), "--raw-scores"])):  # fmt: skip
+        out = tmp_path / f"{name}.jsonl"
+        assert run_cli.main([str(SAMPLES), "--output", str(out), "--headless", *extra]) == 0
+        summary = [line for line in capsys.readouterr().err.splitlines() if "the viewer's threshold" in line]
+        assert ("calibrated scores" in summary[0]) == (name == "calibrated"), summary
+        lines[name] = {d.frame: d for d in read_detections(out)}
+    for frame, plain in lines["plain"].items():
+        got, raw = lines["calibrated"][frame], lines["raw"][frame]
+        np.testing.assert_array_equal(raw.scores, plain.scores)
+        key = lambda d: sorted(zip(d.class_ids.tolist(), d.boxes2d.tolist(), strict=True))  # noqa: E731
+        assert key(got) == key(plain)
+        by_box = {
+            (c, tuple(b)): s
+            for c, b, s in zip(plain.class_ids, plain.boxes2d.tolist(), plain.scores, strict=True)
+        }
+        before = np.array(
+            [by_box[(c, tuple(b))] for c, b in zip(got.class_ids, got.boxes2d.tolist(), strict=True)]
+        )
+        # the lines round scores to 1e-6; slopes >= 1 keep the map's derivative below ~2 everywhere
+        np.testing.assert_allclose(got.scores, cal.apply(before, got.class_ids), atol=1e-5)
