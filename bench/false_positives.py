@@ -10,7 +10,10 @@ frames of FOLDER whose ground truth lists no object (frames without a ground-tru
 left out: nothing says they are empty), the detections at or above the threshold: per frame
 (mean and maximum), the share of frames with any, and per class. Beside it, over every annotated
 frame, how many detections reach the threshold and which share of them is right (3D IoU >= 0.25,
-a3d-eval's matching): what the threshold means to a user. Detections come from
+a3d-eval's matching): what the threshold means to a user, and what the others are: a box of the
+right class too far off (3D IoU above 0 but below 0.25 with an object of its class; a duplicate
+of a matched object counts with the right ones here), on an object of another class (3D IoU > 0.1
+with it), or on no labelled object at all (clutter, walls, floor). Detections come from
 ``--detections`` (the README detections format, e.g. a3d-run's output) or from running
 ``a3d-run --headless`` with ``--model`` (written to OUT, default FOLDER/../false_positives.jsonl).
 Prints the report and writes it as JSON next to the detections (``.report.json``).
@@ -25,12 +28,16 @@ import sys
 from collections import Counter
 from pathlib import Path
 
-from a3d.runtime.evaluation.metric import EvalConfig, evaluate
+import numpy as np
+
+from a3d.runtime.evaluation.metric import EvalConfig, FrameTruth, evaluate
 from a3d.runtime.evaluation.truth import load_truth
 from a3d.runtime.io.detections_io import read_detections
 from a3d.runtime.sources.folder import list_frames, read_ground_truth
+from a3d.runtime.structures.geometry import iou_3d
 
 IOU = 0.25
+OTHER_CLASS_IOU = 0.1
 
 BIN = Path(sys.executable).parent
 
@@ -82,7 +89,27 @@ def right_share(folder: Path, detections: Path, threshold: float = 0.5) -> dict:
     kept = [c.true_positives(IOU)[c.scores >= threshold] for c in result.classes]
     right, total = sum(int(k.sum()) for k in kept), sum(len(k) for k in kept)
     share = right / total if total else None
-    return {"frames": len(truth), "detections": total, "right": right, "share": share, "iou": IOU}
+    kinds = Counter(
+        _kind(truth[name], c, box) for name, d in found.items()
+        for c, score, box in zip(d.class_ids, d.scores, d.boxes3d, strict=True) if score >= threshold
+    )  # fmt: skip
+    return {"frames": len(truth), "detections": total, "right": right, "share": share, "iou": IOU,
+            "kinds": {k: kinds[k] for k in KINDS}}  # fmt: skip
+
+
+KINDS = ("right_or_duplicate", "same_class_poor_box", "other_class_object", "no_labelled_object")
+
+
+def _kind(truth: FrameTruth, class_id: int, box: np.ndarray) -> str:
+    """Which of KINDS one detection is, by its best 3D IoU with the frame's objects."""
+    same = truth.boxes3d[truth.class_ids == class_id]
+    best = iou_3d(box[None], same, truth.R_tilt).max() if len(same) else 0.0
+    if best >= IOU:
+        return KINDS[0]
+    if best > 0.0:
+        return KINDS[1]
+    other = iou_3d(box[None], truth.boxes3d, truth.R_tilt).max() if len(truth.boxes3d) else 0.0
+    return KINDS[2] if other > OTHER_CLASS_IOU else KINDS[3]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -120,10 +147,11 @@ def main(argv: list[str] | None = None) -> int:
     print(json.dumps(report, indent=1))
     every = report["all_frames"]
     share = "none" if every["share"] is None else f"{100 * every['share']:.0f}% right"
+    others = ", ".join(f"{k} {n}" for k, n in every["kinds"].items() if k != KINDS[0])
     print(f"detections >= {args.threshold} per empty frame: {report['per_frame']:.2f} "
           f"over {report['empty_frames']} frames (max {report['max_per_frame']}); over all "
           f"{every['frames']} frames {every['detections']} detections >= {args.threshold}, "
-          f"{share}")  # fmt: skip
+          f"{share}; the others: {others}")  # fmt: skip
     return 0
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from a3d.runtime.cli import eval as eval_cli
@@ -111,6 +112,8 @@ def test_false_positives_runs_a3d_run_on_the_empty_frames(tmp_path: Path) -> Non
     assert sum(report["by_class"].values()) == report["detections"]
     every = report["all_frames"]  # no object to get right in rooms without one
     assert every["frames"] == 2 and every["detections"] == report["detections"] and every["right"] == 0
+    assert every["kinds"] == {"right_or_duplicate": 0, "same_class_poor_box": 0, "other_class_object": 0,
+                              "no_labelled_object": report["detections"]}  # fmt: skip
     assert false_positives.main([str(folder), "--detections", str(tmp_path / "missing.jsonl")]) == 1
 
 
@@ -132,6 +135,27 @@ def test_right_share_counts_the_detections_the_evaluator_matched() -> None:
     confident = false_positives.right_share(SAMPLES, PINNED_DETECTIONS, 0.5)
     assert 0 < confident["detections"] < everything["detections"]
     assert confident["share"] > everything["share"]
+    for report in (everything, confident):  # every detection is of one kind; the right ones among the first
+        assert sum(report["kinds"].values()) == report["detections"]
+        assert report["kinds"]["right_or_duplicate"] >= report["right"]
+    assert everything["kinds"]["same_class_poor_box"] > 0 and everything["kinds"]["no_labelled_object"] > 0
+
+
+def test_each_detection_is_of_one_kind_by_its_best_3d_iou() -> None:
+    from a3d.runtime.evaluation.metric import FrameTruth
+
+    chair, table = 4, 16
+    truth = FrameTruth(
+        np.array([chair, table]), np.array([[0, 0, 3, 1, 1, 1, 0], [3, 0, 3, 1, 1, 1, 0.0]]), np.eye(3)
+    )
+    cases = {
+        (chair, (0.1, 0, 3)): "right_or_duplicate",  # IoU 0.82
+        (chair, (0.8, 0, 3)): "same_class_poor_box",  # IoU 0.11
+        (chair, (3, 0, 3)): "other_class_object",  # on the table
+        (table, (0, 0, 6)): "no_labelled_object",  # 2 m behind both
+    }
+    for (c, centre), kind in cases.items():
+        assert false_positives._kind(truth, c, np.array([*centre, 1, 1, 1, 0.0])) == kind, (c, centre)
 
 
 def test_background_rois_at_bound_zero_keep_the_empty_rooms(tmp_path: Path) -> None:
