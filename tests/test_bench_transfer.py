@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from a3d.runtime.cli import eval as eval_cli
-from a3d.runtime.evaluation.metric import EvalConfig, evaluate
+from a3d.runtime.evaluation.metric import EvalConfig, FrameTruth, evaluate
+from a3d.runtime.evaluation.truth import load_truth
 from a3d.runtime.io.detections_io import read_detections
 from a3d.runtime.sources.folder import list_frames, read_ground_truth
 from a3d.synth.cli import main as synth_main
@@ -120,9 +121,6 @@ def test_false_positives_runs_a3d_run_on_the_empty_frames(tmp_path: Path) -> Non
 def test_right_share_counts_the_detections_the_evaluator_matched() -> None:
     """On the samples' pinned output: at threshold 0 every detection counts and the right ones are
     the true positives behind a3d-eval's recall; a higher threshold keeps fewer, a larger share right."""
-    from a3d.runtime.evaluation.metric import EvalConfig, evaluate
-    from a3d.runtime.evaluation.truth import load_truth
-
     truth, _ = load_truth(SAMPLES)
     result = evaluate(
         truth, {d.frame: d for d in read_detections(PINNED_DETECTIONS)}, EvalConfig(iou_thresholds=(0.25,))
@@ -142,8 +140,6 @@ def test_right_share_counts_the_detections_the_evaluator_matched() -> None:
 
 
 def test_each_detection_is_of_one_kind_by_its_best_3d_iou() -> None:
-    from a3d.runtime.evaluation.metric import FrameTruth
-
     chair, table = 4, 16
     truth = FrameTruth(
         np.array([chair, table]), np.array([[0, 0, 3, 1, 1, 1, 0], [3, 0, 3, 1, 1, 1, 0.0]]), np.eye(3)
