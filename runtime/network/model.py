@@ -47,9 +47,8 @@ from a3d.runtime.postprocess.score_calibration import ScoreCalibration
 from a3d.runtime.structures.boxes import BOX_DIM
 from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES, NUM_OUTPUTS
 
-SCHEMA_VERSION = (
-    3  # 2: min_score (was score_threshold), max_proposals only inside proposals; 3: score_calibration
-)
+# 2: min_score (was score_threshold), max_proposals only inside proposals; 3: score_calibration
+SCHEMA_VERSION = 3
 METADATA_KEY = "a3d"
 INPUT_NAMES = ("color", "depth", "rois", "context_rois")
 OUTPUT_NAMES = ("class_probs", "deltas3d", "deltas2d")
