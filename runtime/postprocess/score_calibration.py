@@ -10,10 +10,12 @@ class of the score's logit (Platt scaling):
 
 fitted (``fit_calibration``) to whether each detection of annotated frames the model did not
 train on was right under the evaluation's matching (3D IoU >= ``iou``, greedy by score, a
-duplicate is wrong; a3d.runtime.evaluation.metric). Each map is strictly increasing, so within a
-class the order of the detections, and with it per-class top-k, per-class NMS and every AP, is
-unchanged; only what a threshold means changes: 0.5 is "as likely right as wrong" on frames like
-the calibration frames.
+duplicate is wrong; a3d.runtime.evaluation.metric). Each map is strictly increasing on scores in
+[SCORE_EPS, 1 - SCORE_EPS], so within a class the order of the detections, and with it per-class
+top-k, per-class NMS and every AP, is unchanged; only what a threshold means changes: 0.5 is "as
+likely right as wrong" on frames like the calibration frames. Scores outside that range are
+clipped to it first, so those below 1e-7 (or above 1 - 1e-7) tie with one another after the map;
+the detections that can reorder are only ones the softmax itself put below 1e-7.
 
 A class with few detections borrows strength from the fit over all classes: its two parameters
 have a Gaussian prior centred on the pooled ones, ``PRIOR_WEIGHT`` strong: about what eight
