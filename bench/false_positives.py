@@ -32,7 +32,7 @@ import numpy as np
 
 from a3d.runtime.evaluation.metric import EvalConfig, FrameTruth, evaluate
 from a3d.runtime.evaluation.truth import load_truth
-from a3d.runtime.io.detections_io import read_detections
+from a3d.runtime.io.detections_io import FrameDetections, read_detections
 from a3d.runtime.sources.folder import list_frames, read_ground_truth
 from a3d.runtime.structures.geometry import iou_3d
 
@@ -52,18 +52,22 @@ def empty_frames(folder: Path) -> list[str]:
     return names
 
 
-def count_false_positives(folder: Path, detections: Path, threshold: float = 0.5) -> dict | None:
-    """The report (module docstring) of ``detections`` on the empty frames of ``folder``; None
+def by_frame(detections: Path) -> dict[str, FrameDetections]:
+    """A detections file's lines by frame name, read once for every count below."""
+    return {d.frame: d for d in read_detections(detections)}
+
+
+def count_false_positives(
+    folder: Path, by_frame: dict[str, FrameDetections], threshold: float = 0.5
+) -> dict | None:
+    """The report (module docstring) of the detections on the empty frames of ``folder``; None
     when it has none. An empty frame missing from the detections is an error (a failed frame)."""
     empty = empty_frames(folder)
     if not empty:
         return None
-    by_frame = {d.frame: d for d in read_detections(detections)}
     missing = [name for name in empty if name not in by_frame]
     if missing:
-        raise ValueError(
-            f"{detections}: no detections line for {len(missing)} empty frames, e.g. {missing[0]}"
-        )
+        raise ValueError(f"no detections line for {len(missing)} empty frames, e.g. {missing[0]}")
     counts, classes = [], Counter()
     for name in empty:
         det = by_frame[name]
@@ -81,10 +85,10 @@ def count_false_positives(folder: Path, detections: Path, threshold: float = 0.5
     }
 
 
-def right_share(folder: Path, detections: Path, threshold: float = 0.5) -> dict:
+def right_share(folder: Path, by_frame: dict[str, FrameDetections], threshold: float = 0.5) -> dict:
     """Detections >= ``threshold`` on the annotated frames of ``folder`` and how many are right."""
     truth, _ = load_truth(folder)
-    found = {d.frame: d for d in read_detections(detections) if d.frame in truth}
+    found = {name: d for name, d in by_frame.items() if name in truth}
     result = evaluate(truth, found, EvalConfig(iou_thresholds=(IOU,)))
     kept = [c.true_positives(IOU)[c.scores >= threshold] for c in result.classes]
     right, total = sum(int(k.sum()) for k in kept), sum(len(k) for k in kept)
@@ -134,11 +138,12 @@ def main(argv: list[str] | None = None) -> int:
             print(f"false_positives: a3d-run failed on {args.folder}", file=sys.stderr)
             return 1
     try:
-        report = count_false_positives(args.folder, detections, args.threshold)
+        lines = by_frame(detections)
+        report = count_false_positives(args.folder, lines, args.threshold)
         if report is not None:
-            report["all_frames"] = right_share(args.folder, detections, args.threshold)
+            report["all_frames"] = right_share(args.folder, lines, args.threshold)
     except (OSError, ValueError) as e:
-        print(f"false_positives: {e}", file=sys.stderr)
+        print(f"false_positives: {detections}: {e}", file=sys.stderr)
         return 1
     if report is None:
         print(f"false_positives: {args.folder}: no frame with an empty ground truth", file=sys.stderr)

@@ -31,7 +31,7 @@ import json
 import sys
 from pathlib import Path
 
-from bench.false_positives import count_false_positives
+from bench.false_positives import by_frame, count_false_positives
 from bench.train_synth import detect_and_score, run_and_score, synthesize, train
 
 NYU_SIZE = (427, 561)
@@ -153,7 +153,7 @@ def main(argv: list[str] | None = None) -> int:
             table[a][b] = scores["map25_all"]
             summary["scores"][f"{a}->{b}"] = scores
             summary["false_positives"][f"{a}->{b}"] = count_false_positives(
-                test_dir, out / "detections.jsonl"
+                test_dir, by_frame(out / "detections.jsonl")
             )
     summary["map25"] = table
     summary["drop"] = drops(table)

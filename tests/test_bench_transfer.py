@@ -125,12 +125,12 @@ def test_right_share_counts_the_detections_the_evaluator_matched() -> None:
     result = evaluate(
         truth, {d.frame: d for d in read_detections(PINNED_DETECTIONS)}, EvalConfig(iou_thresholds=(0.25,))
     )
-    everything = false_positives.right_share(SAMPLES, PINNED_DETECTIONS, 0.0)
+    everything = false_positives.right_share(SAMPLES, false_positives.by_frame(PINNED_DETECTIONS), 0.0)
     assert everything["detections"] == sum(c.num_det for c in result.classes)
     assert everything["right"] == round(
         sum(c.recall[0.25][-1] * c.num_gt for c in result.classes if c.num_det)
     )
-    confident = false_positives.right_share(SAMPLES, PINNED_DETECTIONS, 0.5)
+    confident = false_positives.right_share(SAMPLES, false_positives.by_frame(PINNED_DETECTIONS), 0.5)
     assert 0 < confident["detections"] < everything["detections"]
     assert confident["share"] > everything["share"]
     for report in (everything, confident):  # every detection is of one kind; the right ones among the first
