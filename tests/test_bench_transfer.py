@@ -18,7 +18,7 @@ from a3d.runtime.sources.folder import list_frames, read_ground_truth
 from a3d.synth.cli import main as synth_main
 from a3d.train.config import apply_overrides, load_config
 from bench import background_rois, false_positives, transfer
-from tests.helpers.samples import PINNED_DETECTIONS, SAMPLE_MODEL, SAMPLES
+from tests.helpers.samples import PINNED_DETECTIONS, PINNED_MODEL, SAMPLE_MODEL, SAMPLES
 from tests.helpers.train_scenes import TINY
 
 pytestmark = pytest.mark.filterwarnings("ignore::FutureWarning", "ignore::DeprecationWarning")
@@ -79,7 +79,7 @@ def test_transfer_scores_given_models_on_given_test_folders(tmp_path: Path) -> N
     args = ["--frames", "2", "--seed", "3", "--world", "real", "--empty-share", "0.5", "--split", "test=1"]
     assert synth_main([str(tmp_path / "set"), *args, "--camera-scale", "0.25"]) == 0
     out = tmp_path / "out"
-    given = [f"--model=plain={SAMPLE_MODEL}", f"--model=real={SAMPLE_MODEL}", f"--test=plain={SAMPLES}",
+    given = [f"--model=plain={PINNED_MODEL}", f"--model=real={PINNED_MODEL}", f"--test=plain={SAMPLES}",
              f"--test=real={tmp_path / 'set' / 'test'}"]  # fmt: skip
     assert transfer.main(["--out", str(out), "--worlds", "plain,real", *given]) == 0
     assert not list(out.glob("*/data")) and not list(out.glob("*/run"))

@@ -15,19 +15,20 @@ from a3d.runtime.sources.arrays import ArrayError
 from a3d.runtime.sources.folder import FolderSource, read_meta
 from a3d.runtime.structures.classes import class_index
 from tests.helpers.samples import PINNED_DETECTIONS as PINNED
-from tests.helpers.samples import SAMPLES
+from tests.helpers.samples import PINNED_MODEL, SAMPLES
 
 
 @pytest.fixture(scope="module")
 def run_lines(tmp_path_factory: pytest.TempPathFactory) -> dict[str, dict]:
     out = tmp_path_factory.mktemp("run") / "det.jsonl"
-    assert run_cli.main([str(SAMPLES), "--output", str(out), "--headless", "--threads", "2"]) == 0
+    argv = [str(SAMPLES), "--model", str(PINNED_MODEL), "--output", str(out), "--headless", "--threads", "2"]
+    assert run_cli.main(argv) == 0
     return {d["frame"]: d for d in map(json.loads, out.read_text().splitlines())}
 
 
 @pytest.fixture(scope="module")
 def detector() -> Detector:
-    return Detector.load(SAMPLES / "model.onnx", threads=2)
+    return Detector.load(PINNED_MODEL, threads=2)
 
 
 def _without_files(line: dict) -> dict:

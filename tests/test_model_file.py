@@ -32,6 +32,7 @@ from a3d.runtime.network.model import (
 from a3d.runtime.network.preprocess import COLOR_MEAN_BGR, DEPTH_MEAN
 from a3d.runtime.postprocess.score_calibration import ScoreCalibration
 from a3d.runtime.structures.classes import CLASSES
+from tests.helpers.samples import PINNED_MODEL
 
 RNG = np.random.default_rng(7)
 W_CLS = RNG.normal(size=(8, 20)).astype(np.float32)
@@ -247,9 +248,10 @@ def test_a_model_whose_inputs_or_outputs_differ_is_refused(tmp_path: Path, graph
 
 
 def test_schema_1_metadata_reads_into_todays_fields() -> None:
-    """samples/model.onnx is a schema 1 file: score_threshold becomes min_score and the top-level
-    max_proposals the proposal settings' cap (it overrode proposal_config's), one value each."""
-    path = Path(__file__).resolve().parents[1] / "samples" / "model.onnx"
+    """The pinned model (the one bundled before the new world) is a schema 1 file: score_threshold
+    becomes min_score and the top-level max_proposals the proposal settings' cap (it overrode
+    proposal_config's), one value each."""
+    path = PINNED_MODEL
     props = {p.key: p.value for p in onnx.load(str(path), load_external_data=False).metadata_props}
     old = json.loads(props[METADATA_KEY])
     assert old["schema_version"] == 1

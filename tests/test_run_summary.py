@@ -99,7 +99,11 @@ def test_a3d_run_prints_progress_and_the_summary_when_stderr_is_not_a_terminal(
         line.removeprefix("a3d-run: summary: ") for line in err if line.startswith("a3d-run: summary: ")
     ]
     assert summary[0].startswith("6 frames (0 failed) in ") and summary[0].endswith(" frames/s")
-    assert summary[1].startswith("detections scoring >= 0.5 (the viewer's threshold; softmax scores): ")
+    # the bundled model carries a score calibration (tests/test_samples.py)
+    assert summary[1].startswith(
+        "detections scoring >= 0.5 (the viewer's threshold; "
+        "calibrated scores: the chance a detection is right): "
+    )
     assert summary[2].startswith("gravity fallbacks on 0 frames (sources: given 6)")
     assert summary[3] == f"outputs: detections -> {out}"
     assert err[-1] == f"a3d-run: 6 frames written to {out}, 0 failed"

@@ -33,6 +33,7 @@ def test_bundled_model_is_small_and_self_describing() -> None:
     assert tuple(meta.classes) == CLASSES
     assert np.all(np.asarray(meta.mean_sizes) > 0)
     assert meta.provenance.get("training_config"), "the bundled model must say how it was trained"
+    assert meta.score_calibration is not None, "its scores are the chance a detection is right"
 
 
 @pytest.fixture(scope="module")
@@ -95,18 +96,20 @@ def _pins_not_installed() -> list[str]:
 
 def test_samples_map_equals_the_readmes_under_the_pinned_versions(main_command: tuple[Path, Path]) -> None:
     """The README's samples mAP is what the pinned versions give (other versions move it by ~1 point)
-    on this kind of CPU: it quotes one number for AVX2 and one for int8 dot products."""
+    on a CPU with int8 dot products, where it was measured; AVX2's int8 kernels round differently
+    (a3d.runtime.network.cpu_support) and the README has no number for them."""
     differ = _pins_not_installed()
     if differ:
         pytest.skip("installed versions differ from constraints.txt: " + ", ".join(differ))
     readme = (ROOT / "README.md").read_text()
-    quoted = re.search(
-        r"([\d.]+) on the samples'\s+(\d+) present classes;\s+([\d.]+) where the\s+CPU has int8", readme
-    )
-    assert quoted, "README.md no longer quotes the samples' present-class mAP for both kinds of CPU"
+    quoted = re.search(r"([\d.]+) on the samples'\s+(\d+) present classes where the\s+CPU has int8", readme)
+    assert quoted, "README.md no longer quotes the samples' present-class mAP"
     truth, _ = eval_cli.load_truth(SAMPLES)
     detections = {d.frame: d for d in read_detections(main_command[0])}
     result = evaluate(truth, detections, EvalConfig())
     assert sum(c.present for c in result.classes) == int(quoted.group(2))
-    expected = quoted.group(3) if int8_dot_products() else quoted.group(1)
-    assert round(100 * result.map_present(0.25), 1) == pytest.approx(float(expected), abs=0.1)
+    if not int8_dot_products():
+        pytest.skip(
+            "the README quotes the samples' mAP measured with int8 dot products; this CPU has AVX2 only"
+        )
+    assert round(100 * result.map_present(0.25), 1) == pytest.approx(float(quoted.group(1)), abs=0.1)

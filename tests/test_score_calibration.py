@@ -144,14 +144,15 @@ def test_calibrated_scores_leave_every_ap_as_it_was() -> None:
                            np.concatenate([d.scores for d in raw.values()]))  # fmt: skip
 
 
-def test_calibrate_fits_the_bundled_model_on_the_samples_and_reports_what_it_saw() -> None:
-    """a3d-export's step on a real model: every annotated sample frame, the evaluator's flags."""
+def test_calibrate_fits_a_trained_model_on_the_samples_and_reports_what_it_saw() -> None:
+    """a3d-export's step on a real model (the pinned one, never calibrated): every annotated sample
+    frame, the evaluator's flags."""
     from a3d.export.score_calibration import calibrate
     from a3d.runtime.evaluation.truth import load_truth
     from a3d.runtime.network.model import DetectorModel
-    from tests.helpers.samples import SAMPLE_MODEL, SAMPLES
+    from tests.helpers.samples import PINNED_MODEL, SAMPLES
 
-    calibration, report = calibrate(DetectorModel.load(SAMPLE_MODEL, threads=2), SAMPLES, "test")
+    calibration, report = calibrate(DetectorModel.load(PINNED_MODEL, threads=2), SAMPLES, "test")
     truth, _ = load_truth(SAMPLES)
     assert report["frames"] == len(truth) and report["iou"] == calibration.iou == 0.25
     assert 0 < report["right"] < report["detections"]
@@ -163,23 +164,23 @@ def test_calibrate_fits_the_bundled_model_on_the_samples_and_reports_what_it_saw
 
 
 def test_a3d_run_writes_calibrated_scores_and_raw_scores_on_request(tmp_path, capsys) -> None:
-    """The bundled network with a calibration in its file, through a3d-run: the same detections as
-    without, scores mapped; --raw-scores gives the softmax back; the summary says which."""
+    """A network without calibration (the pinned model) and with one in its file, through a3d-run:
+    the same detections, scores mapped; --raw-scores gives the softmax back; the summary says which."""
     import onnx
 
     from a3d.export.onnx_export import save_model
     from a3d.runtime.cli import run as run_cli
     from a3d.runtime.io.detections_io import read_detections
     from a3d.runtime.network.model import DetectorModel
-    from tests.helpers.samples import SAMPLE_MODEL, SAMPLES
+    from tests.helpers.samples import PINNED_MODEL, SAMPLES
 
     rng = np.random.default_rng(5)
     cal = ScoreCalibration(rng.uniform(1.0, 2.0, NUM_CLASSES), rng.normal(-1, 0.5, NUM_CLASSES), 0.25)
-    metadata = DetectorModel.load(SAMPLE_MODEL, threads=1).metadata
+    metadata = DetectorModel.load(PINNED_MODEL, threads=1).metadata
     model = tmp_path / "calibrated.onnx"
-    save_model(onnx.load(str(SAMPLE_MODEL)), replace(metadata, score_calibration=cal), model)
+    save_model(onnx.load(str(PINNED_MODEL)), replace(metadata, score_calibration=cal), model)
     lines = {}
-    for name, extra in (("plain", ["--model", str(SAMPLE_MODEL)]), ("calibrated", ["--model", str(model)]),
+    for name, extra in (("plain", ["--model", str(PINNED_MODEL)]), ("calibrated", ["--model", str(model)]),
                         ("raw", ["--model", str(model), "--raw-scores"])):  # fmt: skip
         out = tmp_path / f"{name}.jsonl"
         assert run_cli.main([str(SAMPLES), "--output", str(out), "--headless", *extra]) == 0
