@@ -58,19 +58,19 @@ def by_frame(detections: Path) -> dict[str, FrameDetections]:
 
 
 def count_false_positives(
-    folder: Path, by_frame: dict[str, FrameDetections], threshold: float = 0.5
+    folder: Path, lines: dict[str, FrameDetections], threshold: float = 0.5
 ) -> dict | None:
     """The report (module docstring) of the detections on the empty frames of ``folder``; None
     when it has none. An empty frame missing from the detections is an error (a failed frame)."""
     empty = empty_frames(folder)
     if not empty:
         return None
-    missing = [name for name in empty if name not in by_frame]
+    missing = [name for name in empty if name not in lines]
     if missing:
         raise ValueError(f"no detections line for {len(missing)} empty frames, e.g. {missing[0]}")
     counts, classes = [], Counter()
     for name in empty:
-        det = by_frame[name]
+        det = lines[name]
         keep = det.scores >= threshold
         counts.append(int(keep.sum()))
         classes.update(c for c, k in zip(det.classes, keep, strict=True) if k)
@@ -85,10 +85,10 @@ def count_false_positives(
     }
 
 
-def right_share(folder: Path, by_frame: dict[str, FrameDetections], threshold: float = 0.5) -> dict:
+def right_share(folder: Path, lines: dict[str, FrameDetections], threshold: float = 0.5) -> dict:
     """Detections >= ``threshold`` on the annotated frames of ``folder`` and how many are right."""
     truth, _ = load_truth(folder)
-    found = {name: d for name, d in by_frame.items() if name in truth}
+    found = {name: d for name, d in lines.items() if name in truth}
     result = evaluate(truth, found, EvalConfig(iou_thresholds=(IOU,)))
     kept = [c.true_positives(IOU)[c.scores >= threshold] for c in result.classes]
     right, total = sum(int(k.sum()) for k in kept), sum(len(k) for k in kept)
