@@ -65,7 +65,7 @@ def test_transfer_table_and_false_positives_end_to_end(tmp_path: Path, monkeypat
     assert empty
     for a in ("plain", "clutter"):
         fp = report["false_positives"][f"{a}->clutter"]
-        dets = {d.frame: d for d in read_detections(tmp_path / a / "on_clutter" / "detections.jsonl")}
+        dets = false_positives.by_frame(tmp_path / a / "on_clutter" / "detections.jsonl")
         expected = sum(int((dets[n].scores >= 0.5).sum()) for n in empty)
         assert fp["empty_frames"] == len(empty) and fp["detections"] == expected
         assert fp["per_frame"] == pytest.approx(expected / len(empty))
@@ -87,7 +87,7 @@ def test_transfer_scores_given_models_on_given_test_folders(tmp_path: Path) -> N
     table = report["map25"]
     assert table["plain"] == table["real"] and report["drop"]["real"]["plain"] == 0.0
     truth, _ = eval_cli.load_truth(SAMPLES)
-    pinned = {d.frame: d for d in read_detections(PINNED_DETECTIONS)}
+    pinned = false_positives.by_frame(PINNED_DETECTIONS)
     expected = evaluate(truth, pinned, EvalConfig()).map_all(0.25)
     assert table["plain"]["plain"] == pytest.approx(expected, abs=1e-9)
     assert report["false_positives"]["plain->real"]["empty_frames"] == 1
@@ -122,15 +122,14 @@ def test_right_share_counts_the_detections_the_evaluator_matched() -> None:
     """On the samples' pinned output: at threshold 0 every detection counts and the right ones are
     the true positives behind a3d-eval's recall; a higher threshold keeps fewer, a larger share right."""
     truth, _ = load_truth(SAMPLES)
-    result = evaluate(
-        truth, {d.frame: d for d in read_detections(PINNED_DETECTIONS)}, EvalConfig(iou_thresholds=(0.25,))
-    )
-    everything = false_positives.right_share(SAMPLES, false_positives.by_frame(PINNED_DETECTIONS), 0.0)
+    lines = false_positives.by_frame(PINNED_DETECTIONS)
+    result = evaluate(truth, lines, EvalConfig(iou_thresholds=(0.25,)))
+    everything = false_positives.right_share(SAMPLES, lines, 0.0)
     assert everything["detections"] == sum(c.num_det for c in result.classes)
     assert everything["right"] == round(
         sum(c.recall[0.25][-1] * c.num_gt for c in result.classes if c.num_det)
     )
-    confident = false_positives.right_share(SAMPLES, false_positives.by_frame(PINNED_DETECTIONS), 0.5)
+    confident = false_positives.right_share(SAMPLES, lines, 0.5)
     assert 0 < confident["detections"] < everything["detections"]
     assert confident["share"] > everything["share"]
     for report in (everything, confident):  # every detection is of one kind; the right ones among the first

@@ -251,8 +251,7 @@ def test_schema_1_metadata_reads_into_todays_fields() -> None:
     """The pinned model (the one bundled before the new world) is a schema 1 file: score_threshold
     becomes min_score and the top-level max_proposals the proposal settings' cap (it overrode
     proposal_config's), one value each."""
-    path = PINNED_MODEL
-    props = {p.key: p.value for p in onnx.load(str(path), load_external_data=False).metadata_props}
+    props = {p.key: p.value for p in onnx.load(str(PINNED_MODEL), load_external_data=False).metadata_props}
     old = json.loads(props[METADATA_KEY])
     assert old["schema_version"] == 1
     old["proposal_config"]["max_proposals"] = old["max_proposals"] + 7  # the top-level one wins
