@@ -123,21 +123,31 @@ class Trained:
     state: dict
 
 
-def load_trained(path: str | os.PathLike, config: TrainConfig | None = None) -> Trained:
-    """Read an a3d-train checkpoint; ``config`` replaces the stored one (e.g. other inference
-    settings). CheckpointError "PATH: problem" if it is not usable."""
+def load_trained_state(path: str | os.PathLike) -> dict:
+    """load_checkpoint, and the regression targets (statistics, mean sizes) the weights were trained for."""
     state = load_checkpoint(path)
     missing = [k for k in ("target_stats", "mean_sizes") if k not in state]
     if missing:
         raise CheckpointError(f"{path}: checkpoint without {', '.join(missing)} (not written by a3d-train?)")
-    config = config or checkpoint_config(path, state)
-    net = A3DNet(config.net)
+    return state
+
+
+def load_weights(net: A3DNet, weights: dict, path: str | os.PathLike) -> None:
+    """``net.load_state_dict(weights)``; CheckpointError "PATH: ..." when the network configs differ."""
     try:
-        net.load_state_dict(state["model"])
+        net.load_state_dict(weights)
     except RuntimeError as e:
         first = str(e).strip().splitlines()[0]
-        problem = f"weights do not fit the checkpoint's network config ({first})"
-        raise CheckpointError(f"{path}: {problem}") from None
+        raise CheckpointError(f"{path}: weights do not fit the network config ({first})") from None
+
+
+def load_trained(path: str | os.PathLike, config: TrainConfig | None = None) -> Trained:
+    """Read an a3d-train checkpoint; ``config`` replaces the stored one (e.g. other inference
+    settings). CheckpointError "PATH: problem" if it is not usable."""
+    state = load_trained_state(path)
+    config = config or checkpoint_config(path, state)
+    net = A3DNet(config.net)
+    load_weights(net, state["model"], path)
     stats = TargetStats.from_tensors(state["target_stats"])
     rest = {k: v for k, v in state.items() if k not in ("model", "optimizer")}
     return Trained(net.eval(), config, stats, np.asarray(state["mean_sizes"], np.float64), rest)

@@ -66,6 +66,7 @@ class SolverConfig:
     seed: int = 0
     threads: int = 0  # torch intra-op threads of the training process; 0 = torch's default
     pretrained: str = ""  # torchvision-layout VGG16 ImageNet state dict; "" = random initialisation
+    init: str = ""  # a3d-train checkpoint to fine-tune: its weights, target statistics and mean sizes
 
 
 @dataclass

@@ -38,7 +38,7 @@ from tqdm import tqdm
 from a3d.runtime.io.atomic import atomic_write_bytes
 from a3d.runtime.sources.folder import read_folder_intrinsics
 from a3d.runtime.structures.classes import CLASSES
-from a3d.train.checkpoint import load_checkpoint, save_checkpoint
+from a3d.train.checkpoint import load_checkpoint, load_trained_state, load_weights, save_checkpoint
 from a3d.train.config import SolverConfig, TrainConfig
 from a3d.train.dataset import BatchDataset, TargetStats, batch_loader, compute_target_stats
 from a3d.train.distributed import (
@@ -247,6 +247,11 @@ class _Run:
         solver = config.solver
         self.ckpt_path = run / CHECKPOINT_NAME
         state = load_checkpoint(self.ckpt_path) if resume else None
+        if solver.init and solver.pretrained:
+            raise ValueError("solver.init and solver.pretrained are both set: a run starts from one of them")
+        # A fine-tuned run keeps its checkpoint's regression targets (statistics, mean sizes), so the
+        # head's deltas mean what they meant; a resumed run's own checkpoint supersedes it.
+        start = state or (load_trained_state(solver.init) if solver.init else None)
         earlier = [run / name for name in (CHECKPOINT_NAME, METRICS_NAME, PLOT_NAME)]
         if state is None and any(path.exists() for path in earlier):
             if not overwrite:
@@ -264,13 +269,13 @@ class _Run:
         cache = Path(config.data.cache_dir) if config.data.cache_dir else run / "cache"
         if not info.is_main:
             barrier(info)  # rank 0 fills the proposal cache first
-        mean_sizes = state["mean_sizes"].numpy() if state else None
+        mean_sizes = start["mean_sizes"].numpy() if start else None
         progress = info.is_main and config.log.progress
         self.roidb = build_roidb(data, config, cache, mean_sizes, progress=progress)
         if info.is_main:
             barrier(info)
-        if state:
-            self.stats = TargetStats.from_tensors(state["target_stats"])
+        if start:
+            self.stats = TargetStats.from_tensors(start["target_stats"])
         else:
             self.stats = compute_target_stats(self.roidb.records, config.data.flip)
 
@@ -280,6 +285,8 @@ class _Run:
         model = A3DNet(config.net)
         if solver.pretrained and not state:
             load_vgg16_imagenet(model, solver.pretrained)
+        elif solver.init and not state:
+            load_weights(model, start["model"], solver.init)
         model.to(dev)
         groups = param_groups(model, solver.weight_decay)
         self.optimizer = torch.optim.SGD(groups, lr=solver.lr, momentum=solver.momentum)
