@@ -69,3 +69,16 @@ def test_init_errors_are_one_line(source, capsys):
         error = capsys.readouterr().err.strip()
         assert expected in error and len(error.splitlines()) == 1, error
         assert not (root / f"bad{i}" / "checkpoint.pt").exists()
+
+
+def test_resume_with_another_network_is_one_line(source, capsys):
+    """--resume --set net.*: the run's own weights do not fit; one line, and the checkpoint is kept."""
+    root, _ = source
+    run = root / "a"
+    before = (run / "checkpoint.pt").read_bytes()
+    args = [str(root / "frames_a"), "--out", str(run), "--resume", "--iters", "4", "--set", "net.fc6=48"]
+    assert main(args) == 2
+    error = capsys.readouterr().err.strip()
+    assert "checkpoint.pt" in error and "weights do not fit the network config" in error, error
+    assert len(error.splitlines()) == 1, error
+    assert (run / "checkpoint.pt").read_bytes() == before

@@ -291,7 +291,7 @@ class _Run:
         groups = param_groups(model, solver.weight_decay)
         self.optimizer = torch.optim.SGD(groups, lr=solver.lr, momentum=solver.momentum)
         if state:
-            model.load_state_dict(state["model"])
+            load_weights(model, state["model"], self.ckpt_path)
             self.optimizer.load_state_dict(state["optimizer"])
         self.net = wrap_model(model, info)
 
