@@ -10,7 +10,6 @@ a3d.train.inference uses, so a3d-run reproduces it) and from the shared preproce
 from __future__ import annotations
 
 import datetime
-import hashlib
 import importlib.metadata
 import json
 import os
@@ -23,6 +22,7 @@ from a3d.export.onnx_export import ExportError
 from a3d.runtime.network.model import SCHEMA_VERSION, ModelMetadata
 from a3d.runtime.network.preprocess import COLOR_MEAN_BGR, DEPTH_MEAN
 from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES
+from a3d.train.checkpoint import file_sha256
 from a3d.train.config import TrainConfig
 
 METRICS_FILE = "metrics.jsonl"  # a3d.train.loop writes it next to checkpoint.pt
@@ -74,6 +74,7 @@ def provenance(state: dict, config: TrainConfig, checkpoint: Path, export_option
             "path": str(checkpoint.resolve()),
             "sha256": file_sha256(checkpoint),
             "iteration": int(state["iteration"]),
+            **({"averaged": state["averaged"]} if "averaged" in state else {}),
         },
         "training_config": config.to_dict(),
         "training_data": training_data(state, checkpoint),
@@ -97,14 +98,6 @@ def training_data(state: dict, checkpoint: Path) -> dict | None:
             if isinstance(record, dict) and record.get("kind") == "data":
                 found = {k: v for k, v in record.items() if k not in ("kind", "iter")}
     return found
-
-
-def file_sha256(path: Path) -> str:
-    sha = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            sha.update(block)
-    return sha.hexdigest()
 
 
 def _version(package: str) -> str | None:

@@ -20,6 +20,7 @@ class mean sizes (validation, the torch reference detector, export, benchmarks);
 
 from __future__ import annotations
 
+import hashlib
 import os
 import pickle
 import re
@@ -102,6 +103,15 @@ def load_checkpoint(path: str | os.PathLike) -> dict:
     if missing:
         raise CheckpointError(f"{path}: a3d checkpoint without {', '.join(missing)}")
     return data
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    """The file's SHA-256 (hex): how provenance names a checkpoint."""
+    sha = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            sha.update(block)
+    return sha.hexdigest()
 
 
 def checkpoint_config(path: str | os.PathLike, state: dict | None = None) -> TrainConfig:

@@ -38,7 +38,13 @@ from tqdm import tqdm
 from a3d.runtime.io.atomic import atomic_write_bytes
 from a3d.runtime.sources.folder import read_folder_intrinsics
 from a3d.runtime.structures.classes import CLASSES
-from a3d.train.checkpoint import load_checkpoint, load_trained_state, load_weights, save_checkpoint
+from a3d.train.checkpoint import (
+    CheckpointError,
+    load_checkpoint,
+    load_trained_state,
+    load_weights,
+    save_checkpoint,
+)
 from a3d.train.config import SolverConfig, TrainConfig
 from a3d.train.dataset import BatchDataset, TargetStats, batch_loader, compute_target_stats
 from a3d.train.distributed import (
@@ -247,6 +253,9 @@ class _Run:
         solver = config.solver
         self.ckpt_path = run / CHECKPOINT_NAME
         state = load_checkpoint(self.ckpt_path) if resume else None
+        if state is not None and "optimizer" not in state:
+            raise CheckpointError(f"{self.ckpt_path}: no optimizer state to resume (an a3d-average "
+                                  "checkpoint?); fine-tune it with --set solver.init=PATH")  # fmt: skip
         if solver.init and solver.pretrained:
             raise ValueError("solver.init and solver.pretrained are both set: a run starts from one of them")
         # A fine-tuned run keeps its checkpoint's regression targets (statistics, mean sizes), so the
