@@ -10,7 +10,7 @@ from a3d.train.augment import augment_colour, augment_depth, augment_frame, augm
 from a3d.train.config import apply_overrides, load_config
 from a3d.train.dataset import BatchDataset, compute_target_stats
 from a3d.train.roidb import build_roidb
-from tests.helpers.train_scenes import TINY, K, write_scenes
+from tests.helpers.train_scenes import TINY, write_scenes
 
 
 def _frame(seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -67,10 +67,10 @@ def test_batches_augment_images_only_when_asked(db_and_config) -> None:
     _, db, config = db_and_config
     assert not config.data.augment  # off by default
     stats = compute_target_stats(db.records, flip=True)
-    plain = BatchDataset(db.records, K, stats, config, iterations=4)[2]
+    plain = BatchDataset(db.records, stats, config, iterations=4)[2]
     on = apply_overrides(config, ["data.augment=true"])
-    augmented = BatchDataset(db.records, K, stats, on, iterations=4)[2]
-    again = BatchDataset(db.records, K, stats, on, iterations=4)[2]
+    augmented = BatchDataset(db.records, stats, on, iterations=4)[2]
+    again = BatchDataset(db.records, stats, on, iterations=4)[2]
     assert not np.array_equal(plain["color"].numpy(), augmented["color"].numpy())
     assert not np.array_equal(plain["depth"].numpy(), augmented["depth"].numpy())
     np.testing.assert_array_equal(augmented["color"].numpy(), again["color"].numpy())

@@ -61,7 +61,7 @@ def test_flipped_targets_equal_those_of_the_mirrored_frame(tmp_path):
 def test_batches_carry_flipped_images_and_boxes(db_and_config):
     folder, db, config = db_and_config
     stats = compute_target_stats(db.records, flip=True)
-    dataset = BatchDataset(db.records, K, stats, config, iterations=50)
+    dataset = BatchDataset(db.records, stats, config, iterations=50)
     refs = {r.name: r for r in list_frames(folder)}
     checked = set()
     for iteration in range(12):

@@ -3,6 +3,8 @@ keeps that run's regression targets; a3d-average takes the mean of such runs. Er
 
 from __future__ import annotations
 
+import json
+
 import pytest
 import torch
 
@@ -151,3 +153,25 @@ def test_average_errors_are_one_line(source, capsys):
     with pytest.raises(SystemExit):
         average([str(checkpoint), str(checkpoint), "--out", str(checkpoint)])
     assert "is one of the checkpoints" in capsys.readouterr().err
+
+
+def test_fine_tuning_on_two_folders(source):
+    """Your camera's frames beside the synthetic ones: a3d-train takes several folders."""
+    root, _ = source
+    mine = write_scenes(root / "mine", 1, seed=21)
+    args = [
+        str(root / "frames_a"),
+        str(mine),
+        "--out",
+        str(root / "both"),
+        "--config",
+        "vgg16",
+        "--device",
+        "cpu",
+    ]
+    sets = [*TINY, "solver.iterations=2", "solver.lr_steps=[1]", f"data.cache_dir={root / 'cache'}"]
+    sets.append(f"solver.init={root / 'a' / 'checkpoint.pt'}")
+    assert main(args + [a for s in sets for a in ("--set", s)]) == 0
+    lines = [json.loads(line) for line in (root / "both" / "metrics.jsonl").read_text().splitlines()]
+    data = next(line for line in lines if line["kind"] == "data")
+    assert data["frames"] + data["skipped"] == 3  # two frames of frames_a, one of mine

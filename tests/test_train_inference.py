@@ -15,7 +15,7 @@ from a3d.train.dataset import BatchDataset, TargetStats, compute_target_stats
 from a3d.train.inference import TorchDetector, TorchNetwork, write_folder_detections
 from a3d.train.model import A3DNet
 from a3d.train.roidb import build_roidb
-from tests.helpers.train_scenes import TINY, K, write_scenes
+from tests.helpers.train_scenes import TINY, write_scenes
 
 
 @pytest.fixture(scope="module")
@@ -30,7 +30,7 @@ def setup(tmp_path_factory):
 def test_training_batches_and_the_runtime_pipeline_feed_the_network_alike(setup):
     """Images, RoIs and context RoIs of a training batch (unflipped) equal the runtime's inputs."""
     folder, config, db, _ = setup
-    batch = BatchDataset(db.records, K, compute_target_stats(db.records, False), config, 1)[0]
+    batch = BatchDataset(db.records, compute_target_stats(db.records, False), config, 1)[0]
     source = FolderSource(folder)
     refs = {r.name: r for r in source.refs}
     rows_start = 0

@@ -9,19 +9,26 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from a3d.runtime.errors import InputError
 from a3d.runtime.frontend.depth import fill_depth
 from a3d.runtime.frontend.frame_proposals import frame_proposals
 from a3d.runtime.frontend.lifting import lift
 from a3d.runtime.frontend.proposals import propose
 from a3d.runtime.pipeline import PipelineConfig, prepare
-from a3d.runtime.sources.folder import list_frames, read_folder_intrinsics, read_frame, read_ground_truth
+from a3d.runtime.sources.folder import (
+    list_frames,
+    read_folder_intrinsics,
+    read_frame,
+    read_ground_truth,
+    write_intrinsics,
+)
 from a3d.runtime.sources.proposals_file import PrecomputedProposals, write_precomputed_proposals
 from a3d.runtime.structures.classes import NUM_CLASSES, class_index
 from a3d.runtime.structures.frame import GroundTruth
 from a3d.train.config import apply_overrides, load_config
 from a3d.train.loop import train
 from a3d.train.roidb import build_roidb, class_mean_sizes, compute_front_end, label_rois
-from tests.helpers.train_scenes import TINY, write_scenes
+from tests.helpers.train_scenes import TINY, K, write_scenes
 
 
 def test_label_rois_known_answers():
@@ -68,6 +75,33 @@ def test_class_mean_sizes_with_absent_classes():
 @pytest.fixture(scope="module")
 def scenes(tmp_path_factory):
     return write_scenes(tmp_path_factory.mktemp("roidb") / "frames", 4, seed=1)
+
+
+def test_roidb_of_several_folders(scenes, tmp_path):
+    """Frames of two folders (the same names, another camera) train together, each with its own
+    folder's intrinsics and its own cache entry; a folder with no annotated frame is an error."""
+    config = apply_overrides(load_config("vgg16"), TINY)
+    other = write_scenes(tmp_path / "other", 2, seed=5)
+    wide = replace(K, fx=K.fx * 0.9, fy=K.fy * 0.9)
+    write_intrinsics(other, wide)
+    db = build_roidb([scenes, other], config, tmp_path / "cache")
+    assert len(db.records) + len(db.skipped) == 6
+    by_folder = {
+        folder: [r for r in db.records if r.ref.color_path.parent == folder] for folder in (scenes, other)
+    }
+    assert by_folder[scenes] and by_folder[other]
+    assert all(r.folder_intrinsics == K for r in by_folder[scenes])
+    assert all(r.folder_intrinsics == wide for r in by_folder[other])
+    assert {r.name for r in by_folder[scenes]} & {r.name for r in by_folder[other]}  # names collide
+    assert len({r.filled_depth_path for r in db.records}) == len(db.records)  # caches do not
+    truths = [read_ground_truth(r) for folder in (scenes, other) for r in list_frames(folder)]
+    np.testing.assert_allclose(db.mean_sizes, class_mean_sizes(truths))
+
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    write_intrinsics(empty, K)
+    with pytest.raises(InputError, match="empty: no annotated frames"):
+        build_roidb([scenes, empty], config, tmp_path / "cache")
 
 
 def test_roidb_records(scenes, tmp_path):

@@ -2,6 +2,7 @@
 
     a3d-train data/train --out runs/small --config cpu-small --val data/test
     a3d-train data/train --out runs/small --resume --iters 6000     # continue (after Ctrl-C too), or extend
+    a3d-train mine/train data/train --out runs/mine --set solver.init=runs/small/checkpoint.pt  # two folders
     torchrun --nproc_per_node 2 -m a3d.train.cli data/train --out runs/ddp --config cpu-small
 
 ``--config`` is a preset name (vgg16, cpu-small, cpu-tiny) or a JSON/TOML file (without it:
@@ -33,7 +34,8 @@ PROG = "a3d-train"
 
 def build_parser() -> argparse.ArgumentParser:
     parser = command_parser(PROG, "Train the amodal 3D detector (Deng & Latecki 2017) on RGB-D frames.")
-    parser.add_argument("data", type=Path, help="folder of training frames with NAME.gt.json")
+    parser.add_argument("data", type=Path, nargs="+",
+                        help="folders of training frames with NAME.gt.json (one or more)")  # fmt: skip
     parser.add_argument("--out", type=Path, required=True, help="run folder (checkpoint, metrics, plots)")
     add_config_arguments(parser, "solver.lr=0.001")
     existing = parser.add_mutually_exclusive_group()

@@ -33,7 +33,7 @@ from a3d.runtime.postprocess.box_coder import encode_2d, encode_3d
 from a3d.runtime.sources.folder import read_frame
 from a3d.runtime.structures.boxes import BOX_DIM
 from a3d.runtime.structures.classes import NUM_OUTPUTS
-from a3d.runtime.structures.geometry import Intrinsics, flip_boxes_2d, flip_boxes_3d
+from a3d.runtime.structures.geometry import flip_boxes_2d, flip_boxes_3d
 from a3d.train.augment import augment_frame, augment_rng
 from a3d.train.roidb import FrameRois
 from a3d.train.sampler import plan_batch
@@ -146,7 +146,6 @@ class BatchDataset(torch.utils.data.Dataset):
     def __init__(
         self,
         records: list[FrameRois],
-        intrinsics: Intrinsics | None,
         stats: TargetStats,
         config,
         iterations: int,
@@ -154,7 +153,6 @@ class BatchDataset(torch.utils.data.Dataset):
         world_size: int = 1,
     ) -> None:
         self.records = records
-        self.intrinsics = intrinsics
         self.stats = stats
         self.data = config.data
         self.seed = config.solver.seed
@@ -181,7 +179,7 @@ class BatchDataset(torch.utils.data.Dataset):
         colors, depths, rois, contexts, labels, t3ds, t2ds, w3ds = ([] for _ in range(8))
         for b, plan in enumerate(plans):
             record = self.records[plan.image]
-            frame = read_frame(record.ref, self.intrinsics)
+            frame = read_frame(record.ref, record.folder_intrinsics)
             if d.augment:  # a3d.train.augment: other light and sensors, same geometry (refilled)
                 rng = augment_rng(self.seed, int(iteration), b)
                 color, raw = augment_frame(rng, frame.color, frame.depth)

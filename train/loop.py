@@ -28,6 +28,7 @@ import os
 import signal
 import threading
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,7 +37,6 @@ import torch
 from tqdm import tqdm
 
 from a3d.runtime.io.atomic import atomic_write_bytes
-from a3d.runtime.sources.folder import read_folder_intrinsics
 from a3d.runtime.structures.classes import CLASSES
 from a3d.train.checkpoint import (
     CheckpointError,
@@ -217,7 +217,7 @@ def _to_device(batch: dict, device: torch.device) -> dict:
 
 
 def train(
-    data: str | os.PathLike,
+    data: str | os.PathLike | Sequence[str | os.PathLike],
     run_dir: str | os.PathLike,
     config: TrainConfig,
     *,
@@ -226,7 +226,8 @@ def train(
     overwrite: bool = False,
     val_data: str | os.PathLike | None = None,
 ) -> TrainResult:
-    """Train on the annotated frames of ``data`` into ``run_dir`` (see the module docstring).
+    """Train on the annotated frames of ``data`` (a frame folder, or several: your camera's frames
+    beside synthetic ones, say) into ``run_dir`` (see the module docstring).
 
     ``resume``: continue from ``run_dir/checkpoint.pt`` (``config`` should be the checkpoint's,
     see a3d.train.cli). Without it, a run in ``run_dir`` (a checkpoint or metrics) is an error,
@@ -239,7 +240,8 @@ def train(
     info = init_distributed(dev)
     try:
         dev = local_device(dev, info)
-        return _Run(Path(data), Path(run_dir), config, dev, info, resume, overwrite, val_data).loop()
+        folders = [Path(f) for f in ([data] if isinstance(data, (str, os.PathLike)) else data)]
+        return _Run(folders, Path(run_dir), config, dev, info, resume, overwrite, val_data).loop()
     finally:
         shutdown(info)
 
@@ -247,7 +249,7 @@ def train(
 class _Run:
     """One training run: its state (model, optimizer, data) and the loop over iterations."""
 
-    def __init__(self, data: Path, run: Path, config: TrainConfig, dev: torch.device, info: DistInfo,
+    def __init__(self, data: list[Path], run: Path, config: TrainConfig, dev: torch.device, info: DistInfo,
                  resume: bool, overwrite: bool, val_data) -> None:  # fmt: skip
         self.run, self.config, self.dev, self.info, self.val_data = run, config, dev, info, val_data
         solver = config.solver
@@ -310,7 +312,7 @@ class _Run:
                                 **describe(self.roidb)})  # fmt: skip
             for line in self.roidb.skipped:
                 logger.info("skipped %s", line)
-        dataset = BatchDataset(self.roidb.records, read_folder_intrinsics(data), self.stats, config,
+        dataset = BatchDataset(self.roidb.records, self.stats, config,
                                solver.iterations, info.rank, info.world_size)  # fmt: skip
         self.loader = batch_loader(dataset, self.start, config.data.workers, pin_memory=dev.type == "cuda")
 

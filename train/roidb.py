@@ -127,6 +127,7 @@ class FrameRois:
     gt_boxes3d: np.ndarray  # (F, 7) matched ground-truth 3D box
     gt_boxes2d: np.ndarray  # (F, 4) matched ground-truth amodal 2D box
     has_3d: np.ndarray  # (F,) bool: the segment could be lifted, so a 3D target exists
+    folder_intrinsics: Intrinsics | None = None  # its folder's intrinsics.json (None: NAME.meta.json's)
 
     @property
     def num_fg(self) -> int:
@@ -221,67 +222,70 @@ def frame_rois(
 
 
 def build_roidb(
-    folder: str | os.PathLike,
+    folders: str | os.PathLike | Sequence[str | os.PathLike],
     config,
     cache_dir: str | os.PathLike,
     mean_sizes: np.ndarray | None = None,
     progress: bool = False,
 ) -> RoiDB:
-    """The RoI database of every annotated frame in ``folder`` (``config``: a TrainConfig).
+    """The RoI database of every annotated frame in ``folders`` (one or several frame folders,
+    each with its own intrinsics.json; ``config``: a TrainConfig).
 
     ``mean_sizes`` (19, 3) fixes the class mean sizes (a resumed run passes its checkpoint's);
-    by default they are computed from the folder's ground truth. Frames without ground truth or
-    without any RoI are skipped and listed in ``RoiDB.skipped``.
+    by default they are computed from all the folders' ground truth. Frames without ground truth
+    or without any RoI are skipped and listed in ``RoiDB.skipped``; a folder without a single
+    annotated frame is an InputError.
     """
-    refs = list_frames(folder)
-    intrinsics = read_folder_intrinsics(folder)
+    folders = [folders] if isinstance(folders, (str, os.PathLike)) else list(folders)
     annotated, skipped = [], []
-    for ref in refs:
-        gt = read_ground_truth(ref)
-        if gt is None:
-            skipped.append(f"{ref.name}: no ground truth")
-        else:
-            annotated.append((ref, gt))
-    if not annotated:
-        raise InputError(f"{folder}: no annotated frames (NAME.gt.json) to train on")
+    for folder in folders:
+        intrinsics = read_folder_intrinsics(folder)
+        count = len(annotated)
+        for ref in list_frames(folder):
+            gt = read_ground_truth(ref)
+            if gt is None:
+                skipped.append(f"{ref.name}: no ground truth")
+            else:
+                annotated.append((ref, gt, intrinsics))
+        if len(annotated) == count:
+            raise InputError(f"{folder}: no annotated frames (NAME.gt.json) to train on")
     if mean_sizes is None:
-        mean_sizes = class_mean_sizes([gt for _, gt in annotated])
+        mean_sizes = class_mean_sizes([gt for _, gt, _ in annotated])
     records = []
-    for (ref, gt), front in zip(
-        annotated, _front_ends(annotated, intrinsics, config, cache_dir, progress), strict=True
+    for (ref, gt, intrinsics), front in zip(
+        annotated, _front_ends(annotated, config, cache_dir, progress), strict=True
     ):
         filled = _cache_path(ref, config.proposals, cache_dir, FILLED_DEPTH_SUFFIX)
         record = frame_rois(ref, gt, front, filled, mean_sizes, config.data.fg_iou, config.data.bg_iou_low)
+        record.folder_intrinsics = intrinsics
         if len(record.labels):
             records.append(record)
         else:
             skipped.append(f"{ref.name}: no foreground or background RoI")
     if not records:
-        raise InputError(f"{folder}: no frame has a single training RoI")
+        raise InputError(f"{', '.join(map(str, folders))}: no frame has a single training RoI")
     return RoiDB(records, np.asarray(mean_sizes, np.float64), skipped)
 
 
 def _front_ends(
-    annotated: list[tuple[FrameRef, GroundTruth]],
-    intrinsics: Intrinsics | None,
+    annotated: list[tuple[FrameRef, GroundTruth, Intrinsics | None]],
     config,
     cache_dir: str | os.PathLike,
     progress: bool,
 ):
     """cached_front_end of every frame, in order; uncached frames in ``data.front_end_workers`` processes."""
-    compute = partial(cached_front_end, intrinsics=intrinsics, proposal_config=config.proposals,
-                      cache_dir=cache_dir)  # fmt: skip
-    refs, truths = [ref for ref, _ in annotated], [gt for _, gt in annotated]
+    compute = partial(cached_front_end, proposal_config=config.proposals, cache_dir=cache_dir)
+    refs, truths, intrinsics = (list(column) for column in zip(*annotated, strict=True))
     workers = config.data.front_end_workers or os.cpu_count() or 1
     missing = sum(not _is_cached(ref, config.proposals, cache_dir) for ref in refs)
     bar = partial(tqdm, total=len(annotated), desc="RoI database", disable=not progress, unit="frame")
     if workers == 1 or missing < 2 * workers:
-        yield from bar(map(compute, refs, truths))
+        yield from bar(map(compute, refs, truths, intrinsics))
         return
     # spawn, not fork: the training process may already run torch's thread pools.
     context = multiprocessing.get_context("spawn")
     with ProcessPoolExecutor(min(workers, missing), mp_context=context) as pool:
-        yield from bar(pool.map(compute, refs, truths, chunksize=4))
+        yield from bar(pool.map(compute, refs, truths, intrinsics, chunksize=4))
 
 
 def _cache_path(
