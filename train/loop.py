@@ -28,7 +28,6 @@ import os
 import signal
 import threading
 import time
-from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -61,7 +60,7 @@ from a3d.train.distributed import (
 from a3d.train.inference import TorchDetector, validate
 from a3d.train.losses import detection_loss
 from a3d.train.model import A3DNet, load_vgg16_imagenet
-from a3d.train.roidb import build_roidb, describe
+from a3d.train.roidb import Folders, build_roidb, describe
 
 logger = logging.getLogger(__name__)
 
@@ -217,7 +216,7 @@ def _to_device(batch: dict, device: torch.device) -> dict:
 
 
 def train(
-    data: str | os.PathLike | Sequence[str | os.PathLike],
+    data: Folders,
     run_dir: str | os.PathLike,
     config: TrainConfig,
     *,
@@ -240,8 +239,7 @@ def train(
     info = init_distributed(dev)
     try:
         dev = local_device(dev, info)
-        folders = [Path(f) for f in ([data] if isinstance(data, (str, os.PathLike)) else data)]
-        return _Run(folders, Path(run_dir), config, dev, info, resume, overwrite, val_data).loop()
+        return _Run(data, Path(run_dir), config, dev, info, resume, overwrite, val_data).loop()
     finally:
         shutdown(info)
 
@@ -249,7 +247,7 @@ def train(
 class _Run:
     """One training run: its state (model, optimizer, data) and the loop over iterations."""
 
-    def __init__(self, data: list[Path], run: Path, config: TrainConfig, dev: torch.device, info: DistInfo,
+    def __init__(self, data: Folders, run: Path, config: TrainConfig, dev: torch.device, info: DistInfo,
                  resume: bool, overwrite: bool, val_data) -> None:  # fmt: skip
         self.run, self.config, self.dev, self.info, self.val_data = run, config, dev, info, val_data
         solver = config.solver

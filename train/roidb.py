@@ -109,6 +109,9 @@ def compute_front_end(
     return FrontEnd(frame.image_size, boxes, centers, gt_centers, gt_valid), filled
 
 
+Folders = str | os.PathLike | Sequence[str | os.PathLike]  # one frame folder, or several
+
+
 @dataclass
 class FrameRois:
     """The RoIs of one training frame, all at native resolution: the F foreground RoIs first
@@ -222,7 +225,7 @@ def frame_rois(
 
 
 def build_roidb(
-    folders: str | os.PathLike | Sequence[str | os.PathLike],
+    folders: Folders,
     config,
     cache_dir: str | os.PathLike,
     mean_sizes: np.ndarray | None = None,
