@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from a3d.runtime.network.cpu_support import cpu_flags, export_advice
+from a3d.runtime.network.cpu_support import bf16_instructions, cpu_flags, export_advice
 
 X86 = """processor\t: 0
 vendor_id\t: AuthenticAMD
@@ -45,3 +45,16 @@ def test_advice_follows_the_int8_instructions(flags: set[str], export: str, says
 
 def test_advice_reads_this_machine_by_default() -> None:
     assert export_advice() == export_advice(cpu_flags())
+
+
+@pytest.mark.parametrize(
+    ("flags", "native"),
+    [
+        ({"avx2", "avx512f", "avx512_bf16", "amx_bf16", "amx_int8"}, ["amx_bf16", "avx512_bf16"]),
+        ({"avx2", "avx512f", "avx512_vnni"}, []),  # AVX-512 without BF16: PyTorch emulates bfloat16
+        ({"asimd", "asimddp", "bf16"}, ["bf16"]),
+        (set(), []),
+    ],
+)
+def test_bf16_instructions_are_the_native_ones(flags: set[str], native: list[str]) -> None:
+    assert bf16_instructions(frozenset(flags)) == native

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Literal
 
 INT8_DOT_PRODUCT = ("avx512_vnni", "avx_vnni", "amx_int8", "asimddp", "i8mm")
+BF16_NATIVE = ("amx_bf16", "avx512_bf16", "bf16")  # x86 AMX / AVX-512 BF16, ARM's BF16 extension
 
 
 @dataclass(frozen=True)
@@ -53,6 +54,13 @@ def int8_dot_products(flags: frozenset[str] | None = None) -> list[str]:
     int8 model's scores differ slightly between the two kinds of CPU."""
     flags = cpu_flags() if flags is None else flags
     return [name for name in INT8_DOT_PRODUCT if name in flags]
+
+
+def bf16_instructions(flags: frozenset[str] | None = None) -> list[str]:
+    """The native bfloat16 instructions among ``flags`` (default: this machine's): where there is
+    none, PyTorch emulates bfloat16 and a3d-train's ``solver.precision=bf16`` runs slower, not faster."""
+    flags = cpu_flags() if flags is None else flags
+    return [name for name in BF16_NATIVE if name in flags]
 
 
 def export_advice(flags: frozenset[str] | None = None) -> ExportAdvice:
