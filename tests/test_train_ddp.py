@@ -9,7 +9,7 @@ import pytest
 
 from a3d.train.checkpoint import load_checkpoint
 from a3d.train.loop import read_metrics
-from tests.helpers.train_scenes import TINY, write_scenes
+from tests.helpers.train_scenes import tiny_train_args, write_scenes
 
 pytestmark = pytest.mark.slow  # two training processes over gloo
 
@@ -22,9 +22,7 @@ def test_two_gloo_processes_stay_in_sync(tmp_path):
     launcher = [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2"]
     cache = tmp_path / "cache"
     run = tmp_path / "ddp"
-    sets = [*TINY, "solver.iterations=4", "log.checkpoint_every=2", f"data.cache_dir={cache}"]
-    args = [str(frames), "--out", str(run), "--config", "vgg16", "--device", "cpu",
-            *[a for s in sets for a in ("--set", s)]]  # fmt: skip
+    args = tiny_train_args(frames, run, cache, "solver.iterations=4", "log.checkpoint_every=2")
     command = [*launcher, "-m", "a3d.train.cli", *args]
     ddp = subprocess.run(command, capture_output=True, text=True, timeout=300)
     assert ddp.returncode == 0, ddp.stderr[-3000:]

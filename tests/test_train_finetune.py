@@ -12,13 +12,11 @@ from a3d.export.metadata import provenance
 from a3d.train.average_cli import main as average
 from a3d.train.checkpoint import checkpoint_config, load_checkpoint, load_trained
 from a3d.train.cli import main
-from tests.helpers.train_scenes import TINY, write_scenes
+from tests.helpers.train_scenes import tiny_train_args, write_scenes
 
 
 def _train(frames, run, cache, *sets: str) -> int:
-    args = [*TINY, "solver.iterations=3", "solver.lr_steps=[2]", f"data.cache_dir={cache}", *sets]
-    return main([str(frames), "--out", str(run), "--config", "vgg16", "--device", "cpu",
-                 *[a for s in args for a in ("--set", s)]])  # fmt: skip
+    return main(tiny_train_args(frames, run, cache, "solver.iterations=3", "solver.lr_steps=[2]", *sets))
 
 
 def _is_running_statistic(name: str) -> bool:
@@ -159,19 +157,9 @@ def test_fine_tuning_on_two_folders(source):
     """Your camera's frames beside the synthetic ones: a3d-train takes several folders."""
     root, _ = source
     mine = write_scenes(root / "mine", 1, seed=21)
-    args = [
-        str(root / "frames_a"),
-        str(mine),
-        "--out",
-        str(root / "both"),
-        "--config",
-        "vgg16",
-        "--device",
-        "cpu",
-    ]
-    sets = [*TINY, "solver.iterations=2", "solver.lr_steps=[1]", f"data.cache_dir={root / 'cache'}"]
-    sets.append(f"solver.init={root / 'a' / 'checkpoint.pt'}")
-    assert main(args + [a for s in sets for a in ("--set", s)]) == 0
+    init = f"solver.init={root / 'a' / 'checkpoint.pt'}"
+    sets = ("solver.iterations=2", "solver.lr_steps=[1]")
+    assert _train([root / "frames_a", mine], root / "both", root / "cache", *sets, init) == 0
     lines = [json.loads(line) for line in (root / "both" / "metrics.jsonl").read_text().splitlines()]
     data = next(line for line in lines if line["kind"] == "data")
     assert data["frames"] + data["skipped"] == 3  # two frames of frames_a, one of mine

@@ -12,14 +12,11 @@ from a3d.train import loop
 from a3d.train.checkpoint import load_checkpoint
 from a3d.train.cli import main
 from a3d.train.loop import read_metrics
-from tests.helpers.train_scenes import TINY, write_scenes
+from tests.helpers.train_scenes import tiny_train_args, write_scenes
 
 
 def _train(frames, run, cache, *sets: str) -> int:
-    args = [*TINY, "solver.iterations=4", "solver.lr_steps=[3]", "log.log_every=1", f"data.cache_dir={cache}",
-            *sets]  # fmt: skip
-    return main([str(frames), "--out", str(run), "--config", "vgg16", "--device", "cpu",
-                 *[a for s in args for a in ("--set", s)]])  # fmt: skip
+    return main(tiny_train_args(frames, run, cache, "solver.iterations=4", "solver.lr_steps=[3]", *sets))
 
 
 @pytest.fixture(scope="module")

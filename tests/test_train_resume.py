@@ -15,7 +15,7 @@ import torch
 from a3d.train.checkpoint import load_checkpoint
 from a3d.train.cli import config_source, main
 from a3d.train.loop import read_metrics
-from tests.helpers.train_scenes import TINY, write_scenes
+from tests.helpers.train_scenes import tiny_train_args, write_scenes
 
 ITERATIONS = 12
 
@@ -25,10 +25,8 @@ def _cli(*args: str) -> list[str]:
 
 
 def _args(frames, run, cache, workers: int = 1) -> list[str]:
-    sets = [*TINY, f"solver.iterations={ITERATIONS}", "solver.lr_steps=[7]", "log.checkpoint_every=3",
-            f"data.workers={workers}", f"data.cache_dir={cache}"]  # fmt: skip
-    return [str(frames), "--out", str(run), "--config", "vgg16", "--device", "cpu",
-            *[a for s in sets for a in ("--set", s)]]  # fmt: skip
+    return tiny_train_args(frames, run, cache, f"solver.iterations={ITERATIONS}", "solver.lr_steps=[7]",
+                           "log.checkpoint_every=3", f"data.workers={workers}")  # fmt: skip
 
 
 def _last_iter(run) -> int:

@@ -104,3 +104,12 @@ TINY = (
     "log.log_every=1",
 )
 """``--set`` overrides of a network and pipeline small enough for the tests' 48 x 64 scenes."""
+
+
+def tiny_train_args(frames: Path | list[Path], run: Path, cache: Path, *sets: str) -> list[str]:
+    """a3d-train's arguments for these scenes: ``frames`` (one folder or several) into ``run``, the
+    vgg16 preset shrunk by TINY on the CPU, proposals cached in ``cache``, then ``sets`` (--set)."""
+    folders = frames if isinstance(frames, list) else [frames]
+    overrides = [*TINY, f"data.cache_dir={cache}", *sets]
+    return [*map(str, folders), "--out", str(run), "--config", "vgg16", "--device", "cpu",
+            *[a for s in overrides for a in ("--set", s)]]  # fmt: skip
