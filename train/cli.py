@@ -2,6 +2,7 @@
 
     a3d-train data/train --out runs/small --config cpu-small --val data/test
     a3d-train data/train --out runs/small --resume --iters 6000     # continue (after Ctrl-C too), or extend
+    a3d-train data/train --out runs/hour --config cpu-small --minutes 55 --iters 40000  # fit to 55 minutes
     a3d-train mine/train data/train --out runs/mine --set solver.init=runs/small/checkpoint.pt  # two folders
     torchrun --nproc_per_node 2 -m a3d.train.cli data/train --out runs/ddp --config cpu-small
 
@@ -42,6 +43,8 @@ def build_parser() -> argparse.ArgumentParser:
     existing.add_argument("--resume", action="store_true", help="continue the run in --out")
     existing.add_argument("--force", action="store_true", help="start again over the run in --out")
     parser.add_argument("--iters", type=int, help="total iterations (default: the preset's)")
+    parser.add_argument("--minutes", type=float, help="fit the run to this wall-clock budget on this machine "
+                        "(--iters is then the most it runs; the lr steps scale with it)")  # fmt: skip
     parser.add_argument("--val", type=Path, help="annotated frames to validate on (default: none)")
     return parser
 
@@ -78,6 +81,10 @@ def resolve_config(args: argparse.Namespace) -> TrainConfig:
         if args.iters < 1:
             raise ValueError(f"--iters must be positive, got {args.iters}")
         config = apply_overrides(config, [f"solver.iterations={args.iters}"])
+    if args.minutes is not None:
+        if not args.minutes > 0:
+            raise ValueError(f"--minutes must be positive, got {args.minutes}")
+        config = apply_overrides(config, [f"solver.minutes={args.minutes}"])
     return config
 
 

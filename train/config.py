@@ -61,6 +61,8 @@ class SolverConfig:
     ``precision`` "bf16" runs the forward pass and the loss under bfloat16 autocast (weights,
     gradients and the optimizer stay float32): on a CPU with AMX or AVX-512 BF16 it trains about
     twice as fast as "fp32"; on a CPU without them bfloat16 is emulated and slower (a3d-train says so).
+    ``minutes`` > 0 fits the run to that wall-clock budget on this machine (a3d.train.budget):
+    ``iterations`` is then the ceiling and ``lr_steps`` scale with the fitted length.
     """
 
     iterations: int = 40000
@@ -73,6 +75,7 @@ class SolverConfig:
     lambda_2d: float = 1.0
     seed: int = 0
     precision: str = "fp32"  # "fp32" or "bf16" (autocast; see above)
+    minutes: float = 0.0  # wall-clock budget of the run; 0 = run ``iterations`` (see above)
     threads: int = 0  # torch intra-op threads of the training process; 0 = torch's default
     pretrained: str = ""  # torchvision-layout VGG16 ImageNet state dict; "" = random initialisation
     init: str = ""  # a3d-train checkpoint to fine-tune: its weights, target statistics and mean sizes

@@ -22,13 +22,14 @@ validation mAP, "sync" the ranks' parameter digests under DDP),
 
 from __future__ import annotations
 
+import itertools
 import json
 import logging
 import os
 import signal
 import threading
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -38,6 +39,7 @@ from tqdm import tqdm
 from a3d.runtime.io.atomic import atomic_write_bytes
 from a3d.runtime.network.cpu_support import bf16_instructions
 from a3d.runtime.structures.classes import CLASSES
+from a3d.train.budget import END_SECONDS, PLAN_AFTER, WARMUP, fit_schedule
 from a3d.train.checkpoint import (
     CheckpointError,
     load_checkpoint,
@@ -271,6 +273,8 @@ class _Run:
         if solver.precision not in PRECISIONS:
             expected = " or ".join(PRECISIONS)
             raise ValueError(f"solver.precision={solver.precision!r}: expected {expected}")
+        if solver.minutes < 0:
+            raise ValueError(f"solver.minutes={solver.minutes}: expected > 0, or 0 for no time budget")
         if solver.init and solver.pretrained:
             raise ValueError("solver.init and solver.pretrained are both set: a run starts from one of them")
         # A fine-tuned run keeps its checkpoint's regression targets (statistics, mean sizes), so the
@@ -290,6 +294,7 @@ class _Run:
             atomic_write_bytes(run / CONFIG_NAME, (config.to_json() + "\n").encode())
         self.start = int(state["iteration"]) if state else 0
 
+        self.clock_start = time.monotonic()  # solver.minutes' clock (a3d.train.budget)
         cache = Path(config.data.cache_dir) if config.data.cache_dir else run / "cache"
         if not info.is_main:
             barrier(info)  # rank 0 fills the proposal cache first
@@ -342,11 +347,25 @@ class _Run:
         window: dict[str, float] = {}
         window_n, window_start = 0, time.perf_counter()
         last_loss, val_map = None, None
+        plan_at = self.start + PLAN_AFTER if solver.minutes > 0 else None
+        if plan_at is not None and plan_at >= solver.iterations and info.is_main:
+            logger.info("solver.minutes: the run's %d iterations are too few to time; it runs them all",
+                        solver.iterations - self.start)  # fmt: skip
+        warm_at, warm_start = self.start + WARMUP, 0.0
+        # the run's length can change at plan_at (solver.minutes), so it is read at every iteration
+        count = itertools.count(self.start)
+        iterations = itertools.takewhile(lambda i: i < self.config.solver.iterations, count)
         self.net.train()
         with _StopRequest(enabled=not info.enabled) as stop:
-            for iteration, batch in zip(range(self.start, solver.iterations), self.loader, strict=False):
+            for iteration, batch in zip(iterations, self.loader, strict=False):
                 values = self.step(iteration, batch)
                 done = iteration + 1
+                if done == warm_at:
+                    warm_start = time.perf_counter()
+                if done == plan_at and plan_at < solver.iterations:
+                    rate = (plan_at - warm_at) / (time.perf_counter() - warm_start)
+                    solver = self.fit_to_budget(done, rate)
+                    bar.total = solver.iterations
                 final = done == solver.iterations
                 for key, value in values.items():
                     window[key] = window.get(key, 0.0) + value
@@ -377,6 +396,25 @@ class _Run:
                                               f"--resume continues")  # fmt: skip
         bar.close()
         return TrainResult(self.run, max(self.start, solver.iterations), last_loss, val_map)
+
+    def fit_to_budget(self, done: int, rate: float) -> SolverConfig:
+        """Fit the run's length to solver.minutes at ``rate`` (the ranks' mean), rewrite
+        config.json with the fitted schedule and say it (a3d.train.budget)."""
+        solver = self.config.solver
+        left = solver.minutes * 60 - (time.monotonic() - self.clock_start) - END_SECONDS
+        agreed = mean_over_ranks({"rate": rate, "left": left}, self.info, self.dev)
+        fitted = fit_schedule(solver, done, agreed["rate"], agreed["left"])
+        self.config = replace(self.config, solver=fitted)
+        if self.info.is_main:
+            atomic_write_bytes(self.run / CONFIG_NAME, (self.config.to_json() + "\n").encode())
+            plan = {"minutes": solver.minutes, "it_per_s": agreed["rate"], "ceiling": solver.iterations,
+                    "iterations": fitted.iterations, "lr_steps": list(fitted.lr_steps)}  # fmt: skip
+            self.metrics.write({"kind": "plan", "iter": done, **plan})
+            capped = " (the ceiling: the run ends early)" if fitted.iterations == solver.iterations else ""
+            logger.info("solver.minutes=%g: %d iterations fit at %.2f it/s%s, lr steps %s",
+                        solver.minutes, fitted.iterations, agreed["rate"], capped,
+                        ", ".join(map(str, fitted.lr_steps)) or "none")  # fmt: skip
+        return fitted
 
     def step(self, iteration: int, batch: dict) -> dict[str, float]:
         """One SGD step; returns the loss terms and the foreground count."""
