@@ -3,6 +3,7 @@ lr steps scaled alike, and the fitted schedule written where --resume reads it."
 
 from __future__ import annotations
 
+import itertools
 import json
 import logging
 import time
@@ -36,6 +37,18 @@ def test_fit_schedule_keeps_the_ceiling_and_what_is_done():
         fit_schedule(solver, 200, rate=0.0, seconds_left=10.0)
 
 
+def test_a_refit_keeps_the_steps_already_passed():
+    budget = SolverConfig(iterations=10000, lr_steps=(5000, 9000), minutes=60.0)
+    first = fit_schedule(budget, 200, rate=2.0, seconds_left=3900.0)  # 8000 iterations, steps 4000, 7200
+    assert (first.iterations, first.lr_steps) == (8000, (4000, 7200))
+    # at 5000 the host turns out slower: the run shrinks, the passed step stays, the next one
+    # scales, and one that would land in the past lands now (not before: lr never goes back up)
+    slower = fit_schedule(budget, 5000, rate=1.0, seconds_left=1000.0, current=first)
+    assert (slower.iterations, slower.lr_steps) == (6000, (4000, 5400))
+    slowest = fit_schedule(budget, 5000, rate=1.0, seconds_left=100.0, current=first)
+    assert (slowest.iterations, slowest.lr_steps) == (5100, (4000, 5000))
+
+
 @pytest.fixture(scope="module")
 def frames(tmp_path_factory):
     return write_scenes(tmp_path_factory.mktemp("budget") / "frames", 2, seed=3)
@@ -44,20 +57,30 @@ def frames(tmp_path_factory):
 def test_a_run_fits_its_minutes(frames, tmp_path, monkeypatch):
     monkeypatch.setattr(loop, "WARMUP", 2)
     monkeypatch.setattr(loop, "PLAN_AFTER", 6)
+    monkeypatch.setattr(loop, "REFIT_EVERY", 25)
     monkeypatch.setattr(loop, "END_SECONDS", 0.0)
     budget_s = 6.0
     run = tmp_path / "run"
-    args = tiny_train_args(frames, run, tmp_path / "cache", "solver.lr_steps=[80000]",
+    args = tiny_train_args(frames, run, tmp_path / "cache", "solver.lr_steps=[30000]",
                            "log.checkpoint_every=100000")  # fmt: skip
     start = time.monotonic()
     assert main([*args, "--iters", "100000", "--minutes", str(budget_s / 60)]) == 0
     elapsed = time.monotonic() - start
     records = read_metrics(run / "metrics.jsonl")
-    (plan,) = [r for r in records if r["kind"] == "plan"]
+    plans = [r for r in records if r["kind"] == "plan"]
+    assert [r["iter"] for r in plans] == list(range(6, plans[-1]["iter"] + 1, 25)) and len(plans) > 1
+    plan = plans[-1]  # the last fit is the run's schedule
     fitted = plan["iterations"]
-    assert plan["iter"] == 6 and plan["ceiling"] == 100000 and 6 < fitted < 100000
-    assert plan["lr_steps"] == [round(80000 * fitted / 100000)]
-    assert [r["iter"] for r in records if r["kind"] == "train"][-1] == fitted  # it stopped there
+    assert plan["ceiling"] == 100000 and plan["iter"] < fitted < 100000
+    train = [r for r in records if r["kind"] == "train"]
+    assert train[-1]["iter"] == fitted  # it stopped there
+    assert plans[0]["lr_steps"] == [round(30000 * plans[0]["iterations"] / 100000)]
+    for before, r in itertools.pairwise(plans):  # 30 % of each fitted length, until a fit passed it
+        (old,), (step,) = before["lr_steps"], r["lr_steps"]
+        scaled = max(r["iter"], round(30000 * r["iterations"] / 100000))
+        assert step == (old if old <= r["iter"] else scaled)
+    lrs = [r["lr"] for r in train]
+    assert lrs == sorted(lrs, reverse=True) and lrs[-1] < lrs[0]  # one cut, never undone by a refit
     assert elapsed < 3 * budget_s, elapsed  # the rate of 4 iterations predicts the rest to within 3x
     # config.json and the checkpoint hold the fitted schedule, so --resume continues it as is
     for solver in (json.loads((run / "config.json").read_text())["solver"],

@@ -39,7 +39,7 @@ from tqdm import tqdm
 from a3d.runtime.io.atomic import atomic_write_bytes
 from a3d.runtime.network.cpu_support import bf16_instructions
 from a3d.runtime.structures.classes import CLASSES
-from a3d.train.budget import END_SECONDS, PLAN_AFTER, WARMUP, fit_schedule
+from a3d.train.budget import END_SECONDS, PLAN_AFTER, REFIT_EVERY, WARMUP, fit_schedule
 from a3d.train.checkpoint import (
     CheckpointError,
     load_checkpoint,
@@ -295,6 +295,7 @@ class _Run:
         self.start = int(state["iteration"]) if state else 0
 
         self.clock_start = time.monotonic()  # solver.minutes' clock (a3d.train.budget)
+        self.budget = solver if solver.minutes > 0 else None  # the ceiling and its lr steps
         cache = Path(config.data.cache_dir) if config.data.cache_dir else run / "cache"
         if not info.is_main:
             barrier(info)  # rank 0 fills the proposal cache first
@@ -347,12 +348,12 @@ class _Run:
         window: dict[str, float] = {}
         window_n, window_start = 0, time.perf_counter()
         last_loss, val_map = None, None
-        plan_at = self.start + PLAN_AFTER if solver.minutes > 0 else None
-        if plan_at is not None and plan_at >= solver.iterations and info.is_main:
+        fit_at = self.start + PLAN_AFTER if self.budget else None
+        if fit_at is not None and fit_at >= solver.iterations and info.is_main:
             logger.info("solver.minutes: the run's %d iterations are too few to time; it runs them all",
                         solver.iterations - self.start)  # fmt: skip
         warm_at, warm_start = self.start + WARMUP, 0.0
-        # the run's length can change at plan_at (solver.minutes), so it is read at every iteration
+        # the run's length can change at each fit (solver.minutes), so it is read at every iteration
         count = itertools.count(self.start)
         iterations = itertools.takewhile(lambda i: i < self.config.solver.iterations, count)
         self.net.train()
@@ -362,10 +363,10 @@ class _Run:
                 done = iteration + 1
                 if done == warm_at:
                     warm_start = time.perf_counter()
-                if done == plan_at and plan_at < solver.iterations:
-                    rate = (plan_at - warm_at) / (time.perf_counter() - warm_start)
-                    solver = self.fit_to_budget(done, rate)
+                if done == fit_at and done < solver.iterations:
+                    solver = self.fit_to_budget(done, (done - warm_at) / (time.perf_counter() - warm_start))
                     bar.total = solver.iterations
+                    fit_at += REFIT_EVERY
                 final = done == solver.iterations
                 for key, value in values.items():
                     window[key] = window.get(key, 0.0) + value
@@ -400,19 +401,19 @@ class _Run:
     def fit_to_budget(self, done: int, rate: float) -> SolverConfig:
         """Fit the run's length to solver.minutes at ``rate`` (the ranks' mean), rewrite
         config.json with the fitted schedule and say it (a3d.train.budget)."""
-        solver = self.config.solver
-        left = solver.minutes * 60 - (time.monotonic() - self.clock_start) - END_SECONDS
+        budget = self.budget
+        left = budget.minutes * 60 - (time.monotonic() - self.clock_start) - END_SECONDS
         agreed = mean_over_ranks({"rate": rate, "left": left}, self.info, self.dev)
-        fitted = fit_schedule(solver, done, agreed["rate"], agreed["left"])
+        fitted = fit_schedule(budget, done, agreed["rate"], agreed["left"], self.config.solver)
         self.config = replace(self.config, solver=fitted)
         if self.info.is_main:
             atomic_write_bytes(self.run / CONFIG_NAME, (self.config.to_json() + "\n").encode())
-            plan = {"minutes": solver.minutes, "it_per_s": agreed["rate"], "ceiling": solver.iterations,
+            plan = {"minutes": budget.minutes, "it_per_s": agreed["rate"], "ceiling": budget.iterations,
                     "iterations": fitted.iterations, "lr_steps": list(fitted.lr_steps)}  # fmt: skip
             self.metrics.write({"kind": "plan", "iter": done, **plan})
-            capped = " (the ceiling: the run ends early)" if fitted.iterations == solver.iterations else ""
+            capped = " (the ceiling: the run ends early)" if fitted.iterations == budget.iterations else ""
             logger.info("solver.minutes=%g: %d iterations fit at %.2f it/s%s, lr steps %s",
-                        solver.minutes, fitted.iterations, agreed["rate"], capped,
+                        budget.minutes, fitted.iterations, agreed["rate"], capped,
                         ", ".join(map(str, fitted.lr_steps)) or "none")  # fmt: skip
         return fitted
 
