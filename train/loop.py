@@ -15,7 +15,8 @@ Outputs in the run folder: ``config.json`` (the resolved TrainConfig), ``checkpo
 (a3d.train.checkpoint, every ``log.checkpoint_every`` iterations and at the end),
 ``metrics.jsonl`` (one JSON object per line with ``kind`` and ``iter``: "data" the RoI database,
 "train" the mean loss terms, lr and speed over the last ``log.log_every`` iterations, "val" the
-validation mAP, "sync" the ranks' parameter digests under DDP),
+validation mAP, "sync" the ranks' parameter digests under DDP, "plan" each fit of a time budget,
+a3d.train.budget),
 ``loss.png`` (loss curves and validation mAP), and ``cache/`` (per-frame proposals) unless
 ``data.cache_dir`` points elsewhere.
 """
