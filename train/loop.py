@@ -292,7 +292,7 @@ class _Run:
             barrier(info)
         if info.is_main:
             run.mkdir(parents=True, exist_ok=True)
-            atomic_write_bytes(run / CONFIG_NAME, (config.to_json() + "\n").encode())
+            self.write_config()
         self.start = int(state["iteration"]) if state else 0
 
         self.clock_start = time.monotonic()  # solver.minutes' clock (a3d.train.budget)
@@ -399,6 +399,10 @@ class _Run:
         bar.close()
         return TrainResult(self.run, max(self.start, solver.iterations), last_loss, val_map)
 
+    def write_config(self) -> None:
+        """config.json: the run's resolved configuration (with a time budget, its latest fit)."""
+        atomic_write_bytes(self.run / CONFIG_NAME, (self.config.to_json() + "\n").encode())
+
     def fit_to_budget(self, done: int, rate: float) -> SolverConfig:
         """Fit the run's length to solver.minutes at ``rate`` (the ranks' mean), rewrite
         config.json with the fitted schedule and say it (a3d.train.budget)."""
@@ -408,7 +412,7 @@ class _Run:
         fitted = fit_schedule(budget, done, agreed["rate"], agreed["left"], self.config.solver)
         self.config = replace(self.config, solver=fitted)
         if self.info.is_main:
-            atomic_write_bytes(self.run / CONFIG_NAME, (self.config.to_json() + "\n").encode())
+            self.write_config()
             plan = {"minutes": budget.minutes, "it_per_s": agreed["rate"], "ceiling": budget.iterations,
                     "iterations": fitted.iterations, "lr_steps": list(fitted.lr_steps)}  # fmt: skip
             self.metrics.write({"kind": "plan", "iter": done, **plan})

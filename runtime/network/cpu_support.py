@@ -52,15 +52,19 @@ def int8_dot_products(flags: frozenset[str] | None = None) -> list[str]:
     """The int8 dot-product instructions among ``flags`` (default: this machine's). Where there is
     one, ONNX Runtime's int8 kernels add exactly; AVX2's saturate an intermediate 16-bit sum, so an
     int8 model's scores differ slightly between the two kinds of CPU."""
-    flags = cpu_flags() if flags is None else flags
-    return [name for name in INT8_DOT_PRODUCT if name in flags]
+    return _among(INT8_DOT_PRODUCT, flags)
 
 
 def bf16_instructions(flags: frozenset[str] | None = None) -> list[str]:
     """The native bfloat16 instructions among ``flags`` (default: this machine's): where there is
     none, PyTorch emulates bfloat16 and a3d-train's ``solver.precision=bf16`` runs slower, not faster."""
+    return _among(BF16_NATIVE, flags)
+
+
+def _among(names: tuple[str, ...], flags: frozenset[str] | None) -> list[str]:
+    """``names`` that are in ``flags`` (default: this machine's, ``cpu_flags``), in ``names``' order."""
     flags = cpu_flags() if flags is None else flags
-    return [name for name in BF16_NATIVE if name in flags]
+    return [name for name in names if name in flags]
 
 
 def export_advice(flags: frozenset[str] | None = None) -> ExportAdvice:
