@@ -3,10 +3,12 @@
 ``BatchDataset[iteration]`` is this rank's whole mini-batch of that iteration (the sampler's plan
 is a pure function of the seed and the iteration, see a3d.train.sampler), so the DataLoader
 iterates over iteration numbers and a resumed run simply starts at a later one. Per image:
-read the colour image and the hole-filled depth the RoI database cached (the front end ran once
-per frame there), flip when the plan says so, compute the regression targets of the sampled
-foreground RoIs and normalise them per class, build the network inputs and RoIs at the
-configured input scale with the runtime's own function (a3d.runtime.network.network_input).
+take the colour image and the hole-filled depth the RoI database cached (the front end ran once
+per frame there) resized to the input scale, from a cache of their own (a3d.train.scaled_frames;
+with ``data.augment`` the frame is read, augmented, refilled and resized each time), flip when
+the plan says so, compute the regression targets of the sampled foreground RoIs and normalise
+them per class, and build the network inputs and RoIs with the runtime's own functions
+(a3d.runtime.network.network_input).
 
 Flip (README "Pixels and 2D boxes"): image and depth columns reversed, 2D boxes through
 ``flip_boxes_2d`` (u -> W - 1 - u), 3D boxes through ``flip_boxes_3d`` (x -> -x, theta -> -theta),
@@ -37,6 +39,7 @@ from a3d.runtime.structures.geometry import flip_boxes_2d, flip_boxes_3d
 from a3d.train.augment import augment_frame, augment_rng
 from a3d.train.roidb import FrameRois
 from a3d.train.sampler import plan_batch
+from a3d.train.scaled_frames import load_scaled_frame
 
 MIN_STD = 1e-3  # floor of a normalisation std (a class whose targets are all equal)
 
@@ -179,20 +182,25 @@ class BatchDataset(torch.utils.data.Dataset):
         colors, depths, rois, contexts, labels, t3ds, t2ds, w3ds = ([] for _ in range(8))
         for b, plan in enumerate(plans):
             record = self.records[plan.image]
-            frame = read_frame(record.ref, record.folder_intrinsics)
+            boxes = record.boxes[plan.rois].astype(np.float64)
+            if plan.flip:
+                boxes = flip_boxes_2d(boxes, record.image_size[1])
             if d.augment:  # a3d.train.augment: other light and sensors, same geometry (refilled)
+                frame = read_frame(record.ref, record.folder_intrinsics)
                 rng = augment_rng(self.seed, int(iteration), b)
                 color, raw = augment_frame(rng, frame.color, frame.depth)
                 depth = fill_depth(raw)
-            else:
-                color, depth = frame.color, np.load(record.filled_depth_path)
-            boxes = record.boxes[plan.rois].astype(np.float64)
-            if plan.flip:
-                color, depth = color[:, ::-1], depth[:, ::-1]
-                boxes = flip_boxes_2d(boxes, record.image_size[1])
-            color_in, depth_in, roi_boxes, context = frame_network_inputs(
-                color, depth, boxes, d.input_scale, d.depth_truncation_m, d.context_scale
-            )
+                if plan.flip:
+                    color, depth = color[:, ::-1], depth[:, ::-1]
+                color_in, depth_in, roi_boxes, context = frame_network_inputs(
+                    color, depth, boxes, d.input_scale, d.depth_truncation_m, d.context_scale
+                )
+            else:  # the same pixels every epoch: resized once and cached (a3d.train.scaled_frames)
+                scaled = load_scaled_frame(record, d.input_scale)
+                scaled = scaled.flipped() if plan.flip else scaled
+                color_in, depth_in, roi_boxes, context = scaled.network_inputs(
+                    boxes, d.depth_truncation_m, d.context_scale
+                )
             t3d, t2d, has_3d = raw_targets(record, plan.rois, plan.flip)
             roi_labels = record.labels[plan.rois]
             colors.append(color_in)

@@ -27,12 +27,41 @@ def frame_network_inputs(
     colour and depth trunk inputs (3, h, w) float32 at ``scale`` (``network_inputs``), and the
     RoIs and context RoIs (N, 4) float32 in the resized image's pixels. The runtime and training
     (on flipped frames too) both build their inputs here, so they cannot drift apart."""
-    color_in, depth_in, (sx, sy) = network_inputs(
-        np.ascontiguousarray(color_bgr), np.ascontiguousarray(depth_filled), scale, truncation
-    )
-    context = context_boxes(boxes, depth_filled.shape, context_scale)
+    color_small, depth_small = resize_to_scale(color_bgr, depth_filled, scale)
+    return resized_network_inputs(color_small, depth_small, depth_filled.shape, boxes, truncation, context_scale)
+
+
+def resized_network_inputs(
+    color_small: np.ndarray,
+    depth_small: np.ndarray,
+    native_size: tuple[int, int],
+    boxes: np.ndarray,
+    truncation: float,
+    context_scale: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``frame_network_inputs`` of a frame already resized by ``resize_to_scale`` (training caches
+    the resized pair): ``native_size`` (H, W) is the frame's own, which the boxes are in."""
+    h, w = depth_small.shape
+    sx, sy = w / native_size[1], h / native_size[0]
+    context = context_boxes(boxes, native_size, context_scale)
     rois = scale_boxes(boxes, sx, sy).astype(np.float32)
+    color_in, depth_in = color_input(color_small), depth_input(depth_small, truncation)
     return color_in, depth_in, rois, scale_boxes(context, sx, sy).astype(np.float32)
+
+
+def resize_to_scale(color_bgr: np.ndarray, depth_filled: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
+    """Colour (H, W, 3) uint8 and hole-filled depth (H, W) float32 resized to ``round(W * scale) x
+    round(H * scale)`` (at least 1); down-scaling averages areas (no aliasing), up-scaling is
+    bilinear. The unchanged arrays (contiguous) where the size does not change."""
+    if not (np.isfinite(scale) and scale > 0):
+        raise ValueError(f"network_inputs: scale must be a positive number, got {scale}")
+    color_bgr, depth_filled = np.ascontiguousarray(color_bgr), np.ascontiguousarray(depth_filled)
+    h, w = depth_filled.shape
+    size = (max(1, round(w * scale)), max(1, round(h * scale)))
+    if size == (w, h):
+        return color_bgr, depth_filled
+    interp = cv2.INTER_AREA if scale < 1.0 else cv2.INTER_LINEAR
+    return cv2.resize(color_bgr, size, interpolation=interp), cv2.resize(depth_filled, size, interpolation=interp)
 
 
 def network_inputs(
@@ -42,18 +71,12 @@ def network_inputs(
 
     ``color_bgr`` (H, W, 3) uint8, ``depth_filled`` (H, W) float32 metres (hole-filled);
     ``truncation`` metres map to 255 in the depth input (a3d.runtime.network.preprocess). The size is
-    ``round(W * scale) x round(H * scale)`` (at least 1), so (sx, sy) = (w / W, h / H) differ
-    slightly from ``scale``. Down-scaling averages areas (no aliasing), up-scaling is bilinear.
+    ``resize_to_scale``'s, so (sx, sy) = (w / W, h / H) differ slightly from ``scale``.
     """
-    if not (np.isfinite(scale) and scale > 0):
-        raise ValueError(f"network_inputs: scale must be a positive number, got {scale}")
     h, w = depth_filled.shape
-    size = (max(1, round(w * scale)), max(1, round(h * scale)))
-    if size != (w, h):
-        interp = cv2.INTER_AREA if scale < 1.0 else cv2.INTER_LINEAR
-        color_bgr = cv2.resize(color_bgr, size, interpolation=interp)
-        depth_filled = cv2.resize(depth_filled, size, interpolation=interp)
-    return color_input(color_bgr), depth_input(depth_filled, truncation), (size[0] / w, size[1] / h)
+    color_small, depth_small = resize_to_scale(color_bgr, depth_filled, scale)
+    size = depth_small.shape
+    return color_input(color_small), depth_input(depth_small, truncation), (size[1] / w, size[0] / h)
 
 
 def scale_boxes(boxes: np.ndarray, sx: float, sy: float) -> np.ndarray:
