@@ -41,7 +41,9 @@ class ScaledFrame:
         self, boxes: np.ndarray, truncation: float, context_scale: float
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``frame_network_inputs`` of the full-size frame and ``boxes`` (N, 4, native pixels)."""
-        return resized_network_inputs(self.color, self.depth, self.native_size, boxes, truncation, context_scale)
+        return resized_network_inputs(
+            self.color, self.depth, self.native_size, boxes, truncation, context_scale
+        )
 
 
 def scaled_frame_path(record: FrameRois, scale: float) -> Path:

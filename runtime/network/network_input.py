@@ -28,7 +28,9 @@ def frame_network_inputs(
     RoIs and context RoIs (N, 4) float32 in the resized image's pixels. The runtime and training
     (on flipped frames too) both build their inputs here, so they cannot drift apart."""
     color_small, depth_small = resize_to_scale(color_bgr, depth_filled, scale)
-    return resized_network_inputs(color_small, depth_small, depth_filled.shape, boxes, truncation, context_scale)
+    return resized_network_inputs(
+        color_small, depth_small, depth_filled.shape, boxes, truncation, context_scale
+    )
 
 
 def resized_network_inputs(
@@ -49,19 +51,22 @@ def resized_network_inputs(
     return color_in, depth_in, rois, scale_boxes(context, sx, sy).astype(np.float32)
 
 
-def resize_to_scale(color_bgr: np.ndarray, depth_filled: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray]:
+def resize_to_scale(
+    color_bgr: np.ndarray, depth_filled: np.ndarray, scale: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Colour (H, W, 3) uint8 and hole-filled depth (H, W) float32 resized to ``round(W * scale) x
     round(H * scale)`` (at least 1); down-scaling averages areas (no aliasing), up-scaling is
     bilinear. The unchanged arrays (contiguous) where the size does not change."""
     if not (np.isfinite(scale) and scale > 0):
-        raise ValueError(f"network_inputs: scale must be a positive number, got {scale}")
+        raise ValueError(f"input scale must be a positive number, got {scale}")
     color_bgr, depth_filled = np.ascontiguousarray(color_bgr), np.ascontiguousarray(depth_filled)
     h, w = depth_filled.shape
     size = (max(1, round(w * scale)), max(1, round(h * scale)))
     if size == (w, h):
         return color_bgr, depth_filled
     interp = cv2.INTER_AREA if scale < 1.0 else cv2.INTER_LINEAR
-    return cv2.resize(color_bgr, size, interpolation=interp), cv2.resize(depth_filled, size, interpolation=interp)
+    color_small = cv2.resize(color_bgr, size, interpolation=interp)
+    return color_small, cv2.resize(depth_filled, size, interpolation=interp)
 
 
 def network_inputs(
