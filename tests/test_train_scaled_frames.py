@@ -4,6 +4,9 @@ cut short is computed again."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -92,3 +95,12 @@ def test_each_scale_has_its_own_file(records):
     assert scaled_frame_path(record, 0.5) != scaled_frame_path(record, 0.4)
     assert load_scaled_frame(record, 0.5).color.shape[:2] == (24, 32)
     assert load_scaled_frame(record, 0.4).color.shape[:2] == (19, 26)
+
+
+def test_frames_whose_names_hold_dots_get_files_of_their_own(records):
+    """The file is named from the whole ``NAME-KEY`` (frame names like ``scan.01`` and ``scan.02``)."""
+    paths = {
+        scaled_frame_path(replace(records[0], filled_depth_path=Path(f"/c/scan.0{i}-k.filled.npy")), 0.5)
+        for i in (1, 2)
+    }
+    assert paths == {Path("/c/scan.01-k.scale0.5.npz"), Path("/c/scan.02-k.scale0.5.npz")}

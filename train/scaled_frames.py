@@ -25,7 +25,7 @@ import numpy as np
 from a3d.runtime.io.atomic import atomic_write
 from a3d.runtime.network.network_input import resize_to_scale, resized_network_inputs
 from a3d.runtime.sources.folder import read_frame
-from a3d.train.roidb import FrameRois
+from a3d.train.roidb import FILLED_DEPTH_SUFFIX, FrameRois
 
 
 @dataclass(frozen=True)
@@ -48,7 +48,7 @@ class ScaledFrame:
 
 def scaled_frame_path(record: FrameRois, scale: float) -> Path:
     """Beside the record's filled depth (``NAME-KEY.filled.npy`` -> ``NAME-KEY.scale0.5.npz``)."""
-    stem = record.filled_depth_path.name.split(".", 1)[0]
+    stem = record.filled_depth_path.name.removesuffix(FILLED_DEPTH_SUFFIX)
     return record.filled_depth_path.with_name(f"{stem}.scale{scale:g}.npz")
 
 
