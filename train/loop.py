@@ -254,7 +254,9 @@ def train(
     info = init_distributed(dev)
     try:
         dev = local_device(dev, info)
-        return _Run(data, Path(run_dir), config, dev, info, resume, overwrite, val_data).loop()
+        result = _Run(data, Path(run_dir), config, dev, info, resume, overwrite, val_data).loop()
+        barrier(info)  # no rank tears its gloo connections down while another still uses them
+        return result
     finally:
         shutdown(info)
 
