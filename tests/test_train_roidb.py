@@ -190,6 +190,22 @@ def test_front_end_worker_processes_give_the_serial_result(scenes, tmp_path):
         np.testing.assert_array_equal(a.init_boxes, b.init_boxes)
 
 
+@pytest.mark.parametrize("cut", [0, 100, -50])
+def test_a_proposals_file_cut_short_is_computed_again(scenes, tmp_path, cut):
+    """Empty, within the zip header, or without the zip's directory at its end."""
+    config = apply_overrides(load_config("vgg16"), TINY)
+    cache = tmp_path / "cache"
+    first = build_roidb(scenes, config, cache)
+    path = sorted(cache.glob("*.npz"))[0]
+    whole = path.read_bytes()
+    path.write_bytes(whole[:cut])
+    again = build_roidb(scenes, config, cache)
+    assert path.stat().st_size == len(whole)  # rewritten whole
+    for a, b in zip(first.records, again.records, strict=True):
+        np.testing.assert_array_equal(a.boxes, b.boxes)
+        np.testing.assert_array_equal(a.labels, b.labels)
+
+
 @pytest.mark.parametrize("form", ["computed", "packed masks", "superpixels"])
 def test_the_training_front_end_equals_the_runtime_pipeline(scenes, tmp_path, form):
     """Training lifts the proposals a3d-run lifts: computed ones, or the first max_proposals of a

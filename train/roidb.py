@@ -29,6 +29,7 @@ import hashlib
 import json
 import multiprocessing
 import os
+import zipfile
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import asdict, dataclass
@@ -59,6 +60,9 @@ from a3d.runtime.structures.geometry import Intrinsics, iou_2d
 
 CACHE_VERSION = 3
 FILLED_DEPTH_SUFFIX = ".filled.npy"
+# What np.load of a cached .npz raises when the file is from another version or cut short: the
+# cache computes it again.
+UNREADABLE_CACHE = (OSError, ValueError, KeyError, TypeError, EOFError, zipfile.BadZipFile)
 MIN_VISIBLE_AREA = 1.0  # px^2: a ground truth with a smaller visible box has no RoI
 
 
@@ -328,8 +332,8 @@ def cached_front_end(
                 arrays = {k: z[k] for k in z.files}
             arrays["image_size"] = tuple(int(v) for v in arrays["image_size"])
             return FrontEnd(**arrays)
-        except (OSError, ValueError, KeyError, TypeError):
-            pass  # unreadable (a file from another version): recompute
+        except UNREADABLE_CACHE:
+            pass  # unreadable (a file from another version, or cut short): recompute
     front, filled = compute_front_end(ref, gt, intrinsics, proposal_config)
     atomic_write(
         _cache_path(ref, proposal_config, cache_dir, FILLED_DEPTH_SUFFIX), lambda f: np.save(f, filled)

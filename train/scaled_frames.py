@@ -16,7 +16,6 @@ rounding otherwise (one level of a uint8 colour at most).
 
 from __future__ import annotations
 
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,7 +24,7 @@ import numpy as np
 from a3d.runtime.io.atomic import atomic_write
 from a3d.runtime.network.network_input import resize_to_scale, resized_network_inputs
 from a3d.runtime.sources.folder import read_frame
-from a3d.train.roidb import FILLED_DEPTH_SUFFIX, FrameRois
+from a3d.train.roidb import FILLED_DEPTH_SUFFIX, UNREADABLE_CACHE, FrameRois
 
 
 @dataclass(frozen=True)
@@ -60,7 +59,7 @@ def load_scaled_frame(record: FrameRois, scale: float) -> ScaledFrame:
         with np.load(path) as z:
             color, depth = z["color"], z["depth"]
         return ScaledFrame(color, depth, record.image_size)
-    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+    except UNREADABLE_CACHE:
         pass  # missing or unreadable (a file cut short): computed again
     frame = read_frame(record.ref, record.folder_intrinsics)
     color, depth = resize_to_scale(frame.color, np.load(record.filled_depth_path), scale)
