@@ -67,7 +67,8 @@ def test_batches_carry_flipped_images_and_boxes(db_and_config):
     for iteration in range(12):
         batch = dataset[iteration]
         plans = plan_batch([r.labels for r in db.records], seed=config.solver.seed, iteration=iteration,
-                           images_per_batch=2, rois_per_image=32, fg_fraction=0.25, flip=True)  # fmt: skip
+                           images_per_batch=2, rois_per_image=32, fg_fraction=0.25, flip=True,
+                           groups=dataset.groups)  # fmt: skip
         start = 0
         for b, plan in enumerate(plans):
             record = db.records[plan.image]

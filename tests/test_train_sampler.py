@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from a3d.train.sampler import plan_batch, sample_rois, slot_images
+from a3d.train.sampler import epoch_length, plan_batch, sample_rois, slot_images
 
 
 @pytest.mark.parametrize(
@@ -58,3 +58,32 @@ def test_each_epoch_visits_every_image_once_and_ranks_differ():
         epoch = [img for it in range(start, start + 3) for rank in (0, 1)
                  for _, img in slot_images(0, it, n, 2, rank=rank, world_size=2)]  # fmt: skip
         assert sorted(epoch) == list(range(n))
+
+
+@pytest.mark.parametrize(("n", "per_batch", "world_size"), [(50, 4, 1), (23, 2, 2), (7, 4, 1), (3, 4, 1)])
+def test_shape_groups_fill_whole_batches_and_every_epoch_sees_all_but_a_batch(n, per_batch, world_size):
+    groups = np.random.default_rng(n).integers(0, 3, n)  # three frame sizes, unevenly shared
+    groups[0] = 3  # a size with a single frame: it can only ride in a mixed batch
+    iterations = 40
+    batches = [[img for _, img in slot_images(5, it, n, per_batch, rank, world_size, groups)]
+               for it in range(iterations) for rank in range(world_size)]  # fmt: skip
+    epoch = epoch_length(n, per_batch, grouped=True)
+    assert epoch % per_batch == 0 or n < per_batch
+    flat = [img for batch in batches for img in batch]
+    for start in range(0, len(flat) - epoch + 1, epoch):  # each epoch: distinct images, all but < a batch
+        seen = flat[start : start + epoch]
+        assert len(set(seen)) == len(seen) and n - len(seen) < per_batch
+    if n < per_batch:
+        return
+    mixed_allowed = sum(np.bincount(groups) % per_batch) // per_batch  # batches of left-overs per epoch
+    epochs = len(batches) * per_batch / epoch
+    mixed = sum(len(set(groups[b])) > 1 for b in batches)
+    assert mixed <= np.ceil(epochs) * mixed_allowed
+    assert mixed < len(batches) / 4  # most batches hold one size (random batches would mix almost all)
+
+
+def test_the_same_images_without_groups_are_one_permutation_an_epoch():
+    groups = np.zeros(10, np.int64)
+    plain = [img for it in range(5) for _, img in slot_images(0, it, 10, 2)]
+    grouped = [img for it in range(5) for _, img in slot_images(0, it, 10, 2, groups=groups)]
+    assert sorted(plain) == sorted(grouped) == list(range(10))

@@ -41,6 +41,7 @@ class DataConfig:
     flip: bool = True
     augment: bool = False  # colour and depth augmentation per training image (a3d.train.augment)
     images_per_batch: int = 2
+    group_by_shape: bool = True  # batch frames of one size together (less padding; a3d.train.sampler)
     rois_per_image: int = 128
     fg_fraction: float = 0.25
     fg_iou: float = 0.5  # foreground: 2D IoU >= fg_iou with a visible (gt2d_sel) box

@@ -133,6 +133,11 @@ def compute_target_stats(records: list[FrameRois], flip: bool) -> TargetStats:
     return stats
 
 
+def shape_groups(records: list[FrameRois]) -> np.ndarray:
+    """One group id per record, shared by the frames of one (H, W) (the sampler batches them together)."""
+    return np.unique([r.image_size for r in records], axis=0, return_inverse=True)[1].reshape(-1)
+
+
 def pad_stack(images: list[np.ndarray]) -> np.ndarray:
     """(3, h_i, w_i) arrays -> (B, 3, max h, max w), zero-padded at the bottom and right (= the mean)."""
     h = max(i.shape[1] for i in images)
@@ -162,6 +167,7 @@ class BatchDataset(torch.utils.data.Dataset):
         self.iterations = iterations
         self.rank, self.world_size = rank, world_size
         self.labels = [r.labels for r in records]
+        self.groups = shape_groups(records) if config.data.group_by_shape else None
 
     def __len__(self) -> int:
         return self.iterations
@@ -178,6 +184,7 @@ class BatchDataset(torch.utils.data.Dataset):
             flip=d.flip,
             rank=self.rank,
             world_size=self.world_size,
+            groups=self.groups,
         )
         colors, depths, rois, contexts, labels, t3ds, t2ds, w3ds = ([] for _ in range(8))
         for b, plan in enumerate(plans):
