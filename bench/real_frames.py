@@ -10,9 +10,9 @@ threshold against the boxes file (bench/data/real_frames_boxes.json: every plain
 of the 19 classes drawn by hand as its visible 2D extent). A detection is right when its class is
 the object's and its 2D box overlaps the object's with IoU >= 0.5; detections are matched greedily
 by descending score, one per object, so a duplicate counts as a wrong detection. Per frame and in
-total: objects, found (objects matched), detections >= threshold, right (detections matched; equal
-to found under one-to-one matching, printed beside the count it divides), recall (found / objects)
-and precision (right / detections).
+total: objects, found (objects matched), detections >= threshold, right (detections matched: equal
+to found under one-to-one matching, a column of its own as the numerator of precision), recall
+(found / objects) and precision (right / detections).
 
 The 2D box compared is ``box2d``, the proposal box: proposals are boxes of visible segments, as the
 hand-drawn boxes are visible extents, while ``box2d_amodal`` is the network's regression towards
@@ -171,6 +171,15 @@ class Count:
         return {**asdict(self), "recall": self.recall, "precision": self.precision}
 
 
+@dataclass(frozen=True)
+class FrameMatch:
+    """A frame's detections as compared: classes, scores and the chosen 2D box of each."""
+
+    class_ids: np.ndarray
+    scores: np.ndarray
+    boxes: np.ndarray
+
+
 def match(
     truth: HandBoxes,
     class_ids: np.ndarray,
@@ -204,15 +213,6 @@ def count(
 ) -> Count:
     """The frame's Count (``match``)."""
     return frame_report(truth, FrameMatch(class_ids, scores, boxes), threshold)[0]
-
-
-@dataclass(frozen=True)
-class FrameMatch:
-    """A frame's detections as compared: classes, scores and the chosen 2D box of each."""
-
-    class_ids: np.ndarray
-    scores: np.ndarray
-    boxes: np.ndarray
 
 
 def frame_report(truth: HandBoxes, dets: FrameMatch, threshold: float) -> tuple[Count, dict[str, Any]]:
