@@ -24,6 +24,7 @@ from a3d.runtime.network.preprocess import COLOR_MEAN_BGR, DEPTH_MEAN
 from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES
 from a3d.train.checkpoint import file_sha256
 from a3d.train.config import TrainConfig
+from a3d.train.model.weights import IMAGENET_VGG16_NOTICE
 
 METRICS_FILE = "metrics.jsonl"  # a3d.train.loop writes it next to checkpoint.pt
 
@@ -66,7 +67,8 @@ def build_metadata(
 
 
 def provenance(state: dict, config: TrainConfig, checkpoint: Path, export_options: dict[str, Any]) -> dict:
-    """Where the model came from: package versions, date, checkpoint hash, training config and data."""
+    """Where the model came from: package versions, date, checkpoint hash, training config and data, and
+    the licence of third-party weights it was initialised from (ImageNet VGG16: CC BY 4.0, attributed)."""
     return {
         "a3d_version": _version("a3d"),
         "exported_at": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
@@ -77,6 +79,7 @@ def provenance(state: dict, config: TrainConfig, checkpoint: Path, export_option
             **({"averaged": state["averaged"]} if "averaged" in state else {}),
         },
         "training_config": config.to_dict(),
+        **({"weights_licence": IMAGENET_VGG16_NOTICE} if config.solver.pretrained else {}),
         "training_data": training_data(state, checkpoint),
         "export": {**export_options, **{name: _version(name) for name in ("torch", "onnx", "onnxruntime")}},
     }

@@ -64,6 +64,10 @@ class SolverConfig:
     twice as fast as "fp32"; on a CPU without them bfloat16 is emulated and slower (a3d-train says so).
     ``minutes`` > 0 fits the run to that wall-clock budget on this machine (a3d.train.budget):
     ``iterations`` is then the ceiling and ``lr_steps`` scale with the fitted length.
+    ``freeze_color`` keeps the colour trunk's first N convolutions at their initial (ImageNet)
+    weights; with all 13 frozen and ``data.augment`` off, the trunk's features are computed once
+    per frame and cached (a3d.train.color_features), so training runs the depth trunk and the
+    head alone.
     """
 
     iterations: int = 40000
@@ -79,6 +83,8 @@ class SolverConfig:
     minutes: float = 0.0  # wall-clock budget of the run; 0 = run ``iterations`` (see above)
     threads: int = 0  # torch intra-op threads of the training process; 0 = torch's default
     pretrained: str = ""  # torchvision-layout VGG16 ImageNet state dict; "" = random initialisation
+    pretrained_trunks: tuple[str, ...] = ("color", "depth")  # the trunks ``pretrained`` initialises
+    freeze_color: int = 0  # leading colour-trunk convs kept fixed; 13 = all (features cached, see below)
     init: str = ""  # a3d-train checkpoint to fine-tune: its weights, target statistics and mean sizes
 
 
@@ -177,10 +183,25 @@ def _cpu_tiny() -> TrainConfig:
     )
 
 
+def _cpu_imagenet() -> TrainConfig:
+    """The real-room recipe: cpu-small's depth trunk and head beside a full-width colour trunk that
+    keeps ImageNet VGG16's weights (``--set solver.pretrained=FILE``, a3d-vgg16-weights), frozen, its
+    features computed once per frame (a3d.train.color_features), so the CPU trains the rest."""
+    return apply_values(
+        _cpu_small(),
+        {
+            "net": {"color_width": 1.0, "color_norm": False},
+            "solver": {"freeze_color": 13, "pretrained_trunks": ["color"]},
+        },
+        "preset cpu-imagenet",
+    )
+
+
 PRESETS: dict[str, Callable[[], TrainConfig]] = {
     "vgg16": _vgg16,
     "cpu-small": _cpu_small,
     "cpu-tiny": _cpu_tiny,
+    "cpu-imagenet": _cpu_imagenet,
 }
 GPU_PRESET = "vgg16"  # a3d-train's default on a CUDA device
 CPU_PRESET = "cpu-small"  # ... and without one

@@ -37,6 +37,7 @@ from a3d.runtime.structures.boxes import BOX_DIM
 from a3d.runtime.structures.classes import NUM_OUTPUTS
 from a3d.runtime.structures.geometry import flip_boxes_2d, flip_boxes_3d
 from a3d.train.augment import augment_frame, augment_rng
+from a3d.train.color_features import load_color_features
 from a3d.train.roidb import FrameRois
 from a3d.train.sampler import plan_batch
 from a3d.train.scaled_frames import load_scaled_frame
@@ -139,7 +140,7 @@ def shape_groups(records: list[FrameRois]) -> np.ndarray:
 
 
 def pad_stack(images: list[np.ndarray]) -> np.ndarray:
-    """(3, h_i, w_i) arrays -> (B, 3, max h, max w), zero-padded at the bottom and right (= the mean)."""
+    """(C, h_i, w_i) arrays -> (B, C, max h, max w), zero-padded at the bottom and right (= the mean)."""
     h = max(i.shape[1] for i in images)
     w = max(i.shape[2] for i in images)
     out = np.zeros((len(images), images[0].shape[0], h, w), dtype=np.float32)
@@ -159,8 +160,10 @@ class BatchDataset(torch.utils.data.Dataset):
         iterations: int,
         rank: int = 0,
         world_size: int = 1,
+        color_features: str = "",
     ) -> None:
         self.records = records
+        self.color_features = color_features  # a frozen colour trunk's digest: its cached features
         self.stats = stats
         self.data = config.data
         self.seed = config.solver.seed
@@ -186,7 +189,7 @@ class BatchDataset(torch.utils.data.Dataset):
             world_size=self.world_size,
             groups=self.groups,
         )
-        colors, depths, rois, contexts, labels, t3ds, t2ds, w3ds = ([] for _ in range(8))
+        colors, maps, depths, rois, contexts, labels, t3ds, t2ds, w3ds = ([] for _ in range(9))
         for b, plan in enumerate(plans):
             record = self.records[plan.image]
             boxes = record.boxes[plan.rois].astype(np.float64)
@@ -210,7 +213,10 @@ class BatchDataset(torch.utils.data.Dataset):
                 )
             t3d, t2d, has_3d = raw_targets(record, plan.rois, plan.flip)
             roi_labels = record.labels[plan.rois]
-            colors.append(color_in)
+            if self.color_features:  # the frozen colour trunk's output instead of its input
+                maps.append(load_color_features(record, d.input_scale, self.color_features, plan.flip))
+            else:
+                colors.append(color_in)
             depths.append(depth_in)
             rois.append(with_batch_index(roi_boxes, b))
             contexts.append(with_batch_index(context, b))
@@ -218,8 +224,9 @@ class BatchDataset(torch.utils.data.Dataset):
             t3ds.append(np.where(has_3d[:, None], self.stats.normalise_3d(roi_labels, t3d), 0.0))
             t2ds.append(np.where(roi_labels[:, None] > 0, self.stats.normalise_2d(roi_labels, t2d), 0.0))
             w3ds.append(has_3d.astype(np.float32))
+        images = {"color_map": maps} if self.color_features else {"color": colors}
         return {
-            "color": torch.from_numpy(pad_stack(colors)),
+            **{key: torch.from_numpy(pad_stack(value)) for key, value in images.items()},
             "depth": torch.from_numpy(pad_stack(depths)),
             "rois": torch.from_numpy(np.concatenate(rois).astype(np.float32)),
             "context_rois": torch.from_numpy(np.concatenate(contexts).astype(np.float32)),

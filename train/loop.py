@@ -48,6 +48,7 @@ from a3d.train.checkpoint import (
     load_weights,
     save_checkpoint,
 )
+from a3d.train.color_features import cache_color_features
 from a3d.train.config import PRECISIONS, SolverConfig, TrainConfig
 from a3d.train.dataset import BatchDataset, TargetStats, batch_loader, compute_target_stats
 from a3d.train.distributed import (
@@ -63,7 +64,7 @@ from a3d.train.distributed import (
 )
 from a3d.train.inference import TorchDetector, validate
 from a3d.train.losses import LossTerms, detection_loss
-from a3d.train.model import A3DNet, load_vgg16_imagenet
+from a3d.train.model import A3DNet, describe_loaded, load_vgg16_imagenet
 from a3d.train.roidb import Folders, build_roidb, describe
 
 logger = logging.getLogger(__name__)
@@ -222,9 +223,10 @@ def _to_device(batch: dict, device: torch.device) -> dict:
 def forward_loss(net: torch.nn.Module, batch: dict, solver: SolverConfig, bf16: bool) -> LossTerms:
     """The network on one mini-batch (already on its device) and its loss; ``bf16``: the forward
     pass under bfloat16 autocast, the loss on its outputs in float32 (SolverConfig.precision)."""
-    device = batch["color"].device.type
+    device = batch["depth"].device.type
     with torch.autocast(device, dtype=torch.bfloat16, enabled=bf16):
-        outputs = net(batch["color"], batch["depth"], batch["rois"], batch["context_rois"])
+        outputs = net(batch.get("color"), batch["depth"], batch["rois"], batch["context_rois"],
+                      batch.get("color_map"))  # fmt: skip
     logits, deltas3d, deltas2d = (x.float() for x in outputs)
     return detection_loss(logits, deltas3d, deltas2d, batch["labels"], batch["targets3d"], batch["targets2d"],
                           batch["weights3d"], solver.lambda_3d, solver.lambda_2d)  # fmt: skip
@@ -280,6 +282,10 @@ class _Run:
             raise ValueError(f"solver.minutes={solver.minutes}: expected > 0, or 0 for no time budget")
         if solver.init and solver.pretrained:
             raise ValueError("solver.init and solver.pretrained are both set: a run starts from one of them")
+        if solver.freeze_color and not (solver.init or solver.pretrained or state):
+            raise ValueError(f"solver.freeze_color={solver.freeze_color} keeps the colour trunk's initial "
+                             "weights: give them with solver.pretrained=FILE (a3d-vgg16-weights) or "
+                             "solver.init")  # fmt: skip
         # A fine-tuned run keeps its checkpoint's regression targets (statistics, mean sizes), so the
         # head's deltas mean what they meant; a resumed run's own checkpoint supersedes it.
         start = state or (load_trained_state(solver.init) if solver.init else None)
@@ -317,9 +323,12 @@ class _Run:
         torch.manual_seed(solver.seed)
         model = A3DNet(config.net)
         if solver.pretrained and not state:
-            load_vgg16_imagenet(model, solver.pretrained)
+            loaded = load_vgg16_imagenet(model, solver.pretrained, trunks=solver.pretrained_trunks)
+            if info.is_main:
+                logger.info("solver.pretrained: %s", describe_loaded(model, loaded, solver.pretrained))
         elif solver.init and not state:
             load_weights(model, start["model"], solver.init)
+        model.freeze_color(solver.freeze_color)
         # channels-last convolutions: oneDNN's fast layout on CPUs (1.2x in fp32, and what AMX's bf16 wants)
         model.to(dev, memory_format=torch.channels_last)
         self.bf16 = solver.precision == "bf16"
@@ -332,6 +341,17 @@ class _Run:
             load_weights(model, state["model"], self.ckpt_path)
             self.optimizer.load_state_dict(state["optimizer"])
         self.net = wrap_model(model, info)
+        features = ""
+        if model.color_frozen and not config.data.augment:
+            if not info.is_main:
+                barrier(info)  # rank 0 computes the cache first
+            features, computed = cache_color_features(
+                self.roidb.records, model.color_trunk, config.data.input_scale, dev, self.bf16, progress
+            )
+            if info.is_main:
+                logger.info("solver.freeze_color: the frozen colour trunk's features (%s) cached for %d of "
+                            "%d frames", features, computed, len(self.roidb.records))  # fmt: skip
+                barrier(info)
 
         self.metrics = MetricsLog(run / METRICS_NAME, self.start if state else None) if info.is_main else None
         if self.metrics:
@@ -340,7 +360,7 @@ class _Run:
             for line in self.roidb.skipped:
                 logger.info("skipped %s", line)
         dataset = BatchDataset(self.roidb.records, self.stats, config,
-                               solver.iterations, info.rank, info.world_size)  # fmt: skip
+                               solver.iterations, info.rank, info.world_size, features)  # fmt: skip
         self.loader = batch_loader(dataset, self.start, config.data.workers, pin_memory=dev.type == "cuda")
 
     def loop(self) -> TrainResult:

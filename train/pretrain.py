@@ -41,7 +41,7 @@ from a3d.train.checkpoint import atomic_torch_save
 from a3d.train.loop import param_groups
 from a3d.train.model.config import NetConfig
 from a3d.train.model.vgg import FEATURE_STRIDE, VGG16Trunk, conv5_size
-from a3d.train.model.weights import TORCHVISION_STD_RGB
+from a3d.train.model.weights import torchvision_first_conv
 
 CROP_MARGIN = 1.25  # crop side / visible box side (some context around the object)
 MIN_BOX_PX = 12  # objects whose visible box is narrower or lower are skipped
@@ -167,8 +167,7 @@ def torchvision_state(model: CropClassifier) -> dict[str, torch.Tensor]:
     trunk = copy.deepcopy(model.trunk).eval()
     trunk.fold_batch_norms()
     state = {f"features.{k}": v.detach().clone() for k, v in trunk.features.state_dict().items()}
-    std = torch.tensor(TORCHVISION_STD_RGB, dtype=state["features.0.weight"].dtype)
-    state["features.0.weight"] = state["features.0.weight"].flip(1) * (255.0 * std)[None, :, None, None]
+    state["features.0.weight"] = torchvision_first_conv(state["features.0.weight"])
     state.update({f"classifier.{k}": v.detach().clone() for k, v in model.classifier.state_dict().items()})
     return state
 

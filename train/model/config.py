@@ -25,6 +25,9 @@ class NetConfig:
         0.125 keep the layer layout with ``round(c * width)`` channels per layer.
     trunk_norm: BatchNorm after every trunk conv (a departure, for from-scratch training on
         synthetic data; folded into the convs at export, see a3d.train.model.vgg).
+    color_width, color_norm: the colour trunk's own width and BatchNorm (None: ``width`` and
+        ``trunk_norm``), so that a full-width ImageNet colour trunk (plain, as ImageNet trained it)
+        can sit beside a small depth trunk trained from scratch.
     use_depth: False is the colour-only ablation (one trunk; the depth input is ignored).
     use_context: False drops the context-box pooling (the context RoIs are ignored).
     fuse_channels: None = the paper's plain concatenation of the pooled conv5_3 blocks; an int F =
@@ -41,6 +44,8 @@ class NetConfig:
 
     width: float = 1.0
     trunk_norm: bool = False
+    color_width: float | None = None
+    color_norm: bool | None = None
     use_depth: bool = True
     use_context: bool = True
     fuse_channels: int | None = None
@@ -52,8 +57,10 @@ class NetConfig:
     roi_pool: Literal["align", "max"] = "align"
 
     def __post_init__(self) -> None:
-        if not 0.0 < self.width <= 1.0:
-            raise ValueError(f"NetConfig.width must be in (0, 1], got {self.width}")
+        for name in ("width", "color_width"):
+            value = getattr(self, name)
+            if value is not None and not 0.0 < value <= 1.0:
+                raise ValueError(f"NetConfig.{name} must be in (0, 1], got {value}")
         for name in ("fc6", "fc7", "pool_size", "sampling_ratio"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"NetConfig.{name} must be a positive integer, got {getattr(self, name)}")
@@ -63,6 +70,15 @@ class NetConfig:
             raise ValueError(f"NetConfig.dropout must be in [0, 1), got {self.dropout}")
         if self.roi_pool not in ("align", "max"):
             raise ValueError(f"NetConfig.roi_pool must be 'align' or 'max', got {self.roi_pool!r}")
+
+
+    @property
+    def color_trunk_width(self) -> float:
+        return self.width if self.color_width is None else self.color_width
+
+    @property
+    def color_trunk_norm(self) -> bool:
+        return self.trunk_norm if self.color_norm is None else self.color_norm
 
 
 def _fused_preset(width: float, fc: int) -> NetConfig:

@@ -51,11 +51,15 @@ class A3DNet(nn.Module):
     def __init__(self, config: NetConfig | None = None) -> None:
         super().__init__()
         self.config = config = config or NetConfig()
-        self.color_trunk = VGG16Trunk(config.width, config.trunk_norm)
+        self.color_trunk = VGG16Trunk(config.color_trunk_width, config.color_trunk_norm)
         self.depth_trunk = VGG16Trunk(config.width, config.trunk_norm) if config.use_depth else None
-        trunk_channels = self.color_trunk.out_channels * (2 if config.use_depth else 1)
+        self.trunk_channels = [t.out_channels for t in (self.color_trunk, self.depth_trunk) if t is not None]
+        trunk_channels = sum(self.trunk_channels)
         boxes = 2 if config.use_context else 1
         if config.fuse_channels is None:
+            if len(set(self.trunk_channels)) > 1:
+                raise ValueError("NetConfig: trunks of different widths need fuse_channels (a block per "
+                                 "trunk in fc6 assumes one width)")  # fmt: skip
             self.fuse_roi = self.fuse_context = None
             self.block_channels = self.color_trunk.out_channels
             self.pooled_blocks = boxes * (2 if config.use_depth else 1)
@@ -81,22 +85,52 @@ class A3DNet(nn.Module):
             nn.init.normal_(layer.weight, std=std)
             nn.init.zeros_(layer.bias)
 
+    def freeze_color(self, convs: int) -> None:
+        """Keep the colour trunk's first ``convs`` convolutions fixed (no gradient, no weight decay).
+
+        A frozen layer must be plain (no BatchNorm, whose statistics train mode would still update).
+        """
+        trunk_convs = self.color_trunk.convs()
+        if not 0 <= convs <= len(trunk_convs):
+            raise ValueError(f"solver.freeze_color={convs}: expected 0 .. {len(trunk_convs)} convolutions")
+        if convs and self.config.color_trunk_norm:
+            raise ValueError("solver.freeze_color: a frozen colour trunk must be plain "
+                             "(net.color_norm=false)")  # fmt: skip
+        for _, conv in trunk_convs[:convs]:
+            conv.requires_grad_(False)
+
+    @property
+    def color_frozen(self) -> bool:
+        """Whether the whole colour trunk is fixed, so its output can be computed once per frame."""
+        return not any(p.requires_grad for p in self.color_trunk.parameters())
+
     def _fuse_conv(self, in_channels: int, out_channels: int) -> nn.Conv2d:
-        """1x1 conv starting as the per-channel mean of the trunks (leading channels, zeros elsewhere)."""
+        """1x1 conv starting as the per-channel mean of the trunks (each trunk's leading channels,
+        zeros elsewhere)."""
         conv = nn.Conv2d(in_channels, out_channels, 1)
-        trunk = self.color_trunk.out_channels
-        trunks = in_channels // trunk
+        trunks = len(self.trunk_channels)
         with torch.no_grad():
             conv.weight.zero_()
             conv.bias.zero_()
-            shared = min(out_channels, trunk)
-            for t in range(trunks):
-                conv.weight[:shared, t * trunk : t * trunk + shared, 0, 0] += torch.eye(shared) / trunks
+            start = 0
+            for channels in self.trunk_channels:
+                shared = min(out_channels, channels)
+                conv.weight[:shared, start : start + shared, 0, 0] += torch.eye(shared) / trunks
+                start += channels
         return conv
 
-    def trunk_features(self, color: torch.Tensor, depth: torch.Tensor | None) -> torch.Tensor:
-        """Concatenated conv5_3 maps (B, T*C, ceil(H/16), ceil(W/16)), colour channels first."""
-        color_map = self.color_trunk(color)
+    def trunk_features(
+        self, color: torch.Tensor | None, depth: torch.Tensor | None, color_map: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """Concatenated conv5_3 maps (B, sum C, ceil(H/16), ceil(W/16)), colour channels first.
+
+        ``color_map``: the colour trunk's output computed beforehand (a frozen trunk's cached
+        features, a3d.train.color_features), in place of running the trunk on ``color``.
+        """
+        if color_map is None:
+            if color is None:
+                raise ValueError("A3DNet: neither a colour image nor the colour trunk's features were given")
+            color_map = self.color_trunk(color)
         if self.depth_trunk is None:
             return color_map
         if depth is None:
@@ -134,5 +168,6 @@ class A3DNet(nn.Module):
         depth: torch.Tensor | None,
         rois: torch.Tensor,
         context_rois: torch.Tensor | None,
+        color_map: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        return self.head(self.trunk_features(color, depth), rois, context_rois)
+        return self.head(self.trunk_features(color, depth, color_map), rois, context_rois)

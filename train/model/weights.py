@@ -39,6 +39,12 @@ from a3d.train.model.net import A3DNet
 IMAGENET_POOL = 7
 TORCHVISION_STD_RGB = (0.229, 0.224, 0.225)
 InputConvention = Literal["torchvision", "caffe"]
+TRUNKS = ("color", "depth")
+IMAGENET_VGG16_NOTICE = (
+    "ImageNet VGG16 convolution weights by Karen Simonyan and Andrew Zisserman, 'Very Deep "
+    "Convolutional Networks for Large-Scale Image Recognition' (ICLR 2015), licensed CC BY 4.0 "
+    "(https://creativecommons.org/licenses/by/4.0/); used as initialisation, unchanged where frozen"
+)
 
 
 def _tensor(vgg: Mapping[str, torch.Tensor], key: str, ndim: int, source: str) -> torch.Tensor:
@@ -58,18 +64,32 @@ def _leading(value: torch.Tensor, shape: torch.Size, key: str, source: str) -> t
     return value[tuple(slice(0, n) for n in shape)]
 
 
+def _first_conv_scale(weight: torch.Tensor) -> torch.Tensor:
+    std = torch.tensor(TORCHVISION_STD_RGB, dtype=weight.dtype, device=weight.device)
+    return (255.0 * std)[None, :, None, None]
+
+
 def _caffe_first_conv(weight: torch.Tensor) -> torch.Tensor:
     """torchvision conv1_1 (RGB, (x/255 - mean)/std) -> weights for BGR 0..255 inputs."""
-    std = torch.tensor(TORCHVISION_STD_RGB, dtype=weight.dtype, device=weight.device)
-    return (weight / (255.0 * std)[None, :, None, None]).flip(1)
+    return (weight / _first_conv_scale(weight)).flip(1)
+
+
+def torchvision_first_conv(weight: torch.Tensor) -> torch.Tensor:
+    """The inverse of ``_caffe_first_conv``: conv1_1 for BGR 0..255 inputs -> torchvision's convention,
+    so that a file written with it loads back to the same weights."""
+    return weight.flip(1) * _first_conv_scale(weight)
 
 
 def _trunk_entries(
-    model: A3DNet, vgg: Mapping[str, torch.Tensor], source: str, convention: InputConvention
+    model: A3DNet,
+    vgg: Mapping[str, torch.Tensor],
+    source: str,
+    convention: InputConvention,
+    trunks: tuple[str, ...],
 ) -> dict[str, torch.Tensor]:
     entries: dict[str, torch.Tensor] = {}
-    trunks = {"color_trunk": model.color_trunk, "depth_trunk": model.depth_trunk}
-    for trunk_name, trunk in trunks.items():
+    for trunk_name in trunks:
+        trunk = getattr(model, f"{trunk_name}_trunk")
         if trunk is None:
             continue
         for index, conv in trunk.convs():
@@ -81,7 +101,7 @@ def _trunk_entries(
             if index == 0 and convention == "torchvision":
                 weight = _caffe_first_conv(weight)
             scale = weight.shape[1] / conv.weight.shape[1]
-            name = f"{trunk_name}.features.{index}"
+            name = f"{trunk_name}_trunk.features.{index}"
             entries[f"{name}.weight"] = _leading(weight, conv.weight.shape, f"{key}.weight", source) * scale
             bias = _tensor(vgg, f"{key}.bias", 1, source)
             entries[f"{name}.bias"] = _leading(bias, conv.bias.shape, f"{key}.bias", source)
@@ -89,6 +109,8 @@ def _trunk_entries(
 
 
 def _fc_entries(model: A3DNet, vgg: Mapping[str, torch.Tensor], source: str) -> dict[str, torch.Tensor]:
+    if not any(key.startswith("classifier.") for key in vgg):
+        return {}  # a convolutions-only file (a3d-vgg16-weights): fc6/fc7 keep their own init
     fc6_w = _tensor(vgg, "classifier.0.weight", 2, source)
     fc6_b = _tensor(vgg, "classifier.0.bias", 1, source)
     fc7_w = _tensor(vgg, "classifier.3.weight", 2, source)
@@ -121,19 +143,27 @@ def imagenet_init_state(
     vgg: Mapping[str, torch.Tensor],
     source: str,
     input_convention: InputConvention = "torchvision",
+    trunks: tuple[str, ...] = TRUNKS,
 ) -> dict[str, torch.Tensor]:
     """Model state entries (parameter name -> tensor) derived from a torchvision VGG16 state dict.
 
     Pure shape logic plus slicing, so it also runs on meta tensors. source names the file in
-    error messages.
+    error messages; ``trunks`` names the trunks to initialise ("color", "depth"). A file without
+    ``classifier.*`` keys (convolutions only) leaves fc6/fc7 at their own init.
     """
     if input_convention not in ("torchvision", "caffe"):
         raise ValueError(f"input_convention must be 'torchvision' or 'caffe', got {input_convention!r}")
-    return {**_trunk_entries(model, vgg, source, input_convention), **_fc_entries(model, vgg, source)}
+    unknown = set(trunks) - set(TRUNKS)
+    if unknown:
+        raise ValueError(f"unknown trunk {sorted(unknown)[0]!r} (known: {', '.join(TRUNKS)})")
+    return {**_trunk_entries(model, vgg, source, input_convention, trunks), **_fc_entries(model, vgg, source)}
 
 
 def load_vgg16_imagenet(
-    model: A3DNet, path: str | Path, input_convention: InputConvention = "torchvision"
+    model: A3DNet,
+    path: str | Path,
+    input_convention: InputConvention = "torchvision",
+    trunks: tuple[str, ...] = TRUNKS,
 ) -> list[str]:
     """Copy ImageNet VGG16 weights from ``path`` into ``model``; returns the parameter names set."""
     path = Path(path)
@@ -145,9 +175,23 @@ def load_vgg16_imagenet(
         raise ValueError(f"{path}: not a torch state dict file ({error})") from None
     if not isinstance(vgg, Mapping):
         raise ValueError(f"{path}: holds a {type(vgg).__name__}, expected a VGG16 state dict")
-    entries = imagenet_init_state(model, vgg, str(path), input_convention)
+    entries = imagenet_init_state(model, vgg, str(path), input_convention, trunks)
     state = model.state_dict()
     with torch.no_grad():
         for name, value in entries.items():
             state[name].copy_(value)
     return list(entries)
+
+
+def describe_loaded(model: A3DNet, loaded: list[str], source: str | Path) -> str:
+    """One line for the log: which of the model's layers came from the file and which kept their init."""
+    groups = {
+        f"{name} trunk": [f"{name}_trunk.features.{i}.weight" for i, _ in trunk.convs()]
+        for name in TRUNKS
+        if (trunk := getattr(model, f"{name}_trunk")) is not None
+    }
+    groups.update(fc6=["fc6.weight"], fc7=["fc7.weight"])
+    counts = {group: sum(key in set(loaded) for key in keys) for group, keys in groups.items()}
+    got = [f"{group} ({n} of {len(groups[group])})" for group, n in counts.items() if n]
+    kept = [group for group, n in counts.items() if not n] + ["BatchNorm, fusion convs and heads"]
+    return f"{source}: loaded {', '.join(got) or 'nothing'}; own initialisation kept: {', '.join(kept)}"
