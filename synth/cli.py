@@ -243,7 +243,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--depth-format",
         choices=("png", "npy"),
         default="png",
-        help="png: uint16 millimetres; npy: float32 metres (README 'Frame format')",
+        help="png: uint16 millimetres; npy: float32 metres (docs/formats.md 'Frame format')",
     )
     parser.add_argument(
         "--world",

@@ -1,5 +1,5 @@
 """a3d-run (a subprocess, a real exported model) over a folder that mixes good frames with every
-kind of bad input of README "Frame format".
+kind of bad input of docs/formats.md "Frame format".
 
 Each bad frame must be named on exactly one stderr line with its problem, the good frames must
 come out exactly as a run over the good frames alone does (timing aside), the exit status is 1

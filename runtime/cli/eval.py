@@ -54,7 +54,9 @@ PROG = "a3d-eval"
 
 def build_parser() -> argparse.ArgumentParser:
     p = command_parser(PROG, __doc__.split("\n\n")[0])
-    p.add_argument("folder", type=Path, help="frame folder with NAME.gt.json and NAME.meta.json (README)")
+    p.add_argument(
+        "folder", type=Path, help="frame folder with NAME.gt.json and NAME.meta.json (docs/formats.md)"
+    )
     p.add_argument(
         "--detections",
         type=Path,

@@ -126,7 +126,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--raw-scores",
         action="store_true",
         help="write the network's softmax scores, without the model's score calibration (a model "
-        'exported with --score-calibration: README "Exporting a model")',
+        'exported with --score-calibration: docs/training.md "Exporting a model")',
     )
     p.add_argument("--resume", action="store_true", help="skip the frames the output already has")
     p.add_argument("--max-frames", type=int, metavar="N", help="stop after the first N frames of the source")
