@@ -18,7 +18,7 @@ The 2D box compared is ``box2d``, the proposal box: proposals are boxes of visib
 hand-drawn boxes are visible extents, while ``box2d_amodal`` is the network's regression towards
 the amodal box (through occluders and off the image edge). ``--box amodal`` counts with that one.
 
-Writes DIR/contact_sheet.png (every frame a tile, bench.contact_sheet), DIR/real_frames.json (the
+Writes DIR/contact_sheet.png (every frame a tile, bench.contact_sheet; each tile alone in DIR/tiles/), DIR/real_frames.json (the
 numbers, with the missed objects and wrong detections per frame) and DIR/detections.jsonl (the
 detections file, README "Detections format"), and prints the table in markdown. A bad input (no
 such folder, a boxes file that names a frame the folder lacks, an unknown class, a bad box) is one
@@ -305,7 +305,9 @@ def run(args: argparse.Namespace) -> int:
         shown = TileBoxes(det.class_ids[keep], det.scores[keep], compared[keep], truth.boxes)
         tiles.append(draw_tile(color, title, shown))
     total = sum(counts.values(), Count(0, 0, 0, 0))
-    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "tiles").mkdir(parents=True, exist_ok=True)
+    for det_and_color, tile in zip(results, tiles, strict=True):  # one picture per frame, for the docs
+        cv2.imwrite(str(args.out / "tiles" / f"{det_and_color[0].frame}.png"), tile)
     header = (
         f"{label}: {args.box} boxes of detections >= {args.threshold:g} (viewer class colours); "
         f"dashed grey: hand-drawn objects"
