@@ -10,21 +10,13 @@ from __future__ import annotations
 
 import argparse
 import importlib
-from dataclasses import dataclass
 from types import ModuleType
 
 from a3d.runtime.errors import InputError
 from a3d.runtime.viewer.launch import add_bind_arg
+from a3d.runtime.viewer.shapes import ViewOptions
 
-
-@dataclass(frozen=True)
-class ViewOptions:
-    """What to draw besides the detections; the cloud stride trades detail for viewer load."""
-
-    cloud_stride: int = 2
-    show_ground_truth: bool = True
-    max_proposals: int = 0
-    min_score: float = 0.0  # detections below this score are written to the JSON but not drawn
+__all__ = ["ViewOptions", "add_viewer_args", "load_view", "viewer_requested"]
 
 
 def add_viewer_args(parser: argparse.ArgumentParser) -> None:
