@@ -103,6 +103,21 @@ class InferenceConfig:
     regress_3d: bool = True  # False: zero 3D deltas, i.e. the initial boxes (the "-3dreg" ablation)
 
 
+@dataclass(frozen=True)
+class PretrainConfig:
+    """Schedule of a3d-pretrain (a3d.train.pretrain; the network's shape comes from a NetConfig)."""
+
+    iterations: int = 3000
+    batch: int = 64
+    lr: float = 0.02
+    lr_step: float = 0.75  # lr *= 0.1 after this share of the iterations
+    momentum: float = 0.9
+    weight_decay: float = 0.0005
+    crop: int = 112
+    val_share: float = 0.1  # frames held out for validation accuracy
+    seed: int = 0
+
+
 @dataclass
 class TrainConfig:
     net: NetConfig = field(default_factory=NetConfig)

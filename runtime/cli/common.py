@@ -7,7 +7,9 @@ Exit codes, the same for every a3d command:
   of its result failed (a3d-export's verification);
 - 2 (``EXIT_USAGE``): a usage error or an unusable input, found before any work: argparse's own
   errors, and the ``InputError`` / ``ModelError`` (plus the errors a command lists) that reach
-  ``main``, printed as one line ``PROG: error: message``;
+  ``main``, printed as one line ``PROG: error: message``; a missing optional extra (torch for the
+  training commands), one line ``PROG: needs the 'train' extra: pip install 'a3d[train]' (torch is
+  missing)``, checked once the flags are parsed, so ``--help`` and ``--version`` work without it;
 - 130 (``EXIT_INTERRUPTED``): Ctrl-C.
 
 Help texts are plain text (no reST markup: argparse prints them as they are) and every option
@@ -19,8 +21,10 @@ from __future__ import annotations
 
 import argparse
 import functools
+import importlib.util
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from importlib.metadata import PackageNotFoundError, version
 
 from a3d.runtime.errors import InputError, ModelError
@@ -29,6 +33,45 @@ EXIT_OK = 0
 EXIT_FAILED = 1
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
+
+
+EXTRAS: dict[str, tuple[str, ...]] = {
+    "view": ("rerun",),
+    "train": ("torch", "onnx", "onnxscript", "scipy", "h5py", "matplotlib"),
+    "sunrgbd": ("scipy",),
+    "bag": ("rosbags",),
+    "realsense": ("pyrealsense2",),
+}
+"""The modules each optional extra of pyproject.toml brings (import names, not pip names)."""
+
+
+class MissingExtra(InputError):
+    """A command's optional extra is not installed: one line naming it and the module missing."""
+
+    def __init__(self, extra: str, module: str) -> None:
+        super().__init__(f"needs the '{extra}' extra: pip install 'a3d[{extra}]' ({module} is missing)")
+
+
+def installed(module: str) -> bool:
+    """Whether ``module`` can be imported, found without importing it (torch takes seconds)."""
+    try:
+        return importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):  # a blocked or half-removed module
+        return False
+
+
+@dataclass(frozen=True)
+class Needs:
+    """The optional extra a command runs on and the modules of it the command imports."""
+
+    extra: str
+    modules: tuple[str, ...]
+
+    def check(self) -> None:
+        """MissingExtra for the first module that is not installed."""
+        for module in self.modules:
+            if not installed(module):
+                raise MissingExtra(self.extra, module)
 
 
 def a3d_version() -> str:
@@ -59,11 +102,28 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter):
         return f"{text} (default: {shown})"
 
 
-def build_parser(prog: str, description: str, epilog: str | None = None) -> argparse.ArgumentParser:
-    """The parser of one a3d command: plain-text help with defaults shown, and ``--version``."""
-    parser = argparse.ArgumentParser(
-        prog=prog, description=description, epilog=epilog, formatter_class=HelpFormatter
-    )
+class _Parser(argparse.ArgumentParser):
+    """An ArgumentParser that checks the command's extra once the flags parse (after --help)."""
+
+    def __init__(self, needs: Needs | None, **kwargs: object) -> None:
+        super().__init__(**kwargs)  # type: ignore[arg-type]
+        self.needs = needs
+
+    def parse_known_args(  # type: ignore[override]
+        self, args: Sequence[str] | None = None, namespace: argparse.Namespace | None = None
+    ) -> tuple[argparse.Namespace, list[str]]:
+        parsed = super().parse_known_args(args, namespace)
+        if self.needs is not None:
+            self.needs.check()
+        return parsed
+
+
+def build_parser(
+    prog: str, description: str, epilog: str | None = None, needs: Needs | None = None
+) -> argparse.ArgumentParser:
+    """The parser of one a3d command: plain-text help with defaults shown, and ``--version``;
+    with ``needs``, parsing raises MissingExtra when the command's extra is not installed."""
+    parser = _Parser(needs, prog=prog, description=description, epilog=epilog, formatter_class=HelpFormatter)
     parser.add_argument("--version", action="version", version=f"a3d {a3d_version()}")
     return parser
 
@@ -74,7 +134,9 @@ def command(
     """Decorate a command's ``main(argv) -> int`` with the shared error -> exit-code mapping.
 
     ``InputError``, ``ModelError`` and ``errors`` become one line ``PROG: error: message`` and exit
-    code 2; Ctrl-C exits 130 with one line. ``main`` itself returns 0 or 1 (some inputs failed).
+    code 2; a missing extra (MissingExtra, or an optional module that a lazy import did not find)
+    one line ``PROG: needs the 'EXTRA' extra: ...`` and exit code 2; Ctrl-C exits 130 with one
+    line. ``main`` itself returns 0 or 1 (some inputs failed).
     """
     usage_errors = (InputError, ModelError, *errors)
 
@@ -83,6 +145,15 @@ def command(
         def run(argv: list[str] | None = None, **options: object) -> int:
             try:
                 return main(argv, **options)
+            except MissingExtra as e:
+                print(f"{prog}: {e}", file=sys.stderr)
+                return EXIT_USAGE
+            except ModuleNotFoundError as e:
+                missing = _as_missing_extra(e)
+                if missing is None:
+                    raise
+                print(f"{prog}: {missing}", file=sys.stderr)
+                return EXIT_USAGE
             except usage_errors as e:
                 print(f"{prog}: error: {e}", file=sys.stderr)
                 return EXIT_USAGE
@@ -93,3 +164,11 @@ def command(
         return run
 
     return wrap
+
+
+def _as_missing_extra(error: ModuleNotFoundError) -> MissingExtra | None:
+    """The extra that brings the module an import did not find; None for a module of no extra
+    (a broken install, which keeps its traceback)."""
+    module = (error.name or "").split(".")[0]
+    extra = next((name for name, modules in EXTRAS.items() if module in modules), None)
+    return None if extra is None else MissingExtra(extra, module)
