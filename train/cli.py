@@ -6,7 +6,8 @@
     a3d-train mine/train data/train --out runs/mine --set solver.init=runs/small/checkpoint.pt  # two folders
     torchrun --nproc_per_node 2 -m a3d.train.cli data/train --out runs/ddp --config cpu-small
 
-``--config`` is a preset name (vgg16, cpu-small, cpu-tiny) or a JSON/TOML file (without it:
+``--config`` is a preset name (a3d.train.config.PRESETS: vgg16, cpu-small, cpu-tiny, and every
+network preset of a3d.train.model such as vgg16-fused) or a JSON/TOML file (without it:
 vgg16 on a CUDA device, cpu-small otherwise, said on stderr); ``--set a.b=v``
 overrides single settings (``--set solver.lr=0.001 --set data.workers=2``). With ``--resume``
 the configuration comes from the run's checkpoint; ``--set`` and ``--iters`` still apply on top
