@@ -76,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.score_threshold is not None and not 0.0 <= args.score_threshold <= 1.0:
         parser.error(f"--score-threshold must be in [0, 1], got {args.score_threshold}")
     if args.score_calibration is not None and not args.score_calibration.is_dir():
-        parser.error(f"--score-calibration {args.score_calibration}: no such folder")
+        raise ExportError(f"--score-calibration {args.score_calibration}: no such folder")
     from a3d.export.build import VerificationError, export  # torch and onnx (NEEDS)
 
     try:

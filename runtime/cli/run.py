@@ -170,7 +170,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _arguments(argv: list[str] | None) -> argparse.Namespace:
-    """Parsed and checked flags (argparse exits with status 2 on a usage error)."""
+    """Parsed and checked flags (argparse exits with status 2 and its usage line on a usage error);
+    a missing source or model is InputError, one line without the usage."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.threads < 1:
@@ -184,12 +185,12 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
     if args.output == "-" and (args.resume or args.stdout):
         parser.error("--output - cannot be combined with --resume or --stdout")
     if not args.source.exists() and ":" not in str(args.source) and not recognised(args.source):
-        parser.error(f"{args.source}: no such file or folder")
+        raise InputError(f"{args.source}: no such file or folder")
     args.shard = _shard(parser, args.shard)
     if args.model is None:
         args.model = args.source / DEFAULT_MODEL
         if not args.model.is_file():
-            parser.error(f"no model given and {args.model} does not exist; pass --model FILE")
+            raise InputError(f"no model given and {args.model} does not exist; pass --model FILE")
     return args
 
 
