@@ -20,8 +20,9 @@ import sys
 from pathlib import Path
 
 from a3d.export.base import MIN_OPSET, PROG, VERIFY_FRAMES, ExportError
-from a3d.runtime.cli.common import EXIT_FAILED, Needs, command
+from a3d.runtime.cli.common import EXIT_FAILED, command
 from a3d.runtime.cli.common import build_parser as command_parser
+from a3d.runtime.extras import Needs
 
 NEEDS = Needs("train", ("torch", "onnx", "onnxscript"))  # checked after parsing: --help works without
 CALIB_FRAMES = 16

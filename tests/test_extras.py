@@ -12,7 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from a3d.runtime.cli.common import EXTRAS, MissingExtra, Needs, command, installed
+from a3d.runtime.cli.common import command
+from a3d.runtime.extras import EXTRAS, MissingExtra, Needs, installed
 
 OPTIONAL = sorted({module for modules in EXTRAS.values() for module in modules})
 # What each command needs, and arguments that would start its work.

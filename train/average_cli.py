@@ -16,8 +16,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from a3d.runtime.cli.common import Needs, command
 from a3d.runtime.cli.common import build_parser as command_parser
+from a3d.runtime.cli.common import command
+from a3d.runtime.extras import Needs
 
 PROG = "a3d-average"
 NEEDS = Needs("train", ("torch",))  # checked after parsing: --help works without torch

@@ -25,8 +25,9 @@ import shlex
 import sys
 from pathlib import Path
 
-from a3d.runtime.cli.common import Needs, command
 from a3d.runtime.cli.common import build_parser as command_parser
+from a3d.runtime.cli.common import command
+from a3d.runtime.extras import Needs
 from a3d.train.config import CPU_PRESET, GPU_PRESET, PRESETS, TrainConfig, apply_overrides, load_config
 
 PROG = "a3d-train"

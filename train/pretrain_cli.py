@@ -16,8 +16,9 @@ import argparse
 import sys
 from pathlib import Path
 
-from a3d.runtime.cli.common import Needs, command
 from a3d.runtime.cli.common import build_parser as command_parser
+from a3d.runtime.cli.common import command
+from a3d.runtime.extras import Needs
 from a3d.train.cli import add_config_arguments, config_source
 from a3d.train.config import PretrainConfig, load_config
 

@@ -21,57 +21,17 @@ from __future__ import annotations
 
 import argparse
 import functools
-import importlib.util
 import sys
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
 from importlib.metadata import PackageNotFoundError, version
 
 from a3d.runtime.errors import InputError, ModelError
+from a3d.runtime.extras import MissingExtra, Needs
 
 EXIT_OK = 0
 EXIT_FAILED = 1
 EXIT_USAGE = 2
 EXIT_INTERRUPTED = 130
-
-
-EXTRAS: dict[str, tuple[str, ...]] = {
-    "view": ("rerun",),
-    "train": ("torch", "onnx", "onnxscript", "scipy", "h5py", "matplotlib"),
-    "sunrgbd": ("scipy",),
-    "bag": ("rosbags",),
-    "realsense": ("pyrealsense2",),
-}
-"""The modules each optional extra of pyproject.toml brings (import names, not pip names)."""
-
-
-class MissingExtra(InputError):
-    """A command's optional extra is not installed: one line naming it and the module missing."""
-
-    def __init__(self, extra: str, module: str) -> None:
-        super().__init__(f"needs the '{extra}' extra: pip install 'a3d[{extra}]' ({module} is missing)")
-
-
-def installed(module: str) -> bool:
-    """Whether ``module`` can be imported, found without importing it (torch takes seconds)."""
-    try:
-        return importlib.util.find_spec(module) is not None
-    except (ImportError, ValueError):  # a blocked or half-removed module
-        return False
-
-
-@dataclass(frozen=True)
-class Needs:
-    """The optional extra a command runs on and the modules of it the command imports."""
-
-    extra: str
-    modules: tuple[str, ...]
-
-    def check(self) -> None:
-        """MissingExtra for the first module that is not installed."""
-        for module in self.modules:
-            if not installed(module):
-                raise MissingExtra(self.extra, module)
 
 
 def a3d_version() -> str:
@@ -149,7 +109,7 @@ def command(
                 print(f"{prog}: {e}", file=sys.stderr)
                 return EXIT_USAGE
             except ModuleNotFoundError as e:
-                missing = _as_missing_extra(e)
+                missing = MissingExtra.of(e)
                 if missing is None:
                     raise
                 print(f"{prog}: {missing}", file=sys.stderr)
@@ -164,11 +124,3 @@ def command(
         return run
 
     return wrap
-
-
-def _as_missing_extra(error: ModuleNotFoundError) -> MissingExtra | None:
-    """The extra that brings the module an import did not find; None for a module of no extra
-    (a broken install, which keeps its traceback)."""
-    module = (error.name or "").split(".")[0]
-    extra = next((name for name, modules in EXTRAS.items() if module in modules), None)
-    return None if extra is None else MissingExtra(extra, module)

@@ -22,9 +22,10 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from a3d.runtime.cli.common import Needs, command
 from a3d.runtime.cli.common import build_parser as command_parser
+from a3d.runtime.cli.common import command
 from a3d.runtime.errors import InputError
+from a3d.runtime.extras import Needs
 from a3d.runtime.sources.folder import write_frame, write_intrinsics
 from a3d.runtime.sources.proposals_file import write_precomputed_proposals
 from a3d.runtime.structures.geometry import NYU_CROP_INTRINSICS
