@@ -281,6 +281,7 @@ class FrameReport:
 @command(PROG)
 def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] | None = None) -> int:
     args = _arguments(argv)
+    viewer.check_installed(args)  # no rerun: one line naming 'a3d[view]', before a view mode is suggested
     starts_viewer = viewer_launch.launches_viewer(args)
     if starts_viewer:
         viewer_launch.check_can_launch(args)  # no display, no viewer: one line before loading anything

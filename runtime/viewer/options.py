@@ -13,10 +13,11 @@ import importlib
 from types import ModuleType
 
 from a3d.runtime.errors import InputError
+from a3d.runtime.extras import installed
 from a3d.runtime.viewer.launch import add_bind_arg
 from a3d.runtime.viewer.shapes import ViewOptions
 
-__all__ = ["ViewOptions", "add_viewer_args", "load_view", "viewer_requested"]
+__all__ = ["ViewOptions", "add_viewer_args", "check_installed", "load_view", "viewer_requested"]
 
 
 def add_viewer_args(parser: argparse.ArgumentParser) -> None:
@@ -40,6 +41,19 @@ def viewer_requested(args: argparse.Namespace) -> bool:
     return not args.headless or bool(args.save or args.connect or args.serve or args.stdout)
 
 
+NOT_INSTALLED = (
+    "rerun is not installed: the view and --save need it (pip install 'a3d[view]'); "
+    "--headless alone runs without it"
+)
+
+
+def check_installed(args: argparse.Namespace) -> None:
+    """InputError naming the extra when the flags ask for a view or recording and rerun is missing,
+    before any other viewer check could suggest a mode (--serve, --save) that needs it too."""
+    if viewer_requested(args) and not installed("rerun"):
+        raise InputError(NOT_INSTALLED)
+
+
 def load_view() -> ModuleType:
     """a3d.runtime.viewer.view, or InputError saying how to install rerun (or to run headless)."""
     try:
@@ -47,7 +61,4 @@ def load_view() -> ModuleType:
     except ModuleNotFoundError as e:
         if not (e.name or "").startswith("rerun"):
             raise
-        raise InputError(
-            "rerun is not installed: the view and --save need it (pip install 'a3d[view]'); "
-            "--headless alone runs without it"
-        ) from None
+        raise InputError(NOT_INSTALLED) from None
