@@ -7,6 +7,7 @@ exports a tiny network with a3d.export and runs the command on it as a user woul
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import cv2
@@ -267,3 +268,13 @@ def test_exported_model_end_to_end(tmp_path: Path) -> None:
             assert det.scores[det.class_ids == c].max() == pytest.approx(
                 reference.scores[reference.class_ids == c].max(), abs=1e-4
             )
+
+
+def test_the_view_threshold_help_says_what_the_threshold_means() -> None:
+    """--view-min-score's help states the calibrated meaning of 0.5, not measured shares (docs/live.md)."""
+    from a3d.runtime.postprocess.score_calibration import SHOW_THRESHOLD
+
+    (action,) = [a for a in run_cli.build_parser()._actions if "--view-min-score" in a.option_strings]
+    assert action.default == SHOW_THRESHOLD == 0.5
+    assert "as likely right as wrong" in action.help
+    assert not re.search(r"half|most|\d+ ?%|0\.\d\d", action.help), action.help

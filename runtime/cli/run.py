@@ -65,6 +65,7 @@ from a3d.runtime.pipeline import (
     detect_frames,
     detect_frames_auto,
 )
+from a3d.runtime.postprocess.score_calibration import SHOW_THRESHOLD
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.folder import MODEL_FILE
 from a3d.runtime.sources.newest import NewestFrames
@@ -87,7 +88,7 @@ LIVE_NOTE = (
 )
 DEFAULT_MODEL = MODEL_FILE
 DEFAULT_OUTPUT = "detections.jsonl"
-VIEW_MIN_SCORE = 0.5  # calibrated: as likely right as wrong; bench.view_threshold: shown boxes 0.86 right
+VIEW_MIN_SCORE = SHOW_THRESHOLD  # calibrated scores: a detection there is as likely right as wrong
 
 load_model = DetectorModel.load  # the model loader (tests substitute a fake model here)
 
@@ -136,7 +137,8 @@ def build_parser() -> argparse.ArgumentParser:
         default=VIEW_MIN_SCORE,
         metavar="S",
         help="rerun view and summary: detections scoring >= S (all are written to the output; default: "
-        "%(default)s, where about half the shown boxes are right: docs/live.md)",
+        "%(default)s: with the model's calibrated scores a detection there is as likely right as wrong; "
+        "docs/live.md)",
     )
     p.add_argument(
         "--realtime",
