@@ -21,8 +21,8 @@ are skipped; a frame may appear once.
 ``gravity`` (optional; lines from before it have none) says where the line's R_tilt came from:
 "given" (the frame's own), "estimated" (from the depth) or "fallback: <method> (<reason>)"
 (a3d.runtime.frontend.gravity.choose_gravity). ``notes`` (optional, a list of strings) says what
-else degraded on the frame: depth mostly missing, no proposals, proposals capped, boxes clamped
-or dropped (a3d.runtime.postprocess.box_limits); an absent list means nothing did.
+else degraded on the frame: depth mostly missing, no proposals, boxes clamped
+(a3d.runtime.postprocess.box_limits); an absent list means nothing did.
 Every problem is an ``InputError`` "FILE:LINE: what is wrong".
 """
 
