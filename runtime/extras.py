@@ -25,8 +25,9 @@ EXTRAS: dict[str, tuple[str, ...]] = {
 class MissingExtra(InputError):
     """A command's optional extra is not installed: one line naming it and the module missing."""
 
-    def __init__(self, extra: str, module: str) -> None:
-        super().__init__(f"needs the '{extra}' extra: pip install 'a3d[{extra}]' ({module} is missing)")
+    def __init__(self, extra: str, module: str, caller: str = "") -> None:
+        who = f"{caller} " if caller else ""
+        super().__init__(f"{who}needs the '{extra}' extra: pip install 'a3d[{extra}]' ({module} is missing)")
 
     @classmethod
     def of(cls, error: ModuleNotFoundError) -> MissingExtra | None:
@@ -52,8 +53,8 @@ class Needs:
     extra: str
     modules: tuple[str, ...]
 
-    def check(self) -> None:
-        """MissingExtra for the first module that is not installed."""
+    def check(self, caller: str = "") -> None:
+        """MissingExtra for the first module that is not installed (naming ``caller``, a method)."""
         for module in self.modules:
             if not installed(module):
-                raise MissingExtra(self.extra, module)
+                raise MissingExtra(self.extra, module, caller)

@@ -310,6 +310,7 @@ def finish(prepared: PreparedFrame, out: NetworkOutput, config: PipelineConfig) 
         boxes2d_amodal=amodal,
         gravity=prepared.gravity,
         notes=(*prepared.notes, *bounded.notes(scores)),
+        intrinsics=frame.intrinsics,
     )
 
 

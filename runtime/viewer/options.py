@@ -13,7 +13,7 @@ import importlib
 from types import ModuleType
 
 from a3d.runtime.errors import InputError
-from a3d.runtime.extras import installed
+from a3d.runtime.extras import Needs, installed
 from a3d.runtime.viewer.launch import add_bind_arg
 from a3d.runtime.viewer.shapes import ViewOptions
 
@@ -54,8 +54,11 @@ def check_installed(args: argparse.Namespace) -> None:
         raise InputError(NOT_INSTALLED)
 
 
-def load_view() -> ModuleType:
-    """a3d.runtime.viewer.view, or InputError saying how to install rerun (or to run headless)."""
+def load_view(caller: str = "") -> ModuleType:
+    """a3d.runtime.viewer.view, or InputError saying how to install rerun: for a3d-run (or to run
+    headless), or, with ``caller`` (a Python method), MissingExtra naming it and the extra."""
+    if caller:
+        Needs("view", ("rerun",)).check(caller)
     try:
         return importlib.import_module("a3d.runtime.viewer.view")
     except ModuleNotFoundError as e:

@@ -25,6 +25,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from a3d.runtime.errors import InputError
 from a3d.runtime.structures.boxes import CENTER, THETA, boxes_array, local_half_sizes
 from a3d.runtime.structures.classes import CLASS_COLORS_RGB, CLASSES, to_softmax
 from a3d.runtime.structures.geometry import BOX_EDGES, Intrinsics, backproject_depth
@@ -91,19 +92,40 @@ def close_recording(args: argparse.Namespace, rec: rr.RecordingStream, own_viewe
     rr.disconnect(rec)
 
 
-def log_static(rec: rr.RecordingStream) -> None:
-    """World axes and the class annotation context (class id = softmax index = CLASSES index + 1)."""
-    rec.log("world", rr.ViewCoordinates.RDF, static=True)
-    rec.log(
-        "world",
-        rr.AnnotationContext(
-            [
-                rr.AnnotationInfo(id=int(to_softmax(i)), label=name, color=CLASS_COLORS_RGB[i])
-                for i, name in enumerate(CLASSES)
-            ]
-        ),
-        static=True,
+def class_annotations() -> rr.AnnotationContext:
+    """Every class's name and colour (class id = softmax index = CLASSES index + 1)."""
+    return rr.AnnotationContext(
+        [
+            rr.AnnotationInfo(id=int(to_softmax(i)), label=name, color=CLASS_COLORS_RGB[i])
+            for i, name in enumerate(CLASSES)
+        ]
     )
+
+
+def log_static(rec: rr.RecordingStream) -> None:
+    """World axes and the class annotation context."""
+    rec.log("world", rr.ViewCoordinates.RDF, static=True)
+    rec.log("world", class_annotations(), static=True)
+
+
+def log_detections(
+    rec: rr.RecordingStream | None,
+    entity_path: str,
+    *,
+    class_ids: np.ndarray,
+    scores: np.ndarray,
+    boxes3d: np.ndarray,
+    R_tilt: np.ndarray,
+) -> None:
+    """Detected 3D boxes at ``entity_path`` as ``log_frame`` logs them (``FrameDetections.log``),
+    with the class annotations on the entity itself so the colours hold wherever it is logged;
+    ``rec`` None: rerun's current recording."""
+    rec = rec if rec is not None else rr.get_data_recording()
+    if rec is None:
+        raise InputError("recording: rerun has none yet; call rr.init('a3d', spawn=True) first or pass one")
+    rec.log(entity_path, class_annotations(), static=True)
+    labels = box_labels(class_ids, scores)
+    rec.log(entity_path, boxes3d_archetype(boxes3d, R_tilt, class_ids, labels))
 
 
 def _yaw_rotations(theta: np.ndarray) -> list[rr.RotationAxisAngle]:
