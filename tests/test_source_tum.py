@@ -82,7 +82,8 @@ def test_run_on_a_sequence_equals_run_on_the_frame_folder(tmp_path: Path, tiny_m
     expected = run_detections(folder, tiny_model, tmp_path / "folder.jsonl")
     assert_same_detections(run_detections(sequence, tiny_model, tmp_path / "tum.jsonl"), expected)
     # The Python API on the same source (docs/sources.md), to the detections file's precision.
-    outcomes = Detector.load(tiny_model, threads=1).detect_frames(open_source(sequence, SourceOptions()))
+    detector = Detector.load(tiny_model, threads=1)
+    outcomes = detector.detect_frames(open_source(sequence, SourceOptions()), score_threshold=0)
     assert_same_detections({o.name: o.detections for o in outcomes}, expected, atol=1e-4)
     # The same with the camera given on the command line, and split into two shards.
     K = frames[0].intrinsics

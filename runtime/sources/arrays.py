@@ -23,6 +23,7 @@ from a3d.runtime.structures.frame import Frame, GroundTruth
 from a3d.runtime.structures.geometry import Intrinsics, check_rotation
 
 MILLIMETRE = 0.001  # metres per unit of a uint16 depth map, unless told otherwise
+PLAUSIBLE_MEDIAN_M = (0.1, 15.0)  # a room's median depth lies within; outside, the unit is likely wrong
 
 
 class ArrayError(InputError):
@@ -96,6 +97,27 @@ def depth_units_to_metres(depth: np.ndarray, scale: float) -> np.ndarray:
     if abs(per_metre - round(per_metre)) < 1e-6 * per_metre:
         return depth.astype(np.float32) / np.float32(round(per_metre))
     return (depth.astype(np.float64) * scale).astype(np.float32)
+
+
+def implausible_depth(depth_m: np.ndarray, integer: bool = True) -> str | None:
+    """What is wrong when the median valid depth lies outside ``PLAUSIBLE_MEDIAN_M`` (no indoor
+    scene: the unit is likely wrong, e.g. TUM's 5000 units per metre read as millimetres give
+    17.7 m rooms), else None; ``integer``: the depth came as uint16 units (else as float, which
+    must be metres). A sample of every 4th pixel each way keeps it cheap."""
+    sample = depth_m[::4, ::4]
+    valid = sample[sample > 0]
+    if not valid.size:
+        return None  # no depth at all: the pipeline's notes say so
+    median = float(np.median(valid))
+    low, high = PLAUSIBLE_MEDIAN_M
+    if low <= median <= high:
+        return None
+    fix = (
+        "check depth_scale (metres per uint16 unit: 0.001 for millimetres, the default; 0.0002 for TUM)"
+        if integer
+        else "float depth must be in metres (uint16 depth takes depth_scale)"
+    )
+    return f"depth: the median valid depth is {median:.3g} m, outside {low:g}-{high:g} m for a room; {fix}"
 
 
 def frame_from_arrays(
