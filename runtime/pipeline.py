@@ -57,6 +57,7 @@ from a3d.runtime.postprocess.score_calibration import ScoreCalibration
 from a3d.runtime.postprocess.select import decode_detections, select_detections
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.proposals_file import PrecomputedProposals
+from a3d.runtime.sources.wording import option
 from a3d.runtime.structures.boxes import BOX_DIM
 from a3d.runtime.structures.classes import NUM_OUTPUTS
 from a3d.runtime.structures.frame import Frame
@@ -239,7 +240,7 @@ def _proposals(
     ``notes`` learns when there are none. The cap cutting the list is the configured top N, normal
     operation, so it is only logged (debug)."""
     if config.proposal_source == "precomputed" and frame.proposals is None:
-        raise InputError(f"{frame.origin}: no precomputed proposals (--proposals precomputed)")
+        raise InputError(f"{frame.origin}: no precomputed proposals ({option('proposals_precomputed')})")
     precomputed = None if config.proposal_source == "compute" else frame.proposals
     segments, boxes = frame_proposals(frame.color, filled, frame.intrinsics, config.proposals, precomputed)
     if precomputed is None and not len(boxes):

@@ -27,6 +27,7 @@ from importlib.metadata import PackageNotFoundError, version
 
 from a3d.runtime.errors import InputError, ModelError
 from a3d.runtime.extras import MissingExtra, Needs
+from a3d.runtime.sources.wording import command_line
 
 EXIT_OK = 0
 EXIT_FAILED = 1
@@ -104,7 +105,8 @@ def command(
         @functools.wraps(main)
         def run(argv: list[str] | None = None, **options: object) -> int:
             try:
-                return main(argv, **options)
+                with command_line():  # errors name the flags, not the Python keywords
+                    return main(argv, **options)
             except MissingExtra as e:
                 print(f"{prog}: {e}", file=sys.stderr)
                 return EXIT_USAGE

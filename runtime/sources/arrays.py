@@ -8,7 +8,8 @@ Conventions: ``color`` is (H, W, 3) uint8 **RGB** (what cameras, PIL and most li
 out; converted once to a3d's internal BGR); ``depth`` is (H, W) float32/float64 metres, or
 uint16 in units of ``depth_scale`` metres (default 0.001: millimetres, the Kinect / RealSense
 convention; TUM's 5000 units per metre is 0.0002); 0 means no measurement. ``intrinsics`` is
-``(fx, fy, cx, cy)``, an ``Intrinsics`` or a 3 x 3 camera matrix, in the README's pixel convention.
+``(fx, fy, cx, cy)``, an ``Intrinsics`` or a 3 x 3 camera matrix, in the README's pixel convention
+(``SourceOptions`` takes the same forms).
 """
 
 from __future__ import annotations
@@ -74,9 +75,7 @@ def depth_from(depth: Any, depth_scale: float | None = None) -> np.ndarray:
     if depth.ndim != 2:
         raise ArrayError(f"depth: expected an (H, W) array, got shape {depth.shape}")
     if depth.dtype == np.uint16:
-        scale = MILLIMETRE if depth_scale is None else depth_scale
-        if not np.isfinite(scale) or scale <= 0:
-            raise ArrayError(f"depth_scale: must be a positive number of metres per unit, got {scale}")
+        scale = MILLIMETRE if depth_scale is None else check_depth_scale(depth_scale)
         return depth_units_to_metres(depth, scale)
     if depth.dtype not in (np.float32, np.float64):
         raise ArrayError(f"depth: expected float32 metres or uint16 with a depth scale, got {depth.dtype}")
@@ -87,6 +86,13 @@ def depth_from(depth: Any, depth_scale: float | None = None) -> np.ndarray:
     if (depth < 0).any():
         raise ArrayError(f"depth: has negative values (min {float(depth.min()):.3g})")
     return np.ascontiguousarray(depth, dtype=np.float32)
+
+
+def check_depth_scale(value: Any) -> float:
+    """``depth_scale`` as a float: a positive, finite number of metres per depth unit (ArrayError)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) or not 0 < value < np.inf:
+        raise ArrayError(f"depth_scale: must be a positive number of metres per unit, got {value!r}")
+    return float(value)
 
 
 def depth_units_to_metres(depth: np.ndarray, scale: float) -> np.ndarray:
