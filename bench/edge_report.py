@@ -1,5 +1,6 @@
-"""What bench.edge_speed prints: a3d-run's stages, the network alone, each part against the
-machine's measured ceiling, where the head's time goes, and the PASS/FAIL targets."""
+"""What bench.edge_speed measures and prints: the result records (a3d-run's stages, the network
+alone), each part against the machine's measured ceiling, where the head's time goes, and the
+PASS/FAIL targets. It imports nothing from bench.edge_speed, which imports it."""
 
 from __future__ import annotations
 
@@ -7,15 +8,12 @@ import functools
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 from a3d.runtime.network.cpu_support import INT8_DOT_PRODUCT, cpu_flags, export_advice
+from a3d.runtime.pipeline import FRONT_END_STAGES
 from a3d.runtime.pipeline import STAGES as PIPELINE_STAGES
 from bench.ceilings import CONV, GEMM, Ceilings
 from bench.network_profile import PARTS, NetworkProfile
-
-if TYPE_CHECKING:
-    from bench.edge_speed import NetworkResult, RunResult
 
 PAPER_SECONDS = 0.739  # Deng & Latecki 2017, Titan X, network only
 TARGET_E2E_OVER_NETWORK = 1.25
@@ -38,6 +36,46 @@ STAGE_LABELS = {
 }
 ISA_FLAGS = ("avx2", "avx512f", *INT8_DOT_PRODUCT, "amx_tile", "amx_bf16")
 MODES = {"off": "sequential", "on": "--overlap on", "auto": "--overlap auto"}
+
+
+@dataclass
+class RunResult:
+    """One a3d-run over a folder: mean seconds per stage (warm-up frame left out), the
+    steady-state frame period, the mean RoIs per frame and the process's peak resident memory."""
+
+    model: str
+    overlap: str  # a3d-run's --overlap: off (sequential), on, auto
+    frames: int
+    rois: float
+    stages: dict[str, float]
+    frame_seconds: float
+    overlapped: int = 0  # frames prepared in the background (auto: 0 where it chose sequential)
+    peak_bytes: int = 0
+
+    @property
+    def stage_sum(self) -> float:
+        return sum(self.stages.values())
+
+    @property
+    def front_end_seconds(self) -> float:
+        return sum(self.stages[s] for s in FRONT_END_STAGES)
+
+
+@dataclass
+class NetworkResult:
+    """Mean seconds per frame (warm-up call left out) of the network with all RoIs and with one
+    RoI (the trunks plus a one-RoI head), the mean RoIs, and the process's peak resident memory."""
+
+    engine: str
+    model: str
+    seconds: float
+    one_roi_seconds: float
+    rois: float
+    peak_bytes: int = 0
+
+    @property
+    def head_seconds(self) -> float:
+        return self.seconds - self.one_roi_seconds
 
 
 @dataclass

@@ -51,16 +51,16 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict
 from pathlib import Path
 
 import numpy as np
 
-from a3d.runtime.pipeline import FRONT_END_STAGES, PreparedFrame
 from a3d.runtime.pipeline import STAGES as PIPELINE_STAGES
+from a3d.runtime.pipeline import PreparedFrame
 from bench import edge_report as report
 from bench.ceilings import measure_ceilings
-from bench.edge_report import Measurements
+from bench.edge_report import Measurements, NetworkResult, RunResult
 from bench.network_profile import NetworkProfile, profile_network
 
 BIN = Path(sys.executable).parent
@@ -127,29 +127,6 @@ def frame_subset(folder: Path, out: Path, count: int) -> Path:
 # ----------------------------------------------------------------------------- a3d-run, instrumented
 
 
-@dataclass
-class RunResult:
-    """One a3d-run over a folder: mean seconds per stage (warm-up frame left out), the
-    steady-state frame period, the mean RoIs per frame and the process's peak resident memory."""
-
-    model: str
-    overlap: str  # a3d-run's --overlap: off (sequential), on, auto
-    frames: int
-    rois: float
-    stages: dict[str, float]
-    frame_seconds: float
-    overlapped: int = 0  # frames prepared in the background (auto: 0 where it chose sequential)
-    peak_bytes: int = 0
-
-    @property
-    def stage_sum(self) -> float:
-        return sum(self.stages.values())
-
-    @property
-    def front_end_seconds(self) -> float:
-        return sum(self.stages[s] for s in FRONT_END_STAGES)
-
-
 def measure_run(model: Path, frames: Path, *, max_proposals: int, threads: int = 2, overlap: str = "off",
                 rrd: Path | None = None) -> RunResult:  # fmt: skip
     """Run a3d-run's main on ``frames`` with ``model`` and time every stage of every frame.
@@ -203,23 +180,6 @@ def network_inputs(
     metadata = DetectorModel.load(model, threads=1).metadata
     config = PipelineConfig.from_metadata(metadata, max_proposals=max_proposals)
     return [load_and_prepare(loader, config) for loader in itertools.islice(FolderSource(frames), count)]
-
-
-@dataclass
-class NetworkResult:
-    """Mean seconds per frame (warm-up call left out) of the network with all RoIs and with one
-    RoI (the trunks plus a one-RoI head), the mean RoIs, and the process's peak resident memory."""
-
-    engine: str
-    model: str
-    seconds: float
-    one_roi_seconds: float
-    rois: float
-    peak_bytes: int = 0
-
-    @property
-    def head_seconds(self) -> float:
-        return self.seconds - self.one_roi_seconds
 
 
 def measure_ort(model: Path, frames: Path, *, max_proposals: int, threads: int = 2) -> NetworkResult:

@@ -78,7 +78,8 @@ def main() -> int:
         sensed_registered = register_depth(sensed_seen, calibration, config.intrinsics, config.image_size)
         versions = (frame.depth_exact, depth, noisy, sensed, sensed_registered)
         for label, metres in zip(LABELS, versions, strict=True):
-            runs[label][name] = detector.detect(rgb, metres.astype(np.float32), config.intrinsics, name=name)
+            runs[label][name] = detector.detect(rgb, metres.astype(np.float32), config.intrinsics, name=name,
+                                                score_threshold=0)  # all of them: the mAP's whole curve
     scores = {
         label: evaluate(truth, detections, EvalConfig(iou_thresholds=(IOU,))).map_present(IOU)
         for label, detections in runs.items()

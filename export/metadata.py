@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from a3d.export.onnx_export import ExportError
+from a3d.export.base import ExportError
 from a3d.runtime.network.model import SCHEMA_VERSION, ModelMetadata
 from a3d.runtime.network.preprocess import COLOR_MEAN_BGR, DEPTH_MEAN
 from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES

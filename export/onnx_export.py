@@ -24,6 +24,7 @@ import onnx
 import torch
 from torch import nn
 
+from a3d.export.base import MAX_IR_VERSION, MIN_OPSET, ExportError
 from a3d.runtime.io.atomic import atomic_write_bytes
 from a3d.runtime.network.model import INPUT_NAMES, METADATA_KEY, OUTPUT_NAMES, ModelMetadata, content_digest
 from a3d.runtime.structures.boxes import BOX_DIM
@@ -31,13 +32,7 @@ from a3d.runtime.structures.classes import NUM_OUTPUTS
 from a3d.train.dataset import TargetStats
 from a3d.train.model.net import BOX2D_SIZE, A3DNet
 
-MIN_OPSET = 18  # the dynamo exporter's lowest native opset; lower ones fail its version conversion
-MAX_IR_VERSION = 13  # ONNX Runtime 1.31 reads IR <= 13 (onnx 1.23 writes 14 by default)
 EXAMPLE_SIZE = (64, 80)  # (h, w) of the tracing example; the exported graph takes any size
-
-
-class ExportError(RuntimeError):
-    """Export or verification failed; the message is one line for the command line."""
 
 
 class RuntimeGraph(nn.Module):

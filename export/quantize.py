@@ -26,7 +26,7 @@ import onnx
 from onnxruntime.quantization import CalibrationDataReader, QuantFormat, QuantType, quantize_static
 from onnxruntime.quantization.shape_inference import quant_pre_process
 
-from a3d.export.onnx_export import ExportError
+from a3d.export.base import ExportError
 from a3d.export.verify import NetworkInputs
 
 CALIB_ROIS = 300  # RoIs per calibration frame (the best-ranked proposals)

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from a3d.export.onnx_export import ExportError
+from a3d.export.base import ExportError
 from a3d.runtime.evaluation.metric import EvalConfig, evaluate
 from a3d.runtime.evaluation.truth import load_truth
 from a3d.runtime.network.model import DetectorModel

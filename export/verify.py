@@ -28,7 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 import onnx
 
-from a3d.export.onnx_export import ExportError, example_inputs
+from a3d.export.base import ExportError
+from a3d.export.onnx_export import example_inputs
 from a3d.runtime.network.model import DetectorModel
 from a3d.runtime.pipeline import PipelineConfig, load_and_prepare
 from a3d.runtime.sources.folder import FolderSource

@@ -57,6 +57,7 @@ from a3d.runtime.postprocess.score_calibration import ScoreCalibration
 from a3d.runtime.postprocess.select import decode_detections, select_detections
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.proposals_file import PrecomputedProposals
+from a3d.runtime.sources.wording import option
 from a3d.runtime.structures.boxes import BOX_DIM
 from a3d.runtime.structures.classes import NUM_OUTPUTS
 from a3d.runtime.structures.frame import Frame
@@ -236,19 +237,18 @@ def _proposals(
     frame: Frame, filled: np.ndarray, config: PipelineConfig, notes: list[str]
 ) -> tuple[Proposals | PrecomputedProposals | np.ndarray, np.ndarray]:
     """(segments in a form ``lift`` takes, boxes (N, 4) float64), at most ``max_proposals``;
-    ``notes`` learns when there are none or the cap cut the list."""
+    ``notes`` learns when there are none. The cap cutting the list is the configured top N, normal
+    operation, so it is only logged (debug)."""
     if config.proposal_source == "precomputed" and frame.proposals is None:
-        raise InputError(f"{frame.origin}: no precomputed proposals (--proposals precomputed)")
+        raise InputError(f"{frame.origin}: no precomputed proposals ({option('proposals_precomputed')})")
     precomputed = None if config.proposal_source == "compute" else frame.proposals
     segments, boxes = frame_proposals(frame.color, filled, frame.intrinsics, config.proposals, precomputed)
     if precomputed is None and not len(boxes):
         notes.append("no proposals: the segmentation found no candidate object")
-    elif precomputed is None and len(boxes) >= config.proposals.max_proposals:
-        notes.append(f"proposals capped at {config.proposals.max_proposals}")
     elif precomputed is not None and not len(precomputed):
         notes.append("no proposals: the precomputed list is empty")
-    elif precomputed is not None and len(boxes) < len(precomputed):
-        notes.append(f"proposals capped at {len(boxes)} of {len(precomputed)} precomputed")
+    elif len(boxes) >= config.proposals.max_proposals:
+        logger.debug("%s: proposals capped at %d", frame.origin, config.proposals.max_proposals)
     return segments, boxes
 
 
@@ -310,7 +310,8 @@ def finish(prepared: PreparedFrame, out: NetworkOutput, config: PipelineConfig) 
         timing=dict(timing),
         boxes2d_amodal=amodal,
         gravity=prepared.gravity,
-        notes=(*prepared.notes, *bounded.notes()),
+        notes=(*prepared.notes, *bounded.notes(scores)),
+        intrinsics=frame.intrinsics,
     )
 
 

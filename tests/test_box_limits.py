@@ -1,5 +1,6 @@
 """Boxes that can exist: whatever the network outputs, no written box has its centre at or behind
-the camera or a non-positive size, and what was clamped is counted in the line's notes."""
+the camera or a non-positive size, and what was clamped that a user sees is counted in the line's
+notes."""
 
 from __future__ import annotations
 
@@ -71,9 +72,14 @@ def test_clamps_are_counted_and_slide_along_the_ray() -> None:
     np.testing.assert_allclose(bounded.boxes3d[2, 3:6], [2.5, MIN_SIZE_M, 1.0])
     np.testing.assert_array_equal(bounded.boxes3d[3], boxes[3])
     assert (bounded.centres_clamped, bounded.sizes_clamped) == (2, 1)
-    assert bounded.notes() == [
-        "2 box centres clamped to the near range of the depth",
+    assert bounded.notes(np.array([0.9, 0.5, 0.01, 0.8])) == [
+        "2 box centres scoring >= 0.5 clamped to the near range of the depth",
         "1 boxes with a size clamped to their class family's bounds",
+    ]
+    # A clamped centre of a detection nobody is shown (the tail below 0.5) is routine, no note;
+    # a clamped size always is one.
+    assert bounded.notes(np.array([0.4, 0.001, 0.01, 0.8])) == [
+        "1 boxes with a size clamped to their class family's bounds"
     ]
 
 

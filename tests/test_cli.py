@@ -103,3 +103,30 @@ def test_synth_bad_input_exits_2_with_one_line(tmp_path, capsys: pytest.CaptureF
     with pytest.raises(SystemExit) as done:
         main([str(tmp_path / "set"), "--frames", "0"])
     assert done.value.code == EXIT_USAGE
+
+
+# A missing input of each command (relative to an empty folder): not a usage error, so one line
+# "PROG: error: ..." naming it, without argparse's usage dump.
+MISSING_INPUT = {
+    "a3d-run": ["no/such/folder", "--headless"],
+    "a3d-eval": ["no/such/folder", "--detections", "det.jsonl"],
+    "a3d-synth": ["--stats", "no/such/folder"],
+    "a3d-sunrgbd": ["no/such/folder", "out"],
+    "a3d-nyuv2": ["no/such/folder", "out"],
+    "a3d-train": ["no/such/folder", "--out", "run", "--config", "cpu-tiny"],
+    "a3d-pretrain": ["no/such/folder", "--out", "w.pt", "--config", "cpu-tiny"],
+    "a3d-average": ["no/such/a.pt", "no/such/b.pt", "--out", "soup.pt"],
+    "a3d-export": ["no/such/folder/checkpoint.pt", "-o", "model.onnx"],
+    "a3d-vgg16-weights": ["no/such/vgg16.h5", "--out", "vgg16.pt"],
+}
+
+
+@pytest.mark.parametrize(("name", "module"), COMMANDS)
+def test_a_missing_input_is_one_line_without_the_usage(
+    name: str, module: str, tmp_path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    assert importlib.import_module(module).main(MISSING_INPUT[name]) == EXIT_USAGE
+    err = capsys.readouterr().err
+    assert len(err.splitlines()) == 1 and "usage:" not in err, err
+    assert err.startswith(f"{name}: error: no/such/"), err

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import warnings
 
 import cv2
 import numpy as np
@@ -31,6 +32,14 @@ def detector() -> Detector:
     return Detector.load(PINNED_MODEL, threads=2)
 
 
+def test_sample_frames_carry_no_notes(run_lines: dict[str, dict]) -> None:
+    """Notes say what degraded: a full proposal list (the configured top N) and centres clamped on
+    the low-scoring tail are normal operation, and the clean sample frames have neither."""
+    assert run_lines and all("notes" not in line for line in run_lines.values()), [
+        line.get("notes") for line in run_lines.values()
+    ]
+
+
 def _without_files(line: dict) -> dict:
     return {k: v for k, v in line.items() if k not in ("timing", "color", "depth")}
 
@@ -48,7 +57,8 @@ def test_a3d_run_on_samples_is_pinned_to_the_output_before_the_redesign(run_line
         classes = np.array([class_index(d["class"]) for d in want["detections"]])
         before = np.array([d["box3d"] for d in want["detections"]])
         bounded = bound_boxes(before, classes, near)
-        assert bounded.notes() == [note for note in got.get("notes", []) if "box" in note]
+        scores = np.array([d["score"] for d in got["detections"]])
+        assert bounded.notes(scores) == [note for note in got.get("notes", []) if "box" in note]
         moved = (bounded.boxes3d != before).any(axis=1)
         assert moved.mean() < 0.2, "the bounds change a few boxes, not the detector"
         for d, box in zip(want["detections"], bounded.boxes3d.tolist(), strict=True):
@@ -76,15 +86,22 @@ def test_detect_on_arrays_equals_a3d_run_line(detector: Detector, run_lines: dic
         depth_mm = cv2.imread(str(ref.depth_path), cv2.IMREAD_UNCHANGED)
         assert depth_mm.dtype == np.uint16
         K = source.intrinsics.matrix()  # a 3x3 matrix here; (fx, fy, cx, cy) in the next check
-        result = detector.detect(rgb, depth_mm, K, read_meta(ref).R_tilt, name=ref.name)
+        result = detector.detect(rgb, depth_mm, K, read_meta(ref).R_tilt, name=ref.name, score_threshold=0)
         assert _without_files(json.loads(result.to_json())) == _without_files(run_lines[ref.name])
     # float metres and a 4-tuple give the same line as uint16 millimetres and K
     ref = source.refs[0]
     rgb = cv2.imread(str(ref.color_path), cv2.IMREAD_COLOR)[..., ::-1]
     metres = cv2.imread(str(ref.depth_path), cv2.IMREAD_UNCHANGED).astype(np.float32) / np.float32(1000)
     K = source.intrinsics
-    again = detector.detect(rgb, metres, (K.fx, K.fy, K.cx, K.cy), read_meta(ref).R_tilt, name=ref.name)
+    again = detector.detect(rgb, metres, (K.fx, K.fy, K.cx, K.cy), read_meta(ref).R_tilt, name=ref.name,
+                            score_threshold=0)  # fmt: skip
     assert _without_files(json.loads(again.to_json())) == _without_files(run_lines[ref.name])
+    # The default returns what the viewer shows: the detections scoring >= 0.5, a3d-run's line cut there.
+    shown = detector.detect(rgb, metres, K, read_meta(ref).R_tilt, name=ref.name)
+    line = run_lines[ref.name]["detections"]
+    assert 0 < len(shown) < len(line)
+    cut = [d for d in json.loads(again.to_json())["detections"] if d["score"] >= 0.5]
+    assert json.loads(shown.to_json())["detections"] == cut
 
 
 RGB = np.zeros((24, 32, 3), np.uint8)
@@ -128,3 +145,22 @@ def test_uint16_depth_takes_its_scale(detector: Detector) -> None:
     assert _without_files(json.loads(a.to_json())) == _without_files(json.loads(b.to_json()))
     with pytest.raises(ArrayError, match=r"^depth_scale: "):
         detector.detect(RGB, units, K4, depth_scale=-1.0)
+
+
+def test_implausible_depth_warns_once_naming_depth_scale(detector: Detector) -> None:
+    """TUM's 5000 units per metre read as millimetres make a 3.5 m room 17.5 m deep: one warning
+    per detector naming depth_scale and the median; a plausible frame says nothing."""
+    tum = np.full((24, 32), 17500, np.uint16)
+    with pytest.warns(UserWarning, match=r"^depth: the median valid depth is 17\.5 m, .*check depth_scale"):
+        detector.detect(RGB, tum, K4)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a second warning would fail here
+        detector.detect(RGB, tum, K4)
+        Detector.load(PINNED_MODEL, threads=1).detect(RGB, tum, K4, depth_scale=0.0002)  # 3.5 m: fine
+    with pytest.warns(UserWarning, match=r"median valid depth is 0\.05 m, .*float depth must be in metres"):
+        Detector.load(PINNED_MODEL, threads=1).detect(RGB, np.full((24, 32), 0.05, np.float32), K4)
+
+
+def test_score_threshold_is_checked(detector: Detector) -> None:
+    with pytest.raises(ValueError, match=r"^score_threshold: must be in \[0, 1\], got 1.5"):
+        detector.detect(RGB, DEPTH, K4, score_threshold=1.5)

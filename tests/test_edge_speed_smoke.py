@@ -179,7 +179,7 @@ def test_targets_judge_what_was_measured(
     """The report's verdicts from made-up measurements: trunks at 60 % of a ceiling that the second
     ceiling run raised, auto overlap slower than sequential for one model only, no VNNI."""
     from bench.ceilings import Ceilings
-    from bench.edge_speed import NetworkResult, RunResult
+    from bench.edge_report import NetworkResult, RunResult
     from bench.network_profile import NetworkProfile, OpStat
 
     monkeypatch.setattr(edge_report, "cpu_flags", lambda: frozenset({"avx2"}))

@@ -3,10 +3,13 @@ runtime's Python API work, and asking for a view is one clear line with exit cod
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -32,9 +35,9 @@ print("exit", code, "rerun imported:", any(m.split(".")[0] == "rerun" for m in s
 """
 
 
-def _run_without_rerun(*args: str) -> subprocess.CompletedProcess:
+def _run_without_rerun(*args: str, env: dict[str, str] | None = None) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-c", _WITHOUT_RERUN, *args], capture_output=True, text=True,
-                          cwd=ROOT, timeout=300)  # fmt: skip
+                          cwd=ROOT, timeout=300, env=env)  # fmt: skip
 
 
 def _one_frame(tmp_path: Path) -> Path:
@@ -67,3 +70,20 @@ def test_a_view_without_rerun_is_one_line_and_exit_2(tmp_path: Path) -> None:
         "--headless alone runs without it"
     )
     assert not save.exists()
+
+
+VIEW_MODES = [[], ["--serve"], ["--connect"], ["--stdout"]]
+
+
+@pytest.mark.parametrize("flags", VIEW_MODES, ids=lambda flags: " ".join(flags) or "window")
+def test_every_view_mode_without_rerun_names_the_extra(tmp_path: Path, flags: list[str]) -> None:
+    """No display and no rerun: the line names 'a3d[view]', not --serve or a viewer that cannot start."""
+    model = ROOT / "samples" / "model.onnx"
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
+    result = _run_without_rerun(str(_one_frame(tmp_path)), "--model", str(model), "--output",
+                                str(tmp_path / "d.jsonl"), *flags, env=env)  # fmt: skip
+    assert result.stdout.strip().splitlines()[-1].startswith("exit 2 ")
+    assert result.stderr.strip().splitlines() == [
+        "a3d-run: error: rerun is not installed: the view and --save need it (pip install 'a3d[view]'); "
+        "--headless alone runs without it"
+    ]

@@ -94,3 +94,4 @@ def test_wheel_contains_every_package(tmp_path: Path) -> None:
             if (module.parent / "__init__.py").exists():
                 arc = "/".join([prefix, *module.relative_to(ROOT / top).parts])
                 assert arc in names, f"{arc} is not in the wheel"
+    assert "a3d/runtime/py.typed" in names  # PEP 561: type checkers read the runtime's hints

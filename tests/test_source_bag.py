@@ -176,7 +176,7 @@ def test_depth_that_may_be_unregistered_is_refused_in_one_line(folder: Path, tmp
         open_source(path, SourceOptions())
     assert str(error.value) == (
         f"{path}: cannot tell whether /camera/depth/image_rect_raw is registered to colour (no camera_info "
-        "for it); record aligned_depth_to_color or pick a registered depth topic with --depth-topic"
+        "for it); record aligned_depth_to_color or pick a registered depth topic with depth_topic=TOPIC"
     )
 
 

@@ -273,7 +273,7 @@ def test_bad_frames_are_one_line_each(tmp_path: Path) -> None:
     )
     loaders = list(open_source(tmp_path / "SUNRGBD", SourceOptions()))
     loaders[0].load()
-    with pytest.raises(InputError, match=r"b\.png: depth is 50x128 but colour is 96x128 \(--resize-depth"):
+    with pytest.raises(InputError, match=r"b\.png: depth is 50x128 but colour is 96x128 \(resize_depth=True"):
         loaders[1].load()
     resized = list(open_source(tmp_path / "SUNRGBD", SourceOptions(resize_depth=True)))[1].load()
     assert resized.depth.shape == (96, 128)
@@ -285,7 +285,7 @@ def test_depth_scale_is_refused_for_a_point_cloud_and_applies_to_release_depth(t
     cloud = upright_cloud(frame.depth, frame.color, frame.intrinsics, Rtilt_sun)
     write_votenet_frame(tmp_path / "votenet", 1, jpeg(frame.color), cloud, Rtilt_sun, frame.intrinsics, None)
     loader = next(iter(open_source(tmp_path / "votenet", SourceOptions(depth_scale=0.001))))
-    with pytest.raises(InputError, match=r"000001\.mat: --depth-scale: this depth is float metres"):
+    with pytest.raises(InputError, match=r"000001\.mat: depth_scale: this depth is float metres"):
         loader.load()
     mm = np.rint(frame.depth * 1000)
     write_sun_release_frame(tmp_path / "NYU0001", jpeg(frame.color), mm, frame.intrinsics, frame.R_tilt)

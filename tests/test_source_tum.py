@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from a3d.runtime import Detector
+from a3d.runtime.cli import run as run_cli
 from a3d.runtime.errors import InputError
 from a3d.runtime.sources.folder import write_frame, write_intrinsics
 from a3d.runtime.sources.overrides import INTRINSICS_PRESETS, parse_intrinsics
@@ -52,11 +53,16 @@ def test_sequence_reads_frames_in_metres_with_timestamps(tmp_path: Path, caplog)
 
 def test_intrinsics_are_required_unless_the_name_says_the_camera(tmp_path: Path) -> None:
     write_tum(tmp_path / "my_sequence", synth_frames((3,)), STAMPS[:1])
-    with pytest.raises(InputError, match=r"my_sequence: not named rgbd_dataset_freiburgN_.*--intrinsics"):
-        open_source(tmp_path / "my_sequence", SourceOptions())
+    with pytest.raises(InputError, match=r"my_sequence: not named rgbd_dataset_freiburgN_.*") as caught:
+        open_source(tmp_path / "my_sequence")
+    assert "pass intrinsics=(fx, fy, cx, cy)" in str(caught.value) and "--" not in str(caught.value)
     given = parse_intrinsics("100,101,60.5,45")
     frame = next(iter(open_source(tmp_path / "my_sequence", SourceOptions(intrinsics=given)))).load()
     assert frame.intrinsics == given
+    # The same forms as Detector.detect takes, as keywords: a 4-tuple or a 3x3 K.
+    for form in ((100.0, 101.0, 60.5, 45.0), given.matrix()):
+        frame = next(iter(open_source(tmp_path / "my_sequence", intrinsics=form))).load()
+        assert frame.intrinsics == given
     assert parse_intrinsics("freiburg3") == INTRINSICS_PRESETS["fr3"]
     for bad in ("100,101,60", "fr4", "1,x,2,3", "-5,5,1,1"):
         with pytest.raises(InputError, match="--intrinsics"):
@@ -82,7 +88,8 @@ def test_run_on_a_sequence_equals_run_on_the_frame_folder(tmp_path: Path, tiny_m
     expected = run_detections(folder, tiny_model, tmp_path / "folder.jsonl")
     assert_same_detections(run_detections(sequence, tiny_model, tmp_path / "tum.jsonl"), expected)
     # The Python API on the same source (docs/sources.md), to the detections file's precision.
-    outcomes = Detector.load(tiny_model, threads=1).detect_frames(open_source(sequence, SourceOptions()))
+    detector = Detector.load(tiny_model, threads=1)
+    outcomes = detector.detect_frames(open_source(sequence, SourceOptions()), score_threshold=0)
     assert_same_detections({o.name: o.detections for o in outcomes}, expected, atol=1e-4)
     # The same with the camera given on the command line, and split into two shards.
     K = frames[0].intrinsics
@@ -97,3 +104,12 @@ def test_run_on_a_sequence_equals_run_on_the_frame_folder(tmp_path: Path, tiny_m
         assert list(shard) == [f"{STAMPS[k]:.6f}"]
         shards.update(shard)
     assert_same_detections(shards, expected)
+
+
+def test_the_command_line_names_its_flags(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """The error Python gets in keywords, a3d-run gets in flags: the same source, the same problem."""
+    write_tum(tmp_path / "my_sequence", synth_frames((3,)), STAMPS[:1])
+    argv = [str(tmp_path / "my_sequence"), "--model", str(tmp_path / "m.onnx"), "--headless"]
+    assert run_cli.main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.endswith("pass --intrinsics fx,fy,cx,cy or --intrinsics fr1|fr2|fr3\n") and "=(" not in err

@@ -72,3 +72,19 @@ def test_json_round_trip_is_exact():
     again = TrainConfig.from_json(config.to_json())
     assert again == config
     assert again.proposals.strategies == config.proposals.strategies  # a tuple of dataclasses
+
+
+def test_every_network_preset_is_a_config_name():
+    """--config takes the network presets too (one table of names): the network is the preset's,
+    the schedule the paper's for full-width trunks and cpu-small's at lr 0.005 for narrower ones."""
+    from a3d.train.model import PRESETS as NETWORKS
+
+    assert set(NETWORKS) <= set(PRESETS)
+    for name, net in NETWORKS.items():
+        config = load_config(name)
+        assert config.net == net, name
+        assert config.solver.lr == 0.005, name  # no BatchNorm in these trunks: the paper's lr
+        assert config.data.input_scale == (1.0 if net.width == 1.0 else 0.5), name
+    assert load_config("vgg16-fused").solver.iterations == load_config("vgg16").solver.iterations
+    with pytest.raises(ValueError, match=r"vgg19: not a config file nor a preset \(vgg16, .*, vgg16-fused, "):
+        load_config("vgg19")

@@ -15,6 +15,7 @@ from a3d.runtime.structures.geometry import (
     rtilt_from_pitch_roll,
 )
 from a3d.runtime.viewer import options as viewer_options
+from a3d.runtime.viewer import shapes
 from a3d.runtime.viewer import view as viewer
 from tests.rrd_reader import as_array, read_columns
 
@@ -96,7 +97,7 @@ def test_logged_box_pose_reproduces_the_corners() -> None:
 def test_projected_edges_match_projected_corners_and_clip_behind_camera() -> None:
     frame = _frame(np.random.default_rng(2))
     R = frame["R_tilt"]
-    seg = viewer.projected_box_edges(frame["boxes3d"], R, K)
+    seg = shapes.projected_box_edges(frame["boxes3d"], R, K)
     assert seg.shape == (24, 2, 2)
     corners_uv = project_points(box_corners_camera(frame["boxes3d"], R), K).reshape(-1, 2)
     # In front of the camera nothing is clipped: every segment end is a projected corner.
@@ -105,13 +106,13 @@ def test_projected_edges_match_projected_corners_and_clip_behind_camera() -> Non
     assert d.max() < 1e-6
 
     straddling = np.array([[0.0, 0.0, 0.3, 2.0, 1.0, 1.0, 0.0]])  # extends from z=-0.2 to 0.8
-    seg = viewer.projected_box_edges(straddling, np.eye(3), K)
+    seg = shapes.projected_box_edges(straddling, np.eye(3), K)
     finite = np.isfinite(seg).all(axis=(1, 2))
     # The back face (4 edges at z = -0.2) is dropped; the 4 side edges are cut at the near plane.
     assert finite.sum() == 8
     assert (np.abs(seg[finite]) < 1e5).all()
     behind = np.array([[0.0, 0.0, -3.0, 1.0, 1.0, 1.0, 0.0]])
-    assert np.isnan(viewer.projected_box_edges(behind, np.eye(3), K)).all()
+    assert np.isnan(shapes.projected_box_edges(behind, np.eye(3), K)).all()
 
 
 def test_headless_without_sink_logs_nothing() -> None:
@@ -130,7 +131,7 @@ def test_clip_segments_known_answers() -> None:
             [[-50.0, -50.0], [-10.0, 300.0]],  # wholly left of the image
         ]
     )
-    out = viewer.clip_segments(seg, size)
+    out = shapes.clip_segments(seg, size)
     np.testing.assert_allclose(out[0], seg[0])
     np.testing.assert_allclose(out[1], [[-0.5, 50.0], [99.5, 50.0]])
     np.testing.assert_allclose(out[2], [[100.0, 50.0], [100.0, 100.5]])
@@ -140,7 +141,7 @@ def test_clip_segments_known_answers() -> None:
 def test_edges_clipped_to_the_image_stay_inside_it() -> None:
     frame = _frame(np.random.default_rng(3))
     big = np.array([[0.0, 0.0, 1.5, 6.0, 4.0, 3.0, 0.3]])  # much larger than the field of view
-    seg = viewer.projected_box_edges(big, frame["R_tilt"], K, (H, W))
+    seg = shapes.projected_box_edges(big, frame["R_tilt"], K, (H, W))
     finite = seg[np.isfinite(seg).all(axis=(1, 2))]
     assert len(finite) > 0
     assert finite[..., 0].min() >= -0.5 - 1e-9 and finite[..., 0].max() <= W - 0.5 + 1e-9
@@ -161,7 +162,7 @@ def test_low_scores_are_not_drawn_and_ground_truth_is_labelled(tmp_path: Path) -
         **frame,
         gt_class_ids=np.array([4]),
         gt_boxes3d=frame["boxes3d"][:1],
-        options=viewer.ViewOptions(min_score=0.6),
+        options=shapes.ViewOptions(min_score=0.6),
     )
     rec.flush()
     rr.disconnect(rec)

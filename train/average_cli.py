@@ -18,15 +18,15 @@ from pathlib import Path
 
 from a3d.runtime.cli.common import build_parser as command_parser
 from a3d.runtime.cli.common import command
-from a3d.train.average import average_checkpoints
-from a3d.train.checkpoint import save_checkpoint
+from a3d.runtime.extras import Needs
 
 PROG = "a3d-average"
+NEEDS = Needs("train", ("torch",))  # checked after parsing: --help works without torch
 
 
 def build_parser() -> argparse.ArgumentParser:
     about = "Average the weights of runs fine-tuned from one checkpoint (a model soup)."
-    parser = command_parser(PROG, about)
+    parser = command_parser(PROG, about, needs=NEEDS)
     parser.add_argument("checkpoints", type=Path, nargs="+", help="a3d-train checkpoints, two or more")
     parser.add_argument("--out", type=Path, required=True, help="checkpoint to write (.pt)")
     return parser
@@ -38,6 +38,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.out.resolve() in {p.resolve() for p in args.checkpoints}:
         parser.error(f"--out {args.out} is one of the checkpoints to average")
+    from a3d.train.average import average_checkpoints  # torch
+    from a3d.train.checkpoint import save_checkpoint
+
     save_checkpoint(args.out, average_checkpoints(args.checkpoints))
     print(f"{PROG}: {len(args.checkpoints)} checkpoints averaged into {args.out}", file=sys.stderr)
     return 0

@@ -6,7 +6,8 @@
     a3d-train mine/train data/train --out runs/mine --set solver.init=runs/small/checkpoint.pt  # two folders
     torchrun --nproc_per_node 2 -m a3d.train.cli data/train --out runs/ddp --config cpu-small
 
-``--config`` is a preset name (vgg16, cpu-small, cpu-tiny) or a JSON/TOML file (without it:
+``--config`` is a preset name (a3d.train.config.PRESETS: vgg16, cpu-small, cpu-tiny, and every
+network preset of a3d.train.model such as vgg16-fused) or a JSON/TOML file (without it:
 vgg16 on a CUDA device, cpu-small otherwise, said on stderr); ``--set a.b=v``
 overrides single settings (``--set solver.lr=0.001 --set data.workers=2``). With ``--resume``
 the configuration comes from the run's checkpoint; ``--set`` and ``--iters`` still apply on top
@@ -26,15 +27,16 @@ from pathlib import Path
 
 from a3d.runtime.cli.common import build_parser as command_parser
 from a3d.runtime.cli.common import command
-from a3d.train.checkpoint import checkpoint_config
+from a3d.runtime.extras import Needs
 from a3d.train.config import CPU_PRESET, GPU_PRESET, PRESETS, TrainConfig, apply_overrides, load_config
-from a3d.train.loop import CHECKPOINT_NAME, resolve_device, train
 
 PROG = "a3d-train"
+NEEDS = Needs("train", ("torch", "matplotlib"))  # checked after parsing: --help works without torch
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = command_parser(PROG, "Train the amodal 3D detector (Deng & Latecki 2017) on RGB-D frames.")
+    about = "Train the amodal 3D detector (Deng & Latecki 2017) on RGB-D frames."
+    parser = command_parser(PROG, about, needs=NEEDS)
     parser.add_argument("data", type=Path, nargs="+",
                         help="folders of training frames with NAME.gt.json (one or more)")  # fmt: skip
     parser.add_argument("--out", type=Path, required=True, help="run folder (checkpoint, metrics, plots)")
@@ -62,6 +64,8 @@ def config_source(args: argparse.Namespace, prog: str = PROG) -> str:
     """--config, or the preset that fits the device (the paper's network needs a GPU), said on stderr."""
     if args.config:
         return args.config
+    from a3d.train.loop import resolve_device  # torch
+
     device = resolve_device(args.device)
     preset = GPU_PRESET if device.type == "cuda" else CPU_PRESET
     why = "a CUDA device" if device.type == "cuda" else "no CUDA device"
@@ -71,6 +75,9 @@ def config_source(args: argparse.Namespace, prog: str = PROG) -> str:
 
 def resolve_config(args: argparse.Namespace) -> TrainConfig:
     """Preset/file + overrides, or, with --resume, the checkpoint's config + overrides."""
+    from a3d.train.checkpoint import checkpoint_config  # torch
+    from a3d.train.loop import CHECKPOINT_NAME
+
     if args.resume:
         if args.config:
             raise ValueError("--resume takes the configuration from the checkpoint; drop --config")
@@ -91,6 +98,8 @@ def resolve_config(args: argparse.Namespace) -> TrainConfig:
 @command(PROG, errors=(ValueError, FileNotFoundError))
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    from a3d.train.loop import train  # torch, after the flags (NEEDS)
+
     logging.basicConfig(level=logging.INFO, format=f"{PROG}: %(message)s")
     config = resolve_config(args)
     result = train(args.data, args.out, config, device=args.device, resume=args.resume, overwrite=args.force,
@@ -108,6 +117,8 @@ def main(argv: list[str] | None = None) -> int:
 
 def export_command(run_dir: Path, val: Path | None) -> str:
     """The a3d-export command line that turns this run's checkpoint into RUN_DIR/model.onnx."""
+    from a3d.train.loop import CHECKPOINT_NAME
+
     words = ["a3d-export", str(run_dir / CHECKPOINT_NAME), "-o", str(run_dir / "model.onnx")]
     if val is not None:
         words += ["--verify-frames", str(val)]

@@ -4,7 +4,8 @@ A run is described by ``TrainConfig``: the network (``NetConfig`` of a3d.train.m
 proposal stage (``ProposalConfig`` of a3d.runtime.frontend.proposals), RoI sampling and augmentation,
 the solver, logging/validation, and inference post-processing. It is built by
 
-    preset (``vgg16`` or a CPU preset)  ->  config file (JSON or TOML)  ->  ``--set a.b=value``
+    preset (``PRESETS``: vgg16, the CPU presets, every network preset)  ->  config file (JSON or
+    TOML)  ->  ``--set a.b=value``
 
 each layer overriding the previous one key by key. A config file may name its base preset with a
 top-level ``"preset"`` key. Values are checked against the dataclass field types by the settings
@@ -16,7 +17,8 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
+from functools import partial
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +27,7 @@ from a3d.runtime.frontend.proposals import ProposalConfig
 from a3d.runtime.io.plain_config import apply_plain, plain_from_dataclass
 from a3d.runtime.pipeline import PipelineConfig
 from a3d.train.model import NetConfig
+from a3d.train.model.config import PRESETS as NETWORK_PRESETS
 
 
 @dataclass
@@ -109,6 +112,21 @@ class InferenceConfig:
     regress_3d: bool = True  # False: zero 3D deltas, i.e. the initial boxes (the "-3dreg" ablation)
 
 
+@dataclass(frozen=True)
+class PretrainConfig:
+    """Schedule of a3d-pretrain (a3d.train.pretrain; the network's shape comes from a NetConfig)."""
+
+    iterations: int = 3000
+    batch: int = 64
+    lr: float = 0.02
+    lr_step: float = 0.75  # lr *= 0.1 after this share of the iterations
+    momentum: float = 0.9
+    weight_decay: float = 0.0005
+    crop: int = 112
+    val_share: float = 0.1  # frames held out for validation accuracy
+    seed: int = 0
+
+
 @dataclass
 class TrainConfig:
     net: NetConfig = field(default_factory=NetConfig)
@@ -148,7 +166,7 @@ class TrainConfig:
 
 def _vgg16() -> TrainConfig:
     """The paper's model and schedule: full VGG16 trunks at native size, 40k iterations."""
-    return TrainConfig(net=NetConfig(width=1.0))
+    return TrainConfig(net=NETWORK_PRESETS["vgg16"])
 
 
 def _cpu_small() -> TrainConfig:
@@ -197,12 +215,26 @@ def _cpu_imagenet() -> TrainConfig:
     )
 
 
+def _for_network(name: str) -> TrainConfig:
+    """A network preset of a3d.train.model with a schedule that suits it: full-width trunks the
+    paper's (as vgg16: native size, lr 0.005, 40k iterations); width-scaled trunks cpu-small's input
+    scale and iterations at the paper's lr 0.005, since their trunks have no BatchNorm (cpu-small's
+    lr 0.02 trains from scratch only with it: README "Where a3d departs from the paper")."""
+    net = NETWORK_PRESETS[name]
+    if net.width == 1.0:
+        return TrainConfig(net=net)
+    return replace(apply_values(_cpu_small(), {"solver": {"lr": 0.005}}, f"preset {name}"), net=net)
+
+
 PRESETS: dict[str, Callable[[], TrainConfig]] = {
     "vgg16": _vgg16,
     "cpu-small": _cpu_small,
     "cpu-tiny": _cpu_tiny,
     "cpu-imagenet": _cpu_imagenet,
+    **{name: partial(_for_network, name) for name in NETWORK_PRESETS if name != "vgg16"},
 }
+"""Every name ``--config`` takes: the training presets, then each network preset of
+a3d.train.model (``vgg16-fused``, ``cpu-half``, ...) with a schedule that suits it."""
 GPU_PRESET = "vgg16"  # a3d-train's default on a CUDA device
 CPU_PRESET = "cpu-small"  # ... and without one
 

@@ -38,6 +38,7 @@ from a3d.runtime.sources.folder import list_frames, read_folder_intrinsics, read
 from a3d.runtime.structures.classes import NUM_CLASSES, to_softmax
 from a3d.runtime.structures.geometry import iou_2d
 from a3d.train.checkpoint import atomic_torch_save
+from a3d.train.config import PretrainConfig
 from a3d.train.loop import param_groups
 from a3d.train.model.config import NetConfig
 from a3d.train.model.vgg import FEATURE_STRIDE, VGG16Trunk, conv5_size
@@ -48,21 +49,6 @@ MIN_BOX_PX = 12  # objects whose visible box is narrower or lower are skipped
 BACKGROUND_SHARE = 0.25  # background crops per object crop
 BACKGROUND_MAX_IOU = 0.3  # a background crop overlaps no visible box more than this
 FIT_SAMPLE = 2000  # training crops the reported training accuracy is measured on
-
-
-@dataclass(frozen=True)
-class PretrainConfig:
-    """Schedule of a3d-pretrain (the network's shape comes from a NetConfig)."""
-
-    iterations: int = 3000
-    batch: int = 64
-    lr: float = 0.02
-    lr_step: float = 0.75  # lr *= 0.1 after this share of the iterations
-    momentum: float = 0.9
-    weight_decay: float = 0.0005
-    crop: int = 112
-    val_share: float = 0.1  # frames held out for validation accuracy
-    seed: int = 0
 
 
 class CropClassifier(nn.Module):

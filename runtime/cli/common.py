@@ -7,7 +7,9 @@ Exit codes, the same for every a3d command:
   of its result failed (a3d-export's verification);
 - 2 (``EXIT_USAGE``): a usage error or an unusable input, found before any work: argparse's own
   errors, and the ``InputError`` / ``ModelError`` (plus the errors a command lists) that reach
-  ``main``, printed as one line ``PROG: error: message``;
+  ``main``, printed as one line ``PROG: error: message``; a missing optional extra (torch for the
+  training commands), one line ``PROG: needs the 'train' extra: pip install 'a3d[train]' (torch is
+  missing)``, checked once the flags are parsed, so ``--help`` and ``--version`` work without it;
 - 130 (``EXIT_INTERRUPTED``): Ctrl-C.
 
 Help texts are plain text (no reST markup: argparse prints them as they are) and every option
@@ -20,10 +22,12 @@ from __future__ import annotations
 import argparse
 import functools
 import sys
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from importlib.metadata import PackageNotFoundError, version
 
 from a3d.runtime.errors import InputError, ModelError
+from a3d.runtime.extras import MissingExtra, Needs
+from a3d.runtime.sources.wording import command_line
 
 EXIT_OK = 0
 EXIT_FAILED = 1
@@ -59,11 +63,28 @@ class HelpFormatter(argparse.RawDescriptionHelpFormatter):
         return f"{text} (default: {shown})"
 
 
-def build_parser(prog: str, description: str, epilog: str | None = None) -> argparse.ArgumentParser:
-    """The parser of one a3d command: plain-text help with defaults shown, and ``--version``."""
-    parser = argparse.ArgumentParser(
-        prog=prog, description=description, epilog=epilog, formatter_class=HelpFormatter
-    )
+class _Parser(argparse.ArgumentParser):
+    """An ArgumentParser that checks the command's extra once the flags parse (after --help)."""
+
+    def __init__(self, needs: Needs | None, **kwargs: object) -> None:
+        super().__init__(**kwargs)  # type: ignore[arg-type]
+        self.needs = needs
+
+    def parse_known_args(  # type: ignore[override]
+        self, args: Sequence[str] | None = None, namespace: argparse.Namespace | None = None
+    ) -> tuple[argparse.Namespace, list[str]]:
+        parsed = super().parse_known_args(args, namespace)
+        if self.needs is not None:
+            self.needs.check()
+        return parsed
+
+
+def build_parser(
+    prog: str, description: str, epilog: str | None = None, needs: Needs | None = None
+) -> argparse.ArgumentParser:
+    """The parser of one a3d command: plain-text help with defaults shown, and ``--version``;
+    with ``needs``, parsing raises MissingExtra when the command's extra is not installed."""
+    parser = _Parser(needs, prog=prog, description=description, epilog=epilog, formatter_class=HelpFormatter)
     parser.add_argument("--version", action="version", version=f"a3d {a3d_version()}")
     return parser
 
@@ -74,7 +95,9 @@ def command(
     """Decorate a command's ``main(argv) -> int`` with the shared error -> exit-code mapping.
 
     ``InputError``, ``ModelError`` and ``errors`` become one line ``PROG: error: message`` and exit
-    code 2; Ctrl-C exits 130 with one line. ``main`` itself returns 0 or 1 (some inputs failed).
+    code 2; a missing extra (MissingExtra, or an optional module that a lazy import did not find)
+    one line ``PROG: needs the 'EXTRA' extra: ...`` and exit code 2; Ctrl-C exits 130 with one
+    line. ``main`` itself returns 0 or 1 (some inputs failed).
     """
     usage_errors = (InputError, ModelError, *errors)
 
@@ -82,7 +105,17 @@ def command(
         @functools.wraps(main)
         def run(argv: list[str] | None = None, **options: object) -> int:
             try:
-                return main(argv, **options)
+                with command_line():  # errors name the flags, not the Python keywords
+                    return main(argv, **options)
+            except MissingExtra as e:
+                print(f"{prog}: {e}", file=sys.stderr)
+                return EXIT_USAGE
+            except ModuleNotFoundError as e:
+                missing = MissingExtra.of(e)
+                if missing is None:
+                    raise
+                print(f"{prog}: {missing}", file=sys.stderr)
+                return EXIT_USAGE
             except usage_errors as e:
                 print(f"{prog}: error: {e}", file=sys.stderr)
                 return EXIT_USAGE

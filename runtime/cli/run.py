@@ -65,6 +65,7 @@ from a3d.runtime.pipeline import (
     detect_frames,
     detect_frames_auto,
 )
+from a3d.runtime.postprocess.score_calibration import SHOW_THRESHOLD
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.folder import MODEL_FILE
 from a3d.runtime.sources.newest import NewestFrames
@@ -87,7 +88,7 @@ LIVE_NOTE = (
 )
 DEFAULT_MODEL = MODEL_FILE
 DEFAULT_OUTPUT = "detections.jsonl"
-VIEW_MIN_SCORE = 0.5  # calibrated: as likely right as wrong; bench.view_threshold: shown boxes 0.86 right
+VIEW_MIN_SCORE = SHOW_THRESHOLD  # calibrated scores: a detection there is as likely right as wrong
 
 load_model = DetectorModel.load  # the model loader (tests substitute a fake model here)
 
@@ -136,7 +137,8 @@ def build_parser() -> argparse.ArgumentParser:
         default=VIEW_MIN_SCORE,
         metavar="S",
         help="rerun view and summary: detections scoring >= S (all are written to the output; default: "
-        "%(default)s, where about half the shown boxes are right: docs/live.md)",
+        "%(default)s: with the model's calibrated scores a detection there is as likely right as wrong; "
+        "docs/live.md)",
     )
     p.add_argument(
         "--realtime",
@@ -170,7 +172,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _arguments(argv: list[str] | None) -> argparse.Namespace:
-    """Parsed and checked flags (argparse exits with status 2 on a usage error)."""
+    """Parsed and checked flags (argparse exits with status 2 and its usage line on a usage error);
+    a missing source or model is InputError, one line without the usage."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.threads < 1:
@@ -184,12 +187,12 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
     if args.output == "-" and (args.resume or args.stdout):
         parser.error("--output - cannot be combined with --resume or --stdout")
     if not args.source.exists() and ":" not in str(args.source) and not recognised(args.source):
-        parser.error(f"{args.source}: no such file or folder")
+        raise InputError(f"{args.source}: no such file or folder")
     args.shard = _shard(parser, args.shard)
     if args.model is None:
         args.model = args.source / DEFAULT_MODEL
         if not args.model.is_file():
-            parser.error(f"no model given and {args.model} does not exist; pass --model FILE")
+            raise InputError(f"no model given and {args.model} does not exist; pass --model FILE")
     return args
 
 
@@ -280,6 +283,7 @@ class FrameReport:
 @command(PROG)
 def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] | None = None) -> int:
     args = _arguments(argv)
+    viewer.check_installed(args)  # no rerun: one line naming 'a3d[view]', before a view mode is suggested
     starts_viewer = viewer_launch.launches_viewer(args)
     if starts_viewer:
         viewer_launch.check_can_launch(args)  # no display, no viewer: one line before loading anything

@@ -1,10 +1,10 @@
 """a3d-run's end-of-run summary: what was found, what degraded, where the outputs went.
 
 Each frame's line holds ~200 detections with scores down to the written threshold; the summary
-counts, per class, only those at or above the viewer's threshold (``--view-min-score``, the
-score above which most shown boxes are right), so that a user sees what was found, and says
-which scores they are: the model's calibrated ones (the chance a detection is right,
-a3d.runtime.postprocess.score_calibration) or the network's softmax. It also
+counts, per class, only those at or above the viewer's threshold (``--view-min-score``: with
+calibrated scores a detection there is as likely right as wrong), so that a user sees what was
+found, and says which scores they are: the model's calibrated ones (the chance a detection is
+right, a3d.runtime.postprocess.score_calibration) or the network's softmax. It also
 counts the frames whose gravity was a fallback (by method) and the frames whose line carries
 notes, and gives the run's rate. The lines start with ``a3d-run: summary:``; the run's last
 line stays "N frames written to OUTPUT, M failed".

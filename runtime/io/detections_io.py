@@ -21,8 +21,8 @@ are skipped; a frame may appear once.
 ``gravity`` (optional; lines from before it have none) says where the line's R_tilt came from:
 "given" (the frame's own), "estimated" (from the depth) or "fallback: <method> (<reason>)"
 (a3d.runtime.frontend.gravity.choose_gravity). ``notes`` (optional, a list of strings) says what
-else degraded on the frame: depth mostly missing, no proposals, proposals capped, boxes clamped
-or dropped (a3d.runtime.postprocess.box_limits); an absent list means nothing did.
+else degraded on the frame: depth mostly missing, no proposals, boxes clamped
+(a3d.runtime.postprocess.box_limits); an absent list means nothing did.
 Every problem is an ``InputError`` "FILE:LINE: what is wrong".
 """
 
@@ -30,9 +30,10 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Iterable
-from dataclasses import dataclass, field
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING, Any, overload
 
 import numpy as np
 
@@ -41,7 +42,10 @@ from a3d.runtime.io.atomic import atomic_write_bytes
 from a3d.runtime.io.json_input import is_finite_number, parse_json
 from a3d.runtime.structures.boxes import BOX_DIM, SIZE
 from a3d.runtime.structures.classes import CLASSES
-from a3d.runtime.structures.geometry import box_corners_camera, check_rotation
+from a3d.runtime.structures.geometry import Intrinsics, box_corners_camera, check_rotation
+
+if TYPE_CHECKING:
+    import rerun as rr
 
 _CLASS_INDEX = {name: i for i, name in enumerate(CLASSES)}
 METRE_DECIMALS = 6  # box3d and corners are written to 1 micrometre
@@ -49,8 +53,33 @@ PIXEL_DECIMALS = 4  # box2d and box2d_amodal to 1e-4 pixel
 
 
 @dataclass(frozen=True)
+class Detection:
+    """One detected object: ``result[i]`` or an item of ``for d in result``."""
+
+    class_name: str
+    class_id: int  # 0-based CLASSES index
+    score: float
+    box2d: np.ndarray  # (4,) [x1, y1, x2, y2], the proposal box it was scored on
+    box3d: np.ndarray  # (7,) [x, y, z, l, w, h, theta], camera frame, theta in the tilt frame
+    corners: np.ndarray  # (8, 3) camera frame
+    box2d_amodal: np.ndarray | None = None  # (4,) the regressed amodal 2D box, when the line has it
+
+    def to_dict(self) -> dict[str, Any]:
+        """The detection as a detections line holds it (README "Detections format"), unrounded."""
+        extra = {} if self.box2d_amodal is None else {"box2d_amodal": self.box2d_amodal.tolist()}
+        return {"class": self.class_name, "score": self.score, "box2d": self.box2d.tolist(), **extra,
+                "box3d": self.box3d.tolist(), "corners": self.corners.tolist()}  # fmt: skip
+
+
+@dataclass(frozen=True)
 class FrameDetections:
-    """One line of the detections file: a frame's detections, as arrays."""
+    """One frame's detections (one line of the detections file), as arrays.
+
+    A sequence of ``Detection``: ``len(result)``, ``for d in result``, ``result[i]``, and
+    ``result[mask]`` / ``result[indices]`` / ``result[a:b]`` for a ``FrameDetections`` of those
+    (``result[result.scores >= 0.7]``). ``to_json`` is the line, ``to_list`` its detections as
+    dicts, ``draw`` an annotated image, ``log`` the 3D boxes to rerun.
+    """
 
     frame: str
     R_tilt: np.ndarray  # (3, 3), p_tilt = R_tilt p_cam
@@ -65,14 +94,72 @@ class FrameDetections:
     boxes2d_amodal: np.ndarray | None = None  # (N, 4) amodal 2D boxes (2D regressor), optional
     gravity: str | None = None  # "given", "estimated" or "fallback: ..."; None in older lines
     notes: tuple[str, ...] = ()  # what degraded on this frame, one sentence each
+    intrinsics: Intrinsics | None = None  # the frame's camera, for drawing (not part of the line)
 
     @property
     def classes(self) -> list[str]:
         return [CLASSES[i] for i in self.class_ids]
 
+    @property
+    def box_corners(self) -> np.ndarray:
+        """(N, 8, 3) corners in the camera frame (geometry's corner order)."""
+        return self.corners if self.corners is not None else box_corners_camera(self.boxes3d, self.R_tilt)
+
+    def __len__(self) -> int:
+        return len(self.class_ids)
+
+    def __iter__(self) -> Iterator[Detection]:
+        return (self[i] for i in range(len(self)))
+
+    @overload
+    def __getitem__(self, index: int) -> Detection: ...
+
+    @overload
+    def __getitem__(self, index: slice | np.ndarray | list[int]) -> FrameDetections: ...
+
+    def __getitem__(self, index: Any) -> Detection | FrameDetections:
+        if isinstance(index, (int, np.integer)):
+            i = range(len(self))[index]  # IndexError beyond the end, negative indices from it
+            amodal = None if self.boxes2d_amodal is None else self.boxes2d_amodal[i]
+            return Detection(CLASSES[self.class_ids[i]], int(self.class_ids[i]), float(self.scores[i]),
+                             self.boxes2d[i], self.boxes3d[i], self.box_corners[i], amodal)  # fmt: skip
+        rows = np.arange(len(self))[index]
+        if rows.ndim != 1:
+            raise IndexError(f"detections: expected an int, slice, mask or indices, got {index!r:.60}")
+        return replace(
+            self,
+            class_ids=self.class_ids[rows],
+            scores=self.scores[rows],
+            boxes2d=self.boxes2d[rows],
+            boxes3d=self.boxes3d[rows],
+            corners=None if self.corners is None else self.corners[rows],
+            boxes2d_amodal=None if self.boxes2d_amodal is None else self.boxes2d_amodal[rows],
+        )
+
     def to_json(self) -> str:
         """The frame's detections line, exactly as a3d-run writes it (no trailing newline)."""
         return format_line(self)
+
+    def to_list(self) -> list[dict[str, Any]]:
+        """The detections as dicts, the line's ``"detections"`` (README "Detections format")."""
+        return [d.to_dict() for d in self]
+
+    def draw(self, image: np.ndarray, *, bgr: bool = False, boxes3d: bool = True) -> np.ndarray:
+        """A copy of ``image`` (RGB, or BGR with ``bgr``) with each 2D box, its label "class score"
+        and, where the camera is known, its projected 3D box, in the viewer's class colours."""
+        from a3d.runtime.viewer.draw import draw_detections
+
+        camera = {"boxes3d": self.boxes3d, "R_tilt": self.R_tilt, "K": self.intrinsics} if boxes3d else {}
+        return draw_detections(image, self.class_ids, self.scores, self.boxes2d, bgr=bgr, **camera)
+
+    def log(self, entity_path: str = "world/detections", recording: rr.RecordingStream | None = None) -> None:
+        """Log the 3D boxes to rerun (the recording, or rerun's current one) as a3d-run's view does:
+        in the gravity-aligned world frame, labelled and coloured by class. Needs the 'view' extra."""
+        from a3d.runtime.viewer.options import load_view
+
+        view = load_view(caller="FrameDetections.log")
+        view.log_detections(recording, entity_path, class_ids=self.class_ids, scores=self.scores,
+                            boxes3d=self.boxes3d, R_tilt=self.R_tilt)  # fmt: skip
 
 
 def format_line(det: FrameDetections) -> str:

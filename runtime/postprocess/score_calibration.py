@@ -29,6 +29,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+SHOW_THRESHOLD = 0.5
+"""The score from which a3d shows a detection: a3d-run's viewer and summary (--view-min-score) and
+``Detector.detect``'s default ``score_threshold``. With a model's calibrated scores a detection at
+0.5 is as likely right as wrong; what share of the shown boxes is right is measured in docs/live.md."""
 SCORE_EPS = 1e-7  # scores are clipped to [eps, 1 - eps] before the logit
 MIN_SLOPE = 0.05  # a fitted slope below this is raised to it, keeping every map increasing
 PRIOR_WEIGHT = 2.0  # each class's prior, centred on the pooled fit

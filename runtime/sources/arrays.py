@@ -8,7 +8,8 @@ Conventions: ``color`` is (H, W, 3) uint8 **RGB** (what cameras, PIL and most li
 out; converted once to a3d's internal BGR); ``depth`` is (H, W) float32/float64 metres, or
 uint16 in units of ``depth_scale`` metres (default 0.001: millimetres, the Kinect / RealSense
 convention; TUM's 5000 units per metre is 0.0002); 0 means no measurement. ``intrinsics`` is
-``(fx, fy, cx, cy)``, an ``Intrinsics`` or a 3 x 3 camera matrix, in the README's pixel convention.
+``(fx, fy, cx, cy)``, an ``Intrinsics`` or a 3 x 3 camera matrix, in the README's pixel convention
+(``SourceOptions`` takes the same forms).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from a3d.runtime.structures.frame import Frame, GroundTruth
 from a3d.runtime.structures.geometry import Intrinsics, check_rotation
 
 MILLIMETRE = 0.001  # metres per unit of a uint16 depth map, unless told otherwise
+PLAUSIBLE_MEDIAN_M = (0.1, 15.0)  # a room's median depth lies within; outside, the unit is likely wrong
 
 
 class ArrayError(InputError):
@@ -73,9 +75,7 @@ def depth_from(depth: Any, depth_scale: float | None = None) -> np.ndarray:
     if depth.ndim != 2:
         raise ArrayError(f"depth: expected an (H, W) array, got shape {depth.shape}")
     if depth.dtype == np.uint16:
-        scale = MILLIMETRE if depth_scale is None else depth_scale
-        if not np.isfinite(scale) or scale <= 0:
-            raise ArrayError(f"depth_scale: must be a positive number of metres per unit, got {scale}")
+        scale = MILLIMETRE if depth_scale is None else check_depth_scale(depth_scale)
         return depth_units_to_metres(depth, scale)
     if depth.dtype not in (np.float32, np.float64):
         raise ArrayError(f"depth: expected float32 metres or uint16 with a depth scale, got {depth.dtype}")
@@ -88,6 +88,13 @@ def depth_from(depth: Any, depth_scale: float | None = None) -> np.ndarray:
     return np.ascontiguousarray(depth, dtype=np.float32)
 
 
+def check_depth_scale(value: Any) -> float:
+    """``depth_scale`` as a float: a positive, finite number of metres per depth unit (ArrayError)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) or not 0 < value < np.inf:
+        raise ArrayError(f"depth_scale: must be a positive number of metres per unit, got {value!r}")
+    return float(value)
+
+
 def depth_units_to_metres(depth: np.ndarray, scale: float) -> np.ndarray:
     """float32 metres of integer depth units of ``scale`` metres: divided by the whole number of
     units per metre where there is one (1000 for millimetres, 5000 for TUM), so that millimetres
@@ -96,6 +103,27 @@ def depth_units_to_metres(depth: np.ndarray, scale: float) -> np.ndarray:
     if abs(per_metre - round(per_metre)) < 1e-6 * per_metre:
         return depth.astype(np.float32) / np.float32(round(per_metre))
     return (depth.astype(np.float64) * scale).astype(np.float32)
+
+
+def implausible_depth(depth_m: np.ndarray, integer: bool = True) -> str | None:
+    """What is wrong when the median valid depth lies outside ``PLAUSIBLE_MEDIAN_M`` (no indoor
+    scene: the unit is likely wrong, e.g. TUM's 5000 units per metre read as millimetres give
+    17.7 m rooms), else None; ``integer``: the depth came as uint16 units (else as float, which
+    must be metres). A sample of every 4th pixel each way keeps it cheap."""
+    sample = depth_m[::4, ::4]
+    valid = sample[sample > 0]
+    if not valid.size:
+        return None  # no depth at all: the pipeline's notes say so
+    median = float(np.median(valid))
+    low, high = PLAUSIBLE_MEDIAN_M
+    if low <= median <= high:
+        return None
+    fix = (
+        "check depth_scale (metres per uint16 unit: 0.001 for millimetres, the default; 0.0002 for TUM)"
+        if integer
+        else "float depth must be in metres (uint16 depth takes depth_scale)"
+    )
+    return f"depth: the median valid depth is {median:.3g} m, outside {low:g}-{high:g} m for a room; {fix}"
 
 
 def frame_from_arrays(

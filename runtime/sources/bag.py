@@ -57,6 +57,7 @@ from a3d.runtime.sources.ros_messages import (
     is_compressed,
     transform_of,
 )
+from a3d.runtime.sources.wording import option
 from a3d.runtime.structures.frame import Frame
 from a3d.runtime.structures.geometry import Intrinsics
 
@@ -260,12 +261,13 @@ class BagSource:
             return self.options.intrinsics
         if info is None:
             raise InputError(
-                f"{self.path}: no camera_info for {topic}; give the intrinsics with --intrinsics"
+                f"{self.path}: no camera_info for {topic}; give the intrinsics with {option('intrinsics')}"
             )
         try:
             return intrinsics_of(info)
         except InputError as e:
-            raise InputError(f"{self.path}: {topic}: {e}; give the intrinsics with --intrinsics") from None
+            given = option("intrinsics")
+            raise InputError(f"{self.path}: {topic}: {e}; give the intrinsics with {given}") from None
 
     def _driver_calibration(
         self, depth: str, color_info: Any | None, depth_info: Any | None
@@ -277,7 +279,7 @@ class BagSource:
             raise InputError(
                 f"{self.path}: cannot tell whether {depth} is registered to colour (no camera_info for "
                 f"{'it' if depth_info is None else 'the colour topic'}); record aligned_depth_to_color "
-                "or pick a registered depth topic with --depth-topic"
+                f"or pick a registered depth topic with {option('depth_topic')}"
             )
         depth_frame, color_frame = depth_info.header.frame_id, color_info.header.frame_id
         if depth_frame == color_frame:
@@ -351,7 +353,8 @@ class BagSource:
                 return float(item.value)
         if self.options.depth_scale is not None:
             return self.options.depth_scale
-        raise InputError(f"{self.path}: the recording has no Depth Units; give them with --depth-scale")
+        given = option("depth_scale")
+        raise InputError(f"{self.path}: the recording has no Depth Units; give them with {given}")
 
 
 def _open_reader(path: Path) -> Any:

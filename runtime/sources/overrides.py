@@ -32,6 +32,7 @@ import numpy as np
 from a3d.runtime.errors import InputError
 from a3d.runtime.sources.arrays import depth_units_to_metres
 from a3d.runtime.sources.base import FrameLoader
+from a3d.runtime.sources.wording import keyword, option
 from a3d.runtime.structures.frame import Frame
 from a3d.runtime.structures.geometry import Intrinsics
 
@@ -81,7 +82,8 @@ def fit_depth(depth: np.ndarray, color_size: tuple[int, int], resize: bool, path
     (h, w), (ch, cw) = depth.shape[:2], color_size
     if not resize:
         raise InputError(
-            f"{path}: depth is {h}x{w} but colour is {ch}x{cw} (--resize-depth resizes registered depth)"
+            f"{path}: depth is {h}x{w} but colour is {ch}x{cw} "
+            f"({option('resize_depth')} resizes registered depth)"
         )
     return cv2.resize(depth, (cw, ch), interpolation=cv2.INTER_NEAREST)
 
@@ -110,7 +112,8 @@ class OverriddenSource:
             native = getattr(self.source, "depth_scale", None)
             where = frame.depth_file or frame.origin
             if native is None or (frame.depth_file or "").lower().endswith(".npy"):
-                raise InputError(f"{where}: --depth-scale: this depth is float metres, it has no unit to set")
+                given = keyword("depth_scale")
+                raise InputError(f"{where}: {given}: this depth is float metres, it has no unit to set")
             units = np.rint(frame.depth.astype(np.float64) / native).astype(np.int64)
             changes["depth"] = depth_units_to_metres(units, self.depth_scale)
         return replace(frame, **changes) if changes else frame

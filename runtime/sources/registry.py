@@ -1,23 +1,29 @@
 """Which frame source a3d-run (and ``Detector.detect_frames``) opens for a SOURCE argument.
 
 Each kind registers how to recognise its SOURCE (a folder's files, a file's extension, a
-``scheme:`` prefix) and how to open it. Recognition goes in registration order and the first
-kind that claims SOURCE opens it; ``--source-format NAME`` skips recognition. Readers that need an
-optional extra (rosbags, pyrealsense2) import it only when opened.
+``scheme:`` prefix), how to open it and the options of its own. Recognition goes in registration
+order and the first kind that claims SOURCE opens it; ``--source-format NAME`` (``kind=NAME``)
+skips recognition. Readers that need an optional extra (rosbags, pyrealsense2) import it only
+when opened. From Python::
+
+    open_source("rgbd_dataset_freiburg1_desk")                       # every option at its default
+    open_source("frames", intrinsics=(525.0, 525.0, 319.5, 239.5), depth_scale=0.0002)
+    open_source("run.bag", depth_topic="/camera/aligned_depth_to_color/image_raw")
 """
 
 from __future__ import annotations
 
 import os
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from importlib import import_module
 from pathlib import Path
 from typing import Protocol
 
 from a3d.runtime.errors import InputError
+from a3d.runtime.sources.arrays import IntrinsicsLike, check_depth_scale, intrinsics_from
 from a3d.runtime.sources.base import FrameLoader
-from a3d.runtime.structures.geometry import Intrinsics
+from a3d.runtime.sources.wording import keyword, option
 
 
 class FrameSource(Protocol):
@@ -33,19 +39,26 @@ class FrameSource(Protocol):
 
 @dataclass(frozen=True)
 class SourceOptions:
-    """What the command line may tell any source. ``intrinsics`` / ``depth_scale`` (metres per
-    depth unit) override what the source says, applied by ``open_source`` to every source's frames
-    (readers need not); ``resize_depth`` lets depth of another size than
-    the colour be resized to it (refused otherwise); ``with_proposals`` / ``with_truth`` ask for
-    precomputed proposals and ground truth where the source has them; ``extra`` holds the
-    options of one kind (bag topics, a TUM preset, ...)."""
+    """What a user may tell any source. ``intrinsics`` (an ``Intrinsics``, (fx, fy, cx, cy) or a
+    3x3 K, as ``Detector.detect`` takes them) / ``depth_scale`` (metres per depth unit) override
+    what the source says, applied by ``open_source`` to every source's frames (readers need not);
+    ``resize_depth`` lets depth of another size than the colour be resized to it (refused
+    otherwise); ``with_proposals`` / ``with_truth`` ask for precomputed proposals and ground truth
+    where the source has them; ``extra`` holds the options of one kind (bag topics, ...)."""
 
-    intrinsics: Intrinsics | None = None
+    intrinsics: IntrinsicsLike | None = None  # an Intrinsics once built
     depth_scale: float | None = None
     resize_depth: bool = False
     with_proposals: bool = True
     with_truth: bool = False
     extra: dict[str, object] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        # frozen: the checked forms are set once, here (ArrayError naming the field)
+        if self.depth_scale is not None:
+            object.__setattr__(self, "depth_scale", check_depth_scale(self.depth_scale))
+        if self.intrinsics is not None:
+            object.__setattr__(self, "intrinsics", intrinsics_from(self.intrinsics))
 
 
 @dataclass(frozen=True)
@@ -56,6 +69,7 @@ class SourceKind:
     claims: Callable[[str], bool]
     open: Callable[[str, SourceOptions], FrameSource]
     describe: str
+    options: tuple[str, ...] = ()  # the keys of SourceOptions.extra this kind reads
 
 
 _KINDS: dict[str, SourceKind] = {}
@@ -74,20 +88,47 @@ def recognised(spec: str | os.PathLike) -> bool:
     return any(kind.claims(os.fspath(spec)) for kind in _KINDS.values())
 
 
-def open_source(spec: str | os.PathLike, options: SourceOptions, kind: str | None = None) -> FrameSource:
-    """The source SOURCE names (InputError "SOURCE: ..." when nothing can open it)."""
+def open_source(
+    spec: str | os.PathLike, options: SourceOptions | None = None, kind: str | None = None, **given: object
+) -> FrameSource:
+    """The source SOURCE names (InputError "SOURCE: ..." when nothing can open it), opened with
+    ``options`` or with keywords: SourceOptions' fields and the kind's own options (a bag's
+    ``depth_topic``), every one defaulted; an option the kind does not read is an error."""
+    options = _options(options, given)
     text = os.fspath(spec)
     if kind is not None:
         if kind not in _KINDS:
-            raise InputError(f"--source-format: unknown format {kind!r} (one of: {', '.join(_KINDS)})")
-        return _overridden(_KINDS[kind].open(text, options), options)
+            known = ", ".join(_KINDS)
+            raise InputError(f"{option('source_format_name')}: unknown format {kind!r} (one of: {known})")
+        return _open(_KINDS[kind], text, options)
     for candidate in _KINDS.values():
         if candidate.claims(text):
-            return _overridden(candidate.open(text, options), options)
+            return _open(candidate, text, options)
     if not Path(text).exists() and ":" not in text:
         raise InputError(f"{text}: no such file or folder")
     known = "; ".join(f"{k.name}: {k.describe}" for k in _KINDS.values())
-    raise InputError(f"{text}: not a frame source a3d knows ({known}); --source-format forces one")
+    raise InputError(f"{text}: not a frame source a3d knows ({known}); {option('source_format')} forces one")
+
+
+def _options(options: SourceOptions | None, given: dict[str, object]) -> SourceOptions:
+    """``options``, or SourceOptions from keywords (those not its fields go to ``extra``)."""
+    if options is not None and given:
+        raise TypeError("open_source: pass a SourceOptions or keyword options, not both")
+    if options is not None:
+        return options
+    names = {f.name for f in fields(SourceOptions)}
+    own = {key: given.pop(key) for key in list(given) if key not in names}  # the kind's own options
+    extra: dict[str, object] = {**dict(given.pop("extra", None) or {}), **own}  # type: ignore[call-overload]
+    return SourceOptions(**given, extra=extra)  # type: ignore[arg-type]
+
+
+def _open(kind: SourceKind, spec: str, options: SourceOptions) -> FrameSource:
+    """``kind`` opens ``spec`` once its own options are known, with the overrides applied."""
+    unknown = sorted(set(options.extra) - set(kind.options))
+    if unknown:
+        theirs = ", ".join(keyword(name) for name in kind.options) or "none"
+        raise InputError(f"{keyword(unknown[0])}: not an option of {kind.name} sources (theirs: {theirs})")
+    return _overridden(kind.open(spec, options), options)
 
 
 def _overridden(source: FrameSource, options: SourceOptions) -> FrameSource:
@@ -128,7 +169,11 @@ def _open_tum(spec: str, options: SourceOptions) -> FrameSource:
     return TumSource(spec, options.intrinsics, max_difference, options.resize_depth)
 
 
-register(SourceKind("tum", _claims_tum, _open_tum, "a TUM RGB-D sequence folder (rgb.txt, depth.txt)"))
+register(
+    SourceKind(
+        "tum", _claims_tum, _open_tum, "a TUM RGB-D sequence folder (rgb.txt, depth.txt)", ("max_difference",)
+    )
+)
 
 
 def _claims_sunrgbd(spec: str) -> bool:
@@ -155,11 +200,12 @@ register(
         _claims_sunrgbd,
         _open_sunrgbd,
         "SUN RGB-D: release frame folders (or a tree of them), or VoteNet's sunrgbd_trainval",
+        ("depth", "classes"),
     )
 )
 
 
-def _in_module(module: str, name: str, describe: str) -> SourceKind:
+def _in_module(module: str, name: str, describe: str, options: tuple[str, ...] = ()) -> SourceKind:
     """A kind whose ``claims`` and ``open_source`` live in ``a3d.runtime.sources.MODULE``, imported
     only when first asked (the module imports its optional extra only when a source is opened)."""
 
@@ -169,7 +215,7 @@ def _in_module(module: str, name: str, describe: str) -> SourceKind:
     def open_(spec: str, options: SourceOptions) -> FrameSource:
         return import_module(f"a3d.runtime.sources.{module}").open_source(spec, options)
 
-    return SourceKind(name, claims, open_, describe)
+    return SourceKind(name, claims, open_, describe, options)
 
 
 register(
@@ -177,6 +223,7 @@ register(
         "bag",
         "bag",
         "a ROS 1 .bag, a ROS 2 bag folder or a RealSense SDK .bag recording (needs: pip install 'a3d[bag]')",
+        ("color_topic", "depth_topic"),
     )
 )
 register(

@@ -36,6 +36,7 @@ from a3d.runtime.sources.arrays import frame_from_arrays
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.folder import read_color
 from a3d.runtime.sources.overrides import INTRINSICS_PRESETS, fit_depth
+from a3d.runtime.sources.wording import option
 from a3d.runtime.structures.frame import Frame
 from a3d.runtime.structures.geometry import Intrinsics
 
@@ -110,10 +111,9 @@ def sequence_intrinsics(folder: Path, given: Intrinsics | None) -> Intrinsics:
         return given
     match = _SEQUENCE_NAME.match(folder.resolve().name)
     if match is None:
-        presets = "|".join(INTRINSICS_PRESETS)
         raise InputError(
             f"{folder}: not named rgbd_dataset_freiburgN_*, so its camera is unknown; "
-            f"pass --intrinsics fx,fy,cx,cy or --intrinsics {presets}"
+            f"pass {option('intrinsics_or_preset')}"
         )
     return INTRINSICS_PRESETS[f"fr{match.group(1)}"]
 

@@ -122,7 +122,7 @@ def check_can_launch(
     if executable is None:
         raise ViewerError(
             f"rerun viewer not found on PATH, next to {python} or in the rerun_cli package "
-            "(pip install rerun-sdk); or use --save FILE.rrd or --headless"
+            "(pip install 'a3d[view]'); or use --save FILE.rrd or --headless"
         )
     return executable
 

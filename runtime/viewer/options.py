@@ -10,21 +10,14 @@ from __future__ import annotations
 
 import argparse
 import importlib
-from dataclasses import dataclass
 from types import ModuleType
 
 from a3d.runtime.errors import InputError
+from a3d.runtime.extras import Needs, installed
 from a3d.runtime.viewer.launch import add_bind_arg
+from a3d.runtime.viewer.shapes import ViewOptions
 
-
-@dataclass(frozen=True)
-class ViewOptions:
-    """What to draw besides the detections; the cloud stride trades detail for viewer load."""
-
-    cloud_stride: int = 2
-    show_ground_truth: bool = True
-    max_proposals: int = 0
-    min_score: float = 0.0  # detections below this score are written to the JSON but not drawn
+__all__ = ["ViewOptions", "add_viewer_args", "check_installed", "load_view", "viewer_requested"]
 
 
 def add_viewer_args(parser: argparse.ArgumentParser) -> None:
@@ -48,14 +41,27 @@ def viewer_requested(args: argparse.Namespace) -> bool:
     return not args.headless or bool(args.save or args.connect or args.serve or args.stdout)
 
 
-def load_view() -> ModuleType:
-    """a3d.runtime.viewer.view, or InputError saying how to install rerun (or to run headless)."""
+NOT_INSTALLED = (
+    "rerun is not installed: the view and --save need it (pip install 'a3d[view]'); "
+    "--headless alone runs without it"
+)
+
+
+def check_installed(args: argparse.Namespace) -> None:
+    """InputError naming the extra when the flags ask for a view or recording and rerun is missing,
+    before any other viewer check could suggest a mode (--serve, --save) that needs it too."""
+    if viewer_requested(args) and not installed("rerun"):
+        raise InputError(NOT_INSTALLED)
+
+
+def load_view(caller: str = "") -> ModuleType:
+    """a3d.runtime.viewer.view, or InputError saying how to install rerun: for a3d-run (or to run
+    headless), or, with ``caller`` (a Python method), MissingExtra naming it and the extra."""
+    if caller:
+        Needs("view", ("rerun",)).check(caller)
     try:
         return importlib.import_module("a3d.runtime.viewer.view")
     except ModuleNotFoundError as e:
         if not (e.name or "").startswith("rerun"):
             raise
-        raise InputError(
-            "rerun is not installed: the view and --save need it (pip install 'a3d[view]'); "
-            "--headless alone runs without it"
-        ) from None
+        raise InputError(NOT_INSTALLED) from None

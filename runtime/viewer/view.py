@@ -12,7 +12,8 @@ One entity tree per recording, on a ``frame`` sequence timeline:
   and the 3D boxes projected into the image as line strips.
 
 The default blueprint opens on the 3D view beside the camera's 2D view. The flags that ask for
-it, and the import of this module, are in a3d.runtime.viewer.options (rerun is an optional extra).
+it, and the import of this module, are in a3d.runtime.viewer.options (rerun is an optional extra);
+the shapes it logs (labels, projected boxes) in a3d.runtime.viewer.shapes, which needs no rerun.
 """
 
 from __future__ import annotations
@@ -24,16 +25,11 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from a3d.runtime.errors import InputError
 from a3d.runtime.structures.boxes import CENTER, THETA, boxes_array, local_half_sizes
 from a3d.runtime.structures.classes import CLASS_COLORS_RGB, CLASSES, to_softmax
-from a3d.runtime.structures.geometry import (
-    BOX_EDGES,
-    Intrinsics,
-    backproject_depth,
-    box_edges_clipped,
-    project_points,
-)
-from a3d.runtime.viewer.options import ViewOptions
+from a3d.runtime.structures.geometry import BOX_EDGES, Intrinsics, backproject_depth
+from a3d.runtime.viewer.shapes import ViewOptions, box_labels, projected_box_edges
 
 APPLICATION_ID = "a3d"
 DEFAULT_OPTIONS = ViewOptions()
@@ -96,19 +92,40 @@ def close_recording(args: argparse.Namespace, rec: rr.RecordingStream, own_viewe
     rr.disconnect(rec)
 
 
-def log_static(rec: rr.RecordingStream) -> None:
-    """World axes and the class annotation context (class id = softmax index = CLASSES index + 1)."""
-    rec.log("world", rr.ViewCoordinates.RDF, static=True)
-    rec.log(
-        "world",
-        rr.AnnotationContext(
-            [
-                rr.AnnotationInfo(id=int(to_softmax(i)), label=name, color=CLASS_COLORS_RGB[i])
-                for i, name in enumerate(CLASSES)
-            ]
-        ),
-        static=True,
+def class_annotations() -> rr.AnnotationContext:
+    """Every class's name and colour (class id = softmax index = CLASSES index + 1)."""
+    return rr.AnnotationContext(
+        [
+            rr.AnnotationInfo(id=int(to_softmax(i)), label=name, color=CLASS_COLORS_RGB[i])
+            for i, name in enumerate(CLASSES)
+        ]
     )
+
+
+def log_static(rec: rr.RecordingStream) -> None:
+    """World axes and the class annotation context."""
+    rec.log("world", rr.ViewCoordinates.RDF, static=True)
+    rec.log("world", class_annotations(), static=True)
+
+
+def log_detections(
+    rec: rr.RecordingStream | None,
+    entity_path: str,
+    *,
+    class_ids: np.ndarray,
+    scores: np.ndarray,
+    boxes3d: np.ndarray,
+    R_tilt: np.ndarray,
+) -> None:
+    """Detected 3D boxes at ``entity_path`` as ``log_frame`` logs them (``FrameDetections.log``),
+    with the class annotations on the entity itself so the colours hold wherever it is logged;
+    ``rec`` None: rerun's current recording."""
+    rec = rec if rec is not None else rr.get_data_recording()
+    if rec is None:
+        raise InputError("recording: rerun has none yet; call rr.init('a3d', spawn=True) first or pass one")
+    rec.log(entity_path, class_annotations(), static=True)
+    labels = box_labels(class_ids, scores)
+    rec.log(entity_path, boxes3d_archetype(boxes3d, R_tilt, class_ids, labels))
 
 
 def _yaw_rotations(theta: np.ndarray) -> list[rr.RotationAxisAngle]:
@@ -135,45 +152,6 @@ def boxes3d_archetype(
         labels=labels,
         show_labels=True,
     )
-
-
-def projected_box_edges(
-    boxes: np.ndarray, R_tilt: np.ndarray, K: Intrinsics, image_size: tuple[int, int] | None = None
-) -> np.ndarray:
-    """Image-space segments (N*12, 2, 2) of the boxes' edges, clipped at the near plane and, when
-    ``image_size`` (H, W) is given, to the image (so the 2D view's auto-fit frames the image).
-
-    Edges wholly behind the near plane or outside the image come back as NaN segments.
-    """
-    seg, valid = box_edges_clipped(boxes_array(boxes), R_tilt)
-    uv = project_points(seg, K).reshape(-1, 2, 2)
-    uv[~valid.reshape(-1)] = np.nan
-    return uv if image_size is None else clip_segments(uv, image_size)
-
-
-def clip_segments(segments: np.ndarray, image_size: tuple[int, int]) -> np.ndarray:
-    """Liang-Barsky clipping of 2D segments (S, 2, 2) to the image [-0.5, W-0.5] x [-0.5, H-0.5];
-    segments wholly outside become NaN."""
-    height, width = image_size
-    p0, d = segments[:, 0], segments[:, 1] - segments[:, 0]
-    lo, hi = np.zeros(len(segments)), np.ones(len(segments))
-    bounds = ((-0.5, width - 0.5), (-0.5, height - 0.5))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        for axis, (low, high) in enumerate(bounds):
-            for edge, sign in ((low, -1.0), (high, 1.0)):
-                p, q = sign * d[:, axis], sign * (edge - p0[:, axis])
-                t = q / p
-                outside = (p == 0) & (q < 0)
-                lo = np.where(p < 0, np.maximum(lo, t), lo)
-                hi = np.where(p > 0, np.minimum(hi, t), hi)
-                lo = np.where(outside, np.inf, lo)
-    out = np.stack([p0 + lo[:, None] * d, p0 + hi[:, None] * d], axis=1)
-    out[~(lo <= hi)] = np.nan
-    return out
-
-
-def _box_labels(class_ids: np.ndarray, scores: np.ndarray) -> list[str]:
-    return [f"{CLASSES[c]} {s:.2f}" for c, s in zip(class_ids, scores, strict=True)]
 
 
 def log_frame(
@@ -224,7 +202,7 @@ def log_frame(
     class_ids, scores = class_ids[shown], np.asarray(scores).reshape(-1)[shown]
     boxes2d = np.asarray(boxes2d, dtype=np.float64).reshape(-1, 4)[shown]
     boxes3d = boxes_array(boxes3d)[shown]
-    labels = _box_labels(class_ids, scores)
+    labels = box_labels(class_ids, scores)
     rec.log("world/detections", boxes3d_archetype(boxes3d, R_tilt, class_ids, labels))
     rec.log(
         "world/camera/image/detections",

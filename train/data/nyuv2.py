@@ -41,7 +41,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import scipy.io
 
 from a3d.runtime.errors import InputError
 from a3d.runtime.sources.folder import NPY_MILLIMETRE_MEDIAN, read_color_bytes
@@ -204,6 +203,8 @@ def load_mat(path: str | Path) -> dict[str, Any]:
         raise InputError(f"{path}: file is empty (0 bytes)")
     if _HDF5_SIGNATURE in (head[:8], head[512:520]):
         return _load_mat_hdf5(path)
+    import scipy.io  # the 'train' extra; imported here so that a3d-nyuv2 --help needs no scipy
+
     try:
         raw = scipy.io.loadmat(path, squeeze_me=False, struct_as_record=True, chars_as_strings=True)
     except (
@@ -236,7 +237,7 @@ def _load_mat_hdf5(path: Path) -> dict[str, Any]:
         import h5py  # only MATLAB v7.3 files need it
     except ImportError:
         raise InputError(
-            f"{path}: is a MATLAB v7.3 (HDF5) file; reading it needs h5py (pip install h5py)"
+            f"{path}: is a MATLAB v7.3 (HDF5) file; reading it needs h5py (pip install 'a3d[train]')"
         ) from None
 
     def convert(node: Any, f: h5py.File) -> Any:

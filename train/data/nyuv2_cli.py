@@ -25,6 +25,7 @@ from tqdm import tqdm
 from a3d.runtime.cli.common import build_parser as command_parser
 from a3d.runtime.cli.common import command
 from a3d.runtime.errors import InputError
+from a3d.runtime.extras import Needs
 from a3d.runtime.sources.folder import write_frame, write_intrinsics
 from a3d.runtime.sources.proposals_file import write_precomputed_proposals
 from a3d.runtime.structures.geometry import NYU_CROP_INTRINSICS
@@ -32,10 +33,11 @@ from a3d.train.data.mcg import AUTHORS_MAX_PROPOSALS, AUTHORS_MIN_BOX_AREA, read
 from a3d.train.data.nyuv2 import SPLIT_SIZES, read_image, read_split
 
 PROG = "a3d-nyuv2"
+NEEDS = Needs("train", ("scipy",))  # the release's .mat files; checked after parsing
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = command_parser(PROG, "Convert the authors' NYUv2 release to a3d frames.")
+    parser = command_parser(PROG, "Convert the authors' NYUv2 release to a3d frames.", needs=NEEDS)
     parser.add_argument(
         "release", type=Path, help="unzipped NYUV2_3D_dataset folder (annotations/, color/, ...)"
     )

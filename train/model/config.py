@@ -4,7 +4,8 @@
 four pooled 512x7x7 blocks (RoI and context box, colour and depth) concatenated into fc6, fc6/fc7
 of 4096. Presets for CPU training scale the trunk channels and the fc sizes down and fuse the
 channels before pooling (``fuse_channels``, see a3d.train.model.net) — a departure from the
-paper that changes the head's cost, not the trunks'.
+paper that changes the head's cost, not the trunks'. Torch-free, so that the commands can list
+the presets in their --help without the 'train' extra.
 """
 
 from __future__ import annotations
@@ -14,7 +15,10 @@ from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Literal
 
-from a3d.train.model.vgg import scaled_channels
+
+def scaled_channels(channels: int, width: float) -> int:
+    """Channels of a width-scaled layer: round(channels * width), at least 1."""
+    return max(1, round(channels * width))
 
 
 @dataclass(frozen=True)

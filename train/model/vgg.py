@@ -21,17 +21,14 @@ import torch
 from torch import nn
 from torch.nn.utils.fusion import fuse_conv_bn_eval
 
+from a3d.train.model.config import scaled_channels
+
 # Conv output channels, "M" = 2x2 max-pool with stride 2.
 VGG16_LAYOUT: tuple[int | str, ...] = (
     64, 64, "M", 128, 128, "M", 256, 256, 256, "M", 512, 512, 512, "M", 512, 512, 512,
 )  # fmt: skip
 FEATURE_STRIDE = 16  # image pixels per conv5_3 cell
 VGG16_CONV5_CHANNELS = 512
-
-
-def scaled_channels(channels: int, width: float) -> int:
-    """Channels of a width-scaled layer: round(channels * width), at least 1."""
-    return max(1, round(channels * width))
 
 
 def conv5_size(height: int, width: int) -> tuple[int, int]:
