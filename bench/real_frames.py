@@ -20,9 +20,9 @@ the amodal box (through occluders and off the image edge). ``--box amodal`` coun
 
 Writes DIR/contact_sheet.png (every frame a tile, bench.contact_sheet; each tile alone in
 DIR/tiles/), DIR/real_frames.json (the numbers, with the missed objects and wrong detections per
-frame) and DIR/detections.jsonl (the detections file, README "Detections format"), and prints the table in markdown. A bad input (no
-such folder, a boxes file that names a frame the folder lacks, an unknown class, a bad box) is one
-line on stderr and exit status 1.
+frame) and DIR/detections.jsonl (the detections file, README "Detections format"), and prints the
+table in markdown. A bad input (no such folder, a boxes file that names a frame the folder lacks,
+an unknown class, a bad box) is one line on stderr and exit status 1.
 """
 
 from __future__ import annotations
