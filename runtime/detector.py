@@ -68,11 +68,15 @@ class Detector:
         *,
         depth_scale: float | None = None,
         name: str = "frame",
+        pose: Any = None,
     ) -> FrameDetections:
         """Detections of one RGB-D frame: ``color`` (H, W, 3) uint8 RGB, ``depth`` (H, W) metres
         (float) or uint16 in ``depth_scale`` metres (default millimetres), ``intrinsics``
-        (fx, fy, cx, cy) or 3x3, ``R_tilt`` the gravity rotation or None to estimate it."""
-        frame = frame_from_arrays(color, depth, intrinsics, R_tilt, depth_scale=depth_scale, name=name)
+        (fx, fy, cx, cy) or 3x3, ``R_tilt`` the gravity rotation or None to estimate it; ``pose``
+        the 4x4 camera-to-world transform, carried into the result (its ``pose``) for mapping."""
+        frame = frame_from_arrays(
+            color, depth, intrinsics, R_tilt, depth_scale=depth_scale, name=name, pose=pose
+        )
         return detect(frame, self.model, self.config)
 
     def detect_frames(

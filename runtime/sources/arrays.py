@@ -21,6 +21,7 @@ import numpy as np
 from a3d.runtime.errors import InputError
 from a3d.runtime.structures.frame import Frame, GroundTruth
 from a3d.runtime.structures.geometry import Intrinsics, check_rotation
+from a3d.runtime.structures.pose import check_pose
 
 MILLIMETRE = 0.001  # metres per unit of a uint16 depth map, unless told otherwise
 
@@ -109,8 +110,10 @@ def frame_from_arrays(
     origin: str = "",
     timestamp: float | None = None,
     truth: GroundTruth | None = None,
+    pose: Any = None,
 ) -> Frame:
-    """A checked ``Frame`` from arrays (see the module docstring for the conventions)."""
+    """A checked ``Frame`` from arrays (see the module docstring for the conventions); ``pose``
+    the 4 x 4 camera-to-world transform, if known (a3d.runtime.structures.pose)."""
     bgr = color_from(color)
     metres = depth_from(depth, depth_scale)
     if metres.shape != bgr.shape[:2]:
@@ -125,4 +128,20 @@ def frame_from_arrays(
             rotation = check_rotation(R_tilt, "R_tilt")
         except InputError as e:
             raise ArrayError(str(e)) from None
-    return Frame(name, bgr, metres, K, rotation, origin=origin or name, truth=truth, timestamp=timestamp)
+    camera_to_world = None
+    if pose is not None:
+        try:
+            camera_to_world = check_pose(pose, "pose")
+        except InputError as e:
+            raise ArrayError(str(e)) from None
+    return Frame(
+        name,
+        bgr,
+        metres,
+        K,
+        rotation,
+        origin=origin or name,
+        truth=truth,
+        timestamp=timestamp,
+        pose=camera_to_world,
+    )
