@@ -3,6 +3,7 @@
     a3d-synth OUT --frames N --seed S [--split test=0.3] [--workers K] [--size HxW] [--sensor kinect-v1]
         [--appearance typical] [--world real] [--clutter N] [--camera-mix all|NAME,...] [--camera-scale S]
         [--real-light | --no-real-light] [--empty-share F]
+    a3d-synth OUT --sequence N --seed S [--size HxW] [--sensor ...] [--world ...] [--workers K]
     a3d-synth --stats OUT
 
 Frame i of a run is rendered from ``frame_seed(S, i)``, so a set is the same whatever the number
@@ -15,6 +16,11 @@ of no class per room, a camera preset per frame from ``a3d.synth.devices`` (its 
 intrinsics in the frame's meta.json), daylight and a consumer colour pipeline, and a share of
 rooms without any class object; each setting can be changed on its own. The default world
 (``--world a3d``) renders the same frames as before these options existed.
+
+``--sequence N`` renders one room (that of seed S) seen from N poses of a camera moving round it
+(a3d.synth.sequence): OUT/frames holds ``seq_NNNNNN`` frames with their camera-to-world ``"pose"``
+in meta.json and the usual ground truth, OUT/world_boxes.json the room's objects in its
+gravity-aligned world (docs/mapping.md). One camera (``--size``), so no camera mix, and no split.
 """
 
 from __future__ import annotations
@@ -23,8 +29,10 @@ import argparse
 import json
 import multiprocessing
 import sys
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -32,11 +40,13 @@ from tqdm import tqdm
 
 from a3d.runtime.cli.common import build_parser as command_parser
 from a3d.runtime.cli.common import command
+from a3d.runtime.mapping.world_boxes import WORLD_BOXES_FILE, write_world_boxes
 from a3d.runtime.sources.folder import write_frame, write_intrinsics
 from a3d.runtime.structures.geometry import NYU_CROP_INTRINSICS, NYU_CROP_SIZE, Intrinsics
 from a3d.synth.devices import DEVICES
 from a3d.synth.scene import APPEARANCES, SceneConfig, generate_frame
 from a3d.synth.sensor import SENSORS
+from a3d.synth.sequence import orbit, render_view, room_of, world_boxes
 from a3d.synth.stats import RECORDS_FILE, format_summary, frame_record, read_records, summarise
 
 
@@ -178,20 +188,49 @@ def generate(
     for split in ("train", "test"):
         (out / split).mkdir(parents=True, exist_ok=True)
         write_intrinsics(out / split, config.intrinsics)
-    bar = tqdm(total=frames, desc="a3d-synth", unit="frame", disable=not progress)
+    return _run_jobs(_render_one, jobs, workers, progress, out / RECORDS_FILE)
+
+
+def generate_sequence(
+    out: Path,
+    frames: int,
+    seed: int,
+    workers: int,
+    config: SceneConfig,
+    depth_format: str = "png",
+    progress: bool = True,
+) -> list[dict]:
+    """Render and write a posed sequence of one room (module docstring); returns its statistics records."""
+    _, layout = room_of(seed, config)
+    folder = out / "frames"
+    folder.mkdir(parents=True, exist_ok=True)
+    write_intrinsics(folder, config.intrinsics)
+    write_world_boxes(out / WORLD_BOXES_FILE, world_boxes(layout))
+    jobs = [
+        (folder, f"seq_{i:06d}", seed, config, camera, frame_seed(seed, i), depth_format)
+        for i, camera in enumerate(orbit(layout, frames))
+    ]
+    return _run_jobs(render_view, jobs, workers, progress, out / RECORDS_FILE)
+
+
+def _run_jobs(
+    render: Callable[[Any], dict], jobs: list, workers: int, progress: bool, records_file: Path
+) -> list[dict]:
+    """Render the jobs in order (on ``workers`` processes), then write their statistics records."""
+    bar = tqdm(total=len(jobs), desc="a3d-synth", unit="frame", disable=not progress)
     records = []
     if workers <= 1:
         _init_worker()
         for job in jobs:
-            records.append(_render_one(job))
+            records.append(render(job))
             bar.update()
     else:
         with multiprocessing.get_context("spawn").Pool(workers, initializer=_init_worker) as pool:
-            for record in pool.imap(_render_one, jobs, chunksize=1):
+            for record in pool.imap(render, jobs, chunksize=1):
                 records.append(record)
                 bar.update()
     bar.close()
-    with (out / RECORDS_FILE).open("w") as f:
+    with records_file.open("w") as f:
         for record in records:
             f.write(json.dumps(record) + "\n")
     return records
@@ -206,6 +245,12 @@ def build_parser() -> argparse.ArgumentParser:
         "out", nargs="?", type=Path, help="output folder (gets train/, test/ and the statistics)"
     )
     parser.add_argument("--frames", type=int, default=100, help="number of frames")
+    parser.add_argument(
+        "--sequence",
+        type=int,
+        metavar="N",
+        help="one room seen from N poses of a moving camera instead (OUT/frames, OUT/world_boxes.json)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="run seed")
     parser.add_argument(
         "--split",
@@ -289,6 +334,12 @@ def main(argv: list[str] | None = None) -> int:
     world = {k: v if getattr(args, k) is None else getattr(args, k) for k, v in WORLDS[args.world].items()}
     if world["clutter"] < 0 or not 0.0 <= world["empty_share"] <= 1.0 or not 0.05 <= args.camera_scale <= 4:
         parser.error("--clutter must be >= 0, --empty-share in [0, 1] and --camera-scale in [0.05, 4]")
+    if args.sequence is not None and (args.sequence < 1 or args.camera_mix):
+        parser.error(
+            "--sequence must be >= 1 and excludes --camera-mix: a sequence is seen by one camera (--size)"
+        )
+    if args.sequence is not None:
+        world["camera_mix"] = ()
     if world["camera_mix"] and (args.size is not None or args.sensor != "a3d"):
         parser.error(
             "--size and --sensor exclude a camera mix: each preset has its own size and depth model"
@@ -305,6 +356,12 @@ def main(argv: list[str] | None = None) -> int:
         clutter=world["clutter"],
         real_light=world["real_light"],
     )
+    if args.sequence is not None:
+        records = generate_sequence(
+            args.out, args.sequence, args.seed, args.workers, config, args.depth_format
+        )
+        print(format_summary(summarise(records)))
+        return 0
     records = generate(
         args.out,
         args.frames,

@@ -1,0 +1,53 @@
+"""Boxes between a posed camera and the world (docs/mapping.md "The world frame").
+
+a3d's gravity-aligned world has y along gravity, pointing down, as the tilt frame has: a box in it
+is the same 7-vector ``[x, y, z, l, w, h, theta]`` as in a camera (docs/conventions.md "3D boxes")
+with ``R_tilt`` the identity, its yaw ``theta = atan2(dx, dz)`` about the world's y axis. A pose
+``T`` (4 x 4, camera-to-world, a3d.runtime.structures.pose) takes camera points to it.
+
+Boxes are moved through their 8 corners (``box_corners_camera`` -> ``T`` -> the target's tilt
+frame -> ``boxes_from_corners_tilt``), one path whatever the frame's gravity: exact (to rounding) when
+the frame's ``R_tilt`` agrees with the world's gravity, and the best-fitting box when an
+estimated ``R_tilt`` leans a little.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from a3d.runtime.frontend.gravity import rtilt_from_gravity
+from a3d.runtime.structures.geometry import box_corners_camera, boxes_from_corners_tilt
+from a3d.runtime.structures.pose import invert_pose, transform_points
+
+WORLD_DOWN = np.array([0.0, 1.0, 0.0])  # gravity in the world frame
+IDENTITY = np.eye(3)
+
+
+def rtilt_from_pose(pose: np.ndarray) -> np.ndarray:
+    """The camera's ``R_tilt`` (R_x(pitch) R_z(roll)) from its pose in the gravity-aligned world:
+    gravity in the camera is ``R^T [0, 1, 0]``."""
+    return rtilt_from_gravity(pose[:3, :3].T @ WORLD_DOWN)
+
+
+def boxes_to_world(boxes: np.ndarray, R_tilt: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """Camera-frame boxes (N, 7) (theta in the frame's tilt frame ``R_tilt``) as world boxes (N, 7)."""
+    corners = transform_points(pose, box_corners_camera(boxes, R_tilt))
+    return boxes_from_corners_tilt(corners, IDENTITY)  # the world is its own tilt frame
+
+
+def boxes_to_camera(boxes: np.ndarray, pose: np.ndarray, R_tilt: np.ndarray) -> np.ndarray:
+    """World boxes (N, 7) as boxes (N, 7) of the camera at ``pose``, theta in its tilt frame ``R_tilt``."""
+    corners = transform_points(invert_pose(pose), box_corners_camera(boxes, IDENTITY))
+    return boxes_from_corners_tilt(corners @ np.asarray(R_tilt, np.float64).T, R_tilt)  # tilt-frame corners
+
+
+def box_differences(a: np.ndarray, b: np.ndarray, square_tolerance: float = 1e-9) -> np.ndarray:
+    """(N,) largest difference between paired boxes (metres, and radians of yaw), up to the box's
+    own symmetry: yaw modulo pi, or modulo pi/2 for a square footprint (l = w), where every
+    quarter turn is the same box and no 7-vector is preferred."""
+    a, b = np.asarray(a, np.float64).reshape(-1, 7), np.asarray(b, np.float64).reshape(-1, 7)
+    shape = np.abs(a[:, :6] - b[:, :6]).max(axis=1)
+    square = (np.abs(a[:, 3] - a[:, 4]) <= square_tolerance) & (np.abs(b[:, 3] - b[:, 4]) <= square_tolerance)
+    period = np.where(square, np.pi / 2, np.pi)
+    turn = np.abs((a[:, 6] - b[:, 6] + period / 2) % period - period / 2)
+    return np.maximum(shape, turn)
