@@ -65,7 +65,8 @@ logger = logging.getLogger(__name__)
 
 INTRINSICS_FILE = "intrinsics.json"
 MODEL_FILE = "model.onnx"  # a3d-run's default model, kept beside the frames it was made for
-_FOLDER_FILES = {INTRINSICS_FILE, MODEL_FILE}
+LABELS_FILE = "labels.jsonl"  # a3d-labels' record of what each frame sees (docs/mapping.md)
+_FOLDER_FILES = {INTRINSICS_FILE, MODEL_FILE, LABELS_FILE}
 COLOR_SUFFIXES = (".color.png", ".color.jpg", ".color.jpeg")
 DEPTH_SUFFIXES = (".depth.png", ".depth.npy")
 PROPOSALS_SUFFIX = ".proposals.npz"
