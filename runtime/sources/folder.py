@@ -700,6 +700,15 @@ class FolderSource:
     def __iter__(self) -> Iterator[FrameLoader]:
         return (self.loader(ref) for ref in self.refs)
 
+    @property
+    def has_poses(self) -> bool:
+        """Whether the folder is posed: its first frame's meta.json gives a pose (a bad one too)."""
+        try:
+            meta = read_meta(self.refs[0]) if self.refs else FrameMeta()
+        except InputError:
+            return False
+        return meta.pose is not None or bool(meta.pose_problem)
+
     def __len__(self) -> int:
         return len(self.refs)
 

@@ -94,6 +94,7 @@ class OverriddenSource:
         self.incomplete: list[str] = source.incomplete
         self.intrinsics = intrinsics
         self.depth_scale = depth_scale
+        self.has_poses: bool = getattr(source, "has_poses", False)
 
     def __iter__(self) -> Iterator[FrameLoader]:
         for loader in self.source:
