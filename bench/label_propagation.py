@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from a3d.runtime.cli import labels as labels_cli
-from a3d.runtime.mapping.world import box_differences, boxes_to_camera
+from a3d.runtime.mapping.world import box_differences, boxes_to_camera, same_boxes
 from a3d.runtime.mapping.world_boxes import WORLD_BOXES_FILE, read_world_boxes
 from a3d.runtime.sources.folder import LABELS_FILE, list_frames, read_ground_truth, read_meta
 from a3d.runtime.structures.geometry import iou_2d
@@ -73,7 +73,9 @@ def compare(sequence: Path, labelled: Path) -> Comparison:
         synth, ours = read_ground_truth(ref), read_ground_truth(ours_refs[ref.name])
         meta = read_meta(ref)
         in_camera = boxes_to_camera(world.boxes, meta.pose, meta.R_tilt)
-        synth_ids = [int(world.ids[_closest(box, in_camera)]) for box in synth.boxes3d]
+        rows = same_boxes(synth.boxes3d, in_camera)
+        assert (rows >= 0).all(), f"{ref.name}: a ground-truth box that is no world box"
+        synth_ids = [int(world.ids[k]) for k in rows]
         objects = records[ref.name]["objects"]
         ours_ids = [o["id"] for o in objects if o["labelled"]]  # in the order of ours' rows
         for k in {o["id"] for o in objects} | set(synth_ids):
@@ -96,11 +98,6 @@ def compare(sequence: Path, labelled: Path) -> Comparison:
             )
     iou = float(np.mean(ious)) if ious else 0.0
     return Comparison(len(records), in_view, agree, both, box3d_max, amodal_max, iou, disagreements)
-
-
-def _closest(box: np.ndarray, candidates: np.ndarray) -> int:
-    """The row of ``candidates`` that is the same box as ``box`` (the smallest difference)."""
-    return int(np.argmin(box_differences(candidates, np.repeat(box[None], len(candidates), axis=0))))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from a3d.runtime.mapping.world import box_differences, boxes_to_camera, rtilt_from_pose
+from a3d.runtime.mapping.world import boxes_to_camera, rtilt_from_pose, same_boxes
 from a3d.runtime.mapping.world_boxes import read_world_boxes
 from a3d.runtime.sources.folder import FolderSource, read_ground_truth
 from a3d.runtime.structures.geometry import project_boxes_to_2d
@@ -59,9 +59,8 @@ def test_ground_truth_is_the_world_boxes_moved_into_each_camera(sequence: Path) 
         gt = read_ground_truth(ref)
         in_camera = boxes_to_camera(world.boxes, pose, R_tilt)
         for name, box, amodal in zip(gt.classes, gt.boxes3d, gt.boxes2d_amodal, strict=True):
-            differences = box_differences(in_camera, np.repeat(box[None], len(in_camera), axis=0))
-            k = int(np.argmin(differences))
-            assert differences[k] < 1e-6 and world.classes[k] == name
+            k = int(same_boxes(box, in_camera, tolerance=1e-6)[0])
+            assert k >= 0 and world.classes[k] == name
             expected = project_boxes_to_2d(in_camera[k : k + 1], R_tilt, scaled_intrinsics(SIZE), SIZE)[0]
             np.testing.assert_allclose(amodal, expected, atol=1e-6)
             matched += 1

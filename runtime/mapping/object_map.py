@@ -65,7 +65,7 @@ class MapConfig:
     max_misses: int = 3
     max_range_m: float = 6.0
     image_margin: float = 0.1
-    merge_iou: float = 0.5
+    merge_iou: float = 0.3
 
 
 @dataclass

@@ -51,3 +51,16 @@ def box_differences(a: np.ndarray, b: np.ndarray, square_tolerance: float = 1e-9
     period = np.where(square, np.pi / 2, np.pi)
     turn = np.abs((a[:, 6] - b[:, 6] + period / 2) % period - period / 2)
     return np.maximum(shape, turn)
+
+
+def same_boxes(boxes: np.ndarray, candidates: np.ndarray, tolerance: float = 1e-4) -> np.ndarray:
+    """(N,) for each of ``boxes`` the row of ``candidates`` that is the same box (``box_differences``
+    within ``tolerance``: rounding, not error), -1 where none is."""
+    boxes, candidates = np.asarray(boxes).reshape(-1, 7), np.asarray(candidates).reshape(-1, 7)
+    out = np.full(len(boxes), -1, np.int64)
+    for i, box in enumerate(boxes):
+        if len(candidates):
+            differences = box_differences(candidates, np.repeat(box[None], len(candidates), axis=0))
+            k = int(np.argmin(differences))
+            out[i] = k if differences[k] <= tolerance else -1
+    return out
