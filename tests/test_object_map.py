@@ -234,3 +234,29 @@ def test_a3d_run_map_writes_the_map_and_refuses_unposed_sources(
     assert "--map needs camera poses, and this source has none" in capsys.readouterr().err
     with pytest.raises(SystemExit, match="2"):
         run_cli.main([*argv, "--map", "--resume"])
+
+
+def test_a3d_run_map_logs_the_map_to_rerun_in_the_world(tmp_path: Path, fake_model: FakeModel) -> None:
+    pytest.importorskip("rerun")
+    from tests.rrd_reader import as_array, read_columns
+
+    assert synth_main([str(tmp_path / "seq"), "--sequence", "5", "--seed", "3", "--size", "96x128"]) == 0
+    frames, rrd, map_path = tmp_path / "seq" / "frames", tmp_path / "run.rrd", tmp_path / "map.json"
+    argv = [str(frames), "--model", "fake.onnx", "--output", str(tmp_path / "det.jsonl"), "--headless"]
+    assert run_cli.main([*argv, "--save", str(rrd), "--map", str(map_path), "--score-threshold", "0.0"]) == 0
+    poses = [json.loads((frames / f"seq_{i:06d}.meta.json").read_text())["pose"] for i in range(5)]
+    cameras = read_columns(rrd, "/map/camera")
+    assert sorted(cameras) == [0, 1, 2, 3, 4]
+    np.testing.assert_allclose(
+        as_array(cameras[4]["Transform3D:translation"])[0], np.array(poses[4])[:3, 3], atol=1e-5
+    )
+    trajectory = read_columns(rrd, "/map/trajectory")
+    np.testing.assert_allclose(
+        as_array(trajectory[4]["LineStrips3D:strips"][0]), np.array(poses)[:, :3, 3], atol=1e-5
+    )
+    assert "Pinhole:image_from_camera" in read_columns(rrd, "/map/camera/frustum")[0]
+    objects = read_columns(rrd, "/map/objects")[4]
+    document = json.loads(map_path.read_text())
+    np.testing.assert_allclose(
+        as_array(objects["Boxes3D:centers"]), [o["centre"] for o in document["objects"]], atol=1e-5
+    )

@@ -51,6 +51,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import cv2
+import numpy as np
 from tqdm import tqdm
 
 from a3d.runtime.cli.common import build_parser as command_parser
@@ -340,7 +341,11 @@ def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] 
                     written_at = time.perf_counter()
                     summary.add(outcome.detections)
                     problem = _log(recording, index[outcome.name], outcome, view)
-                    problem = problem or _update_map(world_map, outcome)
+                    problem = (
+                        problem
+                        or _update_map(world_map, outcome)
+                        or _log_map(recording, index, world_map, outcome)
+                    )
                     logged_at = time.perf_counter()
                 else:
                     summary.fail()
@@ -393,6 +398,36 @@ def _update_map(world_map: ObjectMap | None, outcome: FrameOutcome) -> str:
         world_map.update(outcome.detections, intrinsics=frame.intrinsics, depth=frame.depth)
     except Exception as e:  # the line is written; the map must not stop the run
         return f"{frame.origin}: map: cannot add the frame ({type(e).__name__}: {e})"
+    return ""
+
+
+def _log_map(
+    recording: rr.RecordingStream | None,
+    index: dict[str, int],
+    world_map: ObjectMap | None,
+    outcome: FrameOutcome,
+) -> str:
+    """Log the map after a mapped frame (its camera, the trajectory, the objects); the problem, if
+    logging failed, else ""."""
+    if recording is None or world_map is None or world_map.camera is None:
+        return ""
+    assert outcome.prepared is not None
+    frame = outcome.prepared.frame
+    objects = world_map.objects
+    try:
+        viewer.load_view().log_map(
+            recording,
+            index[outcome.name],
+            camera_pose=world_map.camera,
+            K=frame.intrinsics,
+            image_size=frame.image_size,
+            trajectory=np.array(world_map.trajectory),
+            class_ids=np.array([o.class_id for o in objects], np.int64),
+            boxes=np.array([o.box for o in objects]).reshape(-1, 7),
+            labels=[f"{o.cls} #{o.id} ({o.support})" for o in objects],
+        )
+    except Exception as e:  # the line is written; a viewer problem must not stop the run
+        return f"{frame.origin}: rerun: cannot log the map ({type(e).__name__}: {e})"
     return ""
 
 

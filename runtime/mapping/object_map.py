@@ -141,6 +141,8 @@ class ObjectMap:
         self._objects: list[MapObject] = []
         self._next_id = 0
         self._down_angles: list[float] = []
+        self.trajectory: list[np.ndarray] = []  # the mapped frames' camera positions, in the map's frame
+        self.camera: np.ndarray | None = None  # the last mapped frame's camera-to-map pose (4, 4)
 
     @property
     def objects(self) -> list[MapObject]:
@@ -176,6 +178,8 @@ class ObjectMap:
             self.alignment = make_pose(_turn_to_y(down), np.zeros(3))
         self._down_angles.append(float(np.degrees(np.arccos(np.clip(down @ self.world_down, -1.0, 1.0)))))
         map_pose = self.alignment @ pose
+        self.camera = map_pose
+        self.trajectory.append(map_pose[:3, 3].copy())
         frame_index = self.frames_mapped
         self.frames_mapped += 1
 
