@@ -29,10 +29,8 @@ import argparse
 import json
 import multiprocessing
 import sys
-from collections.abc import Callable
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
@@ -43,10 +41,11 @@ from a3d.runtime.cli.common import command
 from a3d.runtime.mapping.world_boxes import WORLD_BOXES_FILE, write_world_boxes
 from a3d.runtime.sources.folder import write_frame, write_intrinsics
 from a3d.runtime.structures.geometry import NYU_CROP_INTRINSICS, NYU_CROP_SIZE, Intrinsics
+from a3d.synth.camera import CameraPose
 from a3d.synth.devices import DEVICES
 from a3d.synth.scene import APPEARANCES, SceneConfig, generate_frame
 from a3d.synth.sensor import SENSORS
-from a3d.synth.sequence import orbit, render_view, room_of, world_boxes
+from a3d.synth.sequence import orbit, room_of, world_boxes, world_pose
 from a3d.synth.stats import RECORDS_FILE, format_summary, frame_record, read_records, summarise
 
 
@@ -114,21 +113,38 @@ def _parse_size(text: str) -> tuple[int, int]:
     return h, w
 
 
-def _render_one(job: tuple[Path, str, str, int, SceneConfig, str, bool]) -> dict:
-    folder, name, split, seed, config, depth_format, own_intrinsics = job
-    frame = generate_frame(seed, config)
+@dataclass(frozen=True)
+class RenderJob:
+    """One frame to render and write: ``camera`` (a sequence's view, a3d.synth.sequence) and
+    ``noise_seed`` None for a frame of its own room and pose; ``own_intrinsics``: write them into
+    its meta.json (a camera mix)."""
+
+    folder: Path
+    name: str
+    split: str
+    seed: int
+    config: SceneConfig
+    depth_format: str
+    own_intrinsics: bool = False
+    camera: CameraPose | None = None
+    noise_seed: int | None = None
+
+
+def _render_one(job: RenderJob) -> dict:
+    frame = generate_frame(job.seed, job.config, camera=job.camera, noise_seed=job.noise_seed)
     write_frame(
-        folder,
-        name,
+        job.folder,
+        job.name,
         frame.color,
         frame.depth,
         R_tilt=frame.R_tilt,
-        intrinsics_override=config.intrinsics if own_intrinsics else None,
+        intrinsics_override=job.config.intrinsics if job.own_intrinsics else None,
         gt=frame.gt,
         instances=frame.instances,
-        depth_format=depth_format,
+        depth_format=job.depth_format,
+        pose=None if job.camera is None else world_pose(job.camera),
     )
-    return frame_record(name, split, seed, frame)
+    return frame_record(job.name, job.split, job.seed, frame)
 
 
 def _init_worker() -> None:
@@ -182,13 +198,14 @@ def generate(
     for i, frame_config in enumerate(configs):
         split = "test" if i in test else "train"
         name = f"synth_{i:06d}"
-        jobs.append(
-            (out / split, name, split, frame_seed(seed, i), frame_config, depth_format, bool(camera_mix))
+        job = RenderJob(
+            out / split, name, split, frame_seed(seed, i), frame_config, depth_format, bool(camera_mix)
         )
+        jobs.append(job)
     for split in ("train", "test"):
         (out / split).mkdir(parents=True, exist_ok=True)
         write_intrinsics(out / split, config.intrinsics)
-    return _run_jobs(_render_one, jobs, workers, progress, out / RECORDS_FILE)
+    return _run_jobs(jobs, workers, progress, out / RECORDS_FILE)
 
 
 def generate_sequence(
@@ -207,26 +224,26 @@ def generate_sequence(
     write_intrinsics(folder, config.intrinsics)
     write_world_boxes(out / WORLD_BOXES_FILE, world_boxes(layout))
     jobs = [
-        (folder, f"seq_{i:06d}", seed, config, camera, frame_seed(seed, i), depth_format)
+        RenderJob(
+            folder, f"seq_{i:06d}", "sequence", seed, config, depth_format, False, camera, frame_seed(seed, i)
+        )
         for i, camera in enumerate(orbit(layout, frames))
     ]
-    return _run_jobs(render_view, jobs, workers, progress, out / RECORDS_FILE)
+    return _run_jobs(jobs, workers, progress, out / RECORDS_FILE)
 
 
-def _run_jobs(
-    render: Callable[[Any], dict], jobs: list, workers: int, progress: bool, records_file: Path
-) -> list[dict]:
+def _run_jobs(jobs: list[RenderJob], workers: int, progress: bool, records_file: Path) -> list[dict]:
     """Render the jobs in order (on ``workers`` processes), then write their statistics records."""
     bar = tqdm(total=len(jobs), desc="a3d-synth", unit="frame", disable=not progress)
     records = []
     if workers <= 1:
         _init_worker()
         for job in jobs:
-            records.append(render(job))
+            records.append(_render_one(job))
             bar.update()
     else:
         with multiprocessing.get_context("spawn").Pool(workers, initializer=_init_worker) as pool:
-            for record in pool.imap(render, jobs, chunksize=1):
+            for record in pool.imap(_render_one, jobs, chunksize=1):
                 records.append(record)
                 bar.update()
     bar.close()

@@ -16,19 +16,16 @@ that a frame's ground-truth boxes are the world boxes moved into its camera.
 from __future__ import annotations
 
 import math
-from pathlib import Path
 
 import numpy as np
 
 from a3d.runtime.mapping.world_boxes import WorldBoxes
-from a3d.runtime.sources.folder import write_frame
 from a3d.runtime.structures.boxes import boxes_array
 from a3d.runtime.structures.geometry import canonical_boxes
 from a3d.runtime.structures.pose import make_pose
 from a3d.synth.camera import CameraPose
 from a3d.synth.layout import Layout, point_rect_distance
-from a3d.synth.scene import SceneConfig, generate_frame
-from a3d.synth.stats import frame_record
+from a3d.synth.scene import SceneConfig
 from a3d.synth.world import furnish_world
 
 WALL_MARGIN = 0.45  # metres between the path and the walls
@@ -101,21 +98,3 @@ def world_boxes(layout: Layout) -> WorldBoxes:
         classes.append(p.item.cls)
         ids.append(i)
     return WorldBoxes(classes, canonical_boxes(boxes_array(rows, len(rows))), np.array(ids, np.int64))
-
-
-def render_view(job: tuple[Path, str, int, SceneConfig, CameraPose, int, str]) -> dict:
-    """Render and write one view of the sequence (with its pose); returns its statistics record."""
-    folder, name, seed, config, camera, noise_seed, depth_format = job
-    frame = generate_frame(seed, config, camera=camera, noise_seed=noise_seed)
-    write_frame(
-        folder,
-        name,
-        frame.color,
-        frame.depth,
-        R_tilt=frame.R_tilt,
-        gt=frame.gt,
-        instances=frame.instances,
-        depth_format=depth_format,
-        pose=world_pose(camera),
-    )
-    return frame_record(name, "sequence", seed, frame)

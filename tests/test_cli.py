@@ -24,7 +24,7 @@ RST = re.compile(r"``|:(func|class|mod|meth|ref):`")
 
 def test_the_commands_are_installed() -> None:
     names = [name for name, _ in COMMANDS]
-    expected = ["a3d-average", "a3d-eval", "a3d-export", "a3d-nyuv2", "a3d-pretrain", "a3d-run"]
+    expected = ["a3d-average", "a3d-eval", "a3d-export", "a3d-labels", "a3d-nyuv2", "a3d-pretrain", "a3d-run"]
     expected += ["a3d-sunrgbd", "a3d-synth", "a3d-train"]
     assert names == expected
 

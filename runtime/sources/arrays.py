@@ -13,7 +13,7 @@ convention; TUM's 5000 units per metre is 0.0002); 0 means no measurement. ``int
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -99,6 +99,14 @@ def depth_units_to_metres(depth: np.ndarray, scale: float) -> np.ndarray:
     return (depth.astype(np.float64) * scale).astype(np.float32)
 
 
+def _as_array_error(check: Callable[[Any, str], np.ndarray], value: Any, what: str) -> np.ndarray:
+    """``check(value, what)``, its InputError raised as the ArrayError of the API."""
+    try:
+        return check(value, what)
+    except InputError as e:
+        raise ArrayError(str(e)) from None
+
+
 def frame_from_arrays(
     color: Any,
     depth: Any,
@@ -122,18 +130,8 @@ def frame_from_arrays(
             "(register and resize depth to the colour image first)"
         )
     K = intrinsics_from(intrinsics)
-    rotation = None
-    if R_tilt is not None:
-        try:
-            rotation = check_rotation(R_tilt, "R_tilt")
-        except InputError as e:
-            raise ArrayError(str(e)) from None
-    camera_to_world = None
-    if pose is not None:
-        try:
-            camera_to_world = check_pose(pose, "pose")
-        except InputError as e:
-            raise ArrayError(str(e)) from None
+    rotation = None if R_tilt is None else _as_array_error(check_rotation, R_tilt, "R_tilt")
+    camera_to_world = None if pose is None else _as_array_error(check_pose, pose, "pose")
     return Frame(
         name,
         bgr,

@@ -53,24 +53,21 @@ def is_seven_scenes(spec: str) -> bool:
 
 def read_intrinsics_matrix(path: Path) -> Intrinsics:
     """``camera-intrinsics.txt``: a 3 x 3 camera matrix, three lines of three numbers."""
+    K = read_matrix(path, 3, "a 3x3 camera matrix (9 numbers)")
     try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as e:
-        raise InputError(f"{path}: cannot read ({getattr(e, 'strerror', None) or e})") from None
-    try:
-        values = [float(v) for v in text.split()]
-    except ValueError:
-        values = []
-    if len(values) != 9:
-        raise InputError(f"{path}: expected a 3x3 camera matrix (9 numbers), got {text.strip()[:60]!r}")
-    try:
-        return intrinsics_from(np.array(values).reshape(3, 3))
+        return intrinsics_from(K)
     except InputError as e:
         raise InputError(f"{path}: {str(e).removeprefix('intrinsics: ')}") from None
 
 
 def read_pose_file(path: Path) -> np.ndarray:
     """A 4 x 4 pose text file, checked rigid (InputError "PATH: ..." otherwise)."""
+    return check_pose(read_matrix(path, 4, "a 4x4 pose (16 numbers)"), str(path))
+
+
+def read_matrix(path: Path, n: int, expected: str) -> np.ndarray:
+    """The n x n matrix of a text file of n * n whitespace-separated numbers (InputError "PATH:
+    missing", "cannot read" or "expected EXPECTED, got ...")."""
     try:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
@@ -81,9 +78,9 @@ def read_pose_file(path: Path) -> np.ndarray:
         values = [float(v) for v in text.split()]
     except ValueError:
         values = []
-    if len(values) != 16:
-        raise InputError(f"{path}: expected a 4x4 pose (16 numbers), got {text.strip()[:60]!r}")
-    return check_pose(np.array(values).reshape(4, 4), str(path))
+    if len(values) != n * n:
+        raise InputError(f"{path}: expected {expected}, got {text.strip()[:60]!r}")
+    return np.array(values).reshape(n, n)
 
 
 class SevenScenesSource(FolderSource):
