@@ -15,6 +15,7 @@ from a3d.runtime import Detector
 from a3d.runtime.cli import run as run_cli
 from a3d.runtime.errors import InputError
 from a3d.runtime.io.detections_io import format_line, parse_line, read_detections
+from a3d.runtime.mapping.world import down_of_up_axis, rtilt_from_pose
 from a3d.runtime.pipeline import PipelineConfig
 from a3d.runtime.sources.arrays import ArrayError
 from a3d.runtime.sources.folder import write_frame
@@ -161,3 +162,35 @@ def test_python_api_takes_a_pose_and_the_line_carries_it(tmp_path: Path) -> None
     path.write_text(json.dumps(bad) + "\n")
     with pytest.raises(InputError, match=rf"^{path}:1: pose: not a rigid transform"):
         read_detections(path)
+
+
+def test_world_up_takes_gravity_from_the_poses(
+    tmp_path: Path, fake_model: FakeModel, capsys: pytest.CaptureFixture
+) -> None:
+    """A z-up world (a3d's y-down world turned by Z_UP): --world-up +z gives each posed frame the
+    R_tilt its pose implies, the one the y-down world gives directly; frames without a pose keep
+    their estimate."""
+    z_up = make_pose(
+        np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]]), np.zeros(3)
+    )  # y-down -> z-up
+    folder = tmp_path / "rgbd_dataset_freiburg1_desk"
+    write_tum(folder, synth_frames((3, 4)), [100.0, 100.1])
+    write_tum_trajectory(folder, [100.09, 100.11], [z_up @ pose_of(1), z_up @ pose_of(1)])
+    out = tmp_path / "det.jsonl"
+    argv = [str(folder), "--model", "fake.onnx", "--output", str(out), "--headless", "--world-up", "+z"]
+    assert run_cli.main(argv) == 0
+    first, second = (json.loads(line) for line in out.read_text().splitlines())
+    assert first["gravity"] == "estimated" and "pose" not in first  # before the trajectory
+    assert second["gravity"] == "given"
+    np.testing.assert_allclose(second["R_tilt"], rtilt_from_pose(pose_of(1)), atol=1e-9)
+    capsys.readouterr()
+    plain = write_scene_folder(tmp_path / "plain", ["a"])
+    assert (
+        run_cli.main(
+            [str(plain), "--model", "fake.onnx", "--output", str(out), "--headless", "--world-up", "+z"]
+        )
+        == 2
+    )
+    assert "--world-up needs camera poses, and this source has none" in capsys.readouterr().err
+    with pytest.raises(InputError, match="--world-up: expected one of"):
+        down_of_up_axis("up")

@@ -61,6 +61,7 @@ from a3d.runtime.cli.summary import RunSummary
 from a3d.runtime.errors import InputError
 from a3d.runtime.io.detections_io import format_line, parse_line
 from a3d.runtime.mapping.object_map import ObjectMap
+from a3d.runtime.mapping.world import WORLD_AXES, down_of_up_axis
 from a3d.runtime.network.model import DetectorModel
 from a3d.runtime.pipeline import (
     FRONT_ENDS,
@@ -74,7 +75,7 @@ from a3d.runtime.pipeline import (
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.folder import MODEL_FILE
 from a3d.runtime.sources.newest import NewestFrames
-from a3d.runtime.sources.overrides import parse_depth_scale, parse_intrinsics
+from a3d.runtime.sources.overrides import parse_depth_scale, parse_intrinsics, with_overrides
 from a3d.runtime.sources.registry import FrameSource, SourceOptions, kinds, open_source, recognised
 from a3d.runtime.viewer import launch as viewer_launch
 from a3d.runtime.viewer import options as viewer
@@ -173,6 +174,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resize-depth", action="store_true", help="resize depth of another size to the colour's")
     p.add_argument("--shard", metavar="K/N", help="only every N-th frame from the K-th (K = 0..N-1)")
     p.add_argument(
+        "--world-up",
+        choices=WORLD_AXES,
+        help="posed sources: the poses' world is gravity-aligned with this axis up, so gravity comes from "
+        'each frame\'s pose instead of its depth (docs/sources.md "Camera poses")',
+    )
+    p.add_argument(
         "--map",
         nargs="?",
         const=Path(DEFAULT_MAP),
@@ -242,6 +249,10 @@ def _job(args: argparse.Namespace) -> _Job:
         extra={key: value for key, value in topics.items() if value is not None},
     )
     source = open_source(args.source, options, args.source_format)
+    if args.world_up is not None:
+        if not getattr(source, "has_poses", False):
+            raise InputError(f"{args.source}: --world-up needs camera poses, and this source has none")
+        source = with_overrides(source, None, None, world_down=down_of_up_axis(args.world_up))
     if args.map is not None and not getattr(source, "has_poses", False):
         raise InputError(
             f"{args.source}: --map needs camera poses, and this source has none "

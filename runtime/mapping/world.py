@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from a3d.runtime.errors import InputError
 from a3d.runtime.frontend.gravity import rtilt_from_gravity
 from a3d.runtime.structures.geometry import box_corners_camera, boxes_from_corners_tilt
 from a3d.runtime.structures.pose import invert_pose, transform_points
@@ -23,10 +24,22 @@ WORLD_DOWN = np.array([0.0, 1.0, 0.0])  # gravity in the world frame
 IDENTITY = np.eye(3)
 
 
-def rtilt_from_pose(pose: np.ndarray) -> np.ndarray:
-    """The camera's ``R_tilt`` (R_x(pitch) R_z(roll)) from its pose in the gravity-aligned world:
-    gravity in the camera is ``R^T [0, 1, 0]``."""
-    return rtilt_from_gravity(pose[:3, :3].T @ WORLD_DOWN)
+def rtilt_from_pose(pose: np.ndarray, down: np.ndarray = WORLD_DOWN) -> np.ndarray:
+    """The camera's ``R_tilt`` (R_x(pitch) R_z(roll)) from its pose in a gravity-aligned world
+    whose gravity is ``down`` (a3d's: y): gravity in the camera is ``R^T down``."""
+    return rtilt_from_gravity(pose[:3, :3].T @ np.asarray(down, np.float64))
+
+
+WORLD_AXES = ("+x", "-x", "+y", "-y", "+z", "-z")
+
+
+def down_of_up_axis(axis: str) -> np.ndarray:
+    """Gravity (down) of a world whose ``axis`` ("+z", "-y", ...) points up (InputError otherwise)."""
+    if axis not in WORLD_AXES:
+        raise InputError(f"--world-up: expected one of {', '.join(WORLD_AXES)}, got {axis!r}")
+    down = np.zeros(3)
+    down["xyz".index(axis[1])] = -1.0 if axis[0] == "+" else 1.0
+    return down
 
 
 def boxes_to_world(boxes: np.ndarray, R_tilt: np.ndarray, pose: np.ndarray) -> np.ndarray:
