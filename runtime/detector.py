@@ -82,13 +82,17 @@ class Detector:
         score_threshold: float = SHOW_THRESHOLD,
         depth_scale: float | None = None,
         name: str = "frame",
+        pose: Any = None,
     ) -> FrameDetections:
         """Detections of one RGB-D frame scoring at least ``score_threshold`` (0: all; module
         docstring): ``color`` (H, W, 3) uint8 RGB, ``depth`` (H, W) metres (float) or uint16 in
         ``depth_scale`` metres (default millimetres), ``intrinsics`` (fx, fy, cx, cy) or 3x3,
-        ``R_tilt`` the gravity rotation or None to estimate it. Depth whose median is no room's
-        (a wrong ``depth_scale``) is a warning, once per detector."""
-        frame = frame_from_arrays(color, depth, intrinsics, R_tilt, depth_scale=depth_scale, name=name)
+        ``R_tilt`` the gravity rotation or None to estimate it; ``pose`` the 4x4 camera-to-world
+        transform, carried into the result (its ``pose``) for mapping. Depth whose median is no
+        room's (a wrong ``depth_scale``) is a warning, once per detector."""
+        frame = frame_from_arrays(
+            color, depth, intrinsics, R_tilt, depth_scale=depth_scale, name=name, pose=pose
+        )
         integer = getattr(depth, "dtype", None) == np.uint16
         problem = None if self._warned_depth else implausible_depth(frame.depth, integer)
         if problem is not None:

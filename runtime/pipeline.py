@@ -196,7 +196,7 @@ def prepare(frame: Frame, config: PipelineConfig, timing: dict[str, float] | Non
     hold the frame's read time."""
     timing = {} if timing is None else timing
     clock = _Clock(timing)
-    notes: list[str] = []
+    notes: list[str] = [frame.pose_note] if frame.pose_note else []
     fill = fill_depth_info(frame.depth)
     filled = fill.depth
     if fill.hole_fraction > MOSTLY_MISSING:
@@ -312,6 +312,7 @@ def finish(prepared: PreparedFrame, out: NetworkOutput, config: PipelineConfig) 
         gravity=prepared.gravity,
         notes=(*prepared.notes, *bounded.notes(scores)),
         intrinsics=frame.intrinsics,
+        pose=frame.pose,
     )
 
 

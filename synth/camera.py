@@ -43,6 +43,13 @@ class CameraPose:
         dx, dz = np.asarray(x) - self.x, np.asarray(z) - self.z
         return np.stack([c * dx - s * dz, self.height - np.asarray(h), s * dx + c * dz], axis=-1)
 
+    def tilt_to_room(self, points: np.ndarray) -> np.ndarray:
+        """Room points (..., 3) as (x, height h, z) of tilt-frame points: ``room_to_tilt``'s inverse."""
+        p = np.asarray(points, np.float64)
+        c, s = math.cos(self.heading), math.sin(self.heading)
+        dx, dz = c * p[..., 0] + s * p[..., 2], -s * p[..., 0] + c * p[..., 2]
+        return np.stack([self.x + dx, self.height - p[..., 1], self.z + dz], axis=-1)
+
 
 @dataclass(frozen=True)
 class CameraRanges:

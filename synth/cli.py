@@ -3,6 +3,7 @@
     a3d-synth OUT --frames N --seed S [--split test=0.3] [--workers K] [--size HxW] [--sensor kinect-v1]
         [--appearance typical] [--world real] [--clutter N] [--camera-mix all|NAME,...] [--camera-scale S]
         [--real-light | --no-real-light] [--empty-share F]
+    a3d-synth OUT --sequence N --seed S [--size HxW] [--sensor ...] [--world ...] [--workers K]
     a3d-synth --stats OUT
 
 Frame i of a run is rendered from ``frame_seed(S, i)``, so a set is the same whatever the number
@@ -15,6 +16,11 @@ of no class per room, a camera preset per frame from ``a3d.synth.devices`` (its 
 intrinsics in the frame's meta.json), daylight and a consumer colour pipeline, and a share of
 rooms without any class object; each setting can be changed on its own. The default world
 (``--world a3d``) renders the same frames as before these options existed.
+
+``--sequence N`` renders one room (that of seed S) seen from N poses of a camera moving round it
+(a3d.synth.sequence): OUT/frames holds ``seq_NNNNNN`` frames with their camera-to-world ``"pose"``
+in meta.json and the usual ground truth, OUT/world_boxes.json the room's objects in its
+gravity-aligned world (docs/mapping.md). One camera (``--size``), so no camera mix, and no split.
 """
 
 from __future__ import annotations
@@ -23,7 +29,7 @@ import argparse
 import json
 import multiprocessing
 import sys
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import cv2
@@ -32,11 +38,14 @@ from tqdm import tqdm
 
 from a3d.runtime.cli.common import build_parser as command_parser
 from a3d.runtime.cli.common import command
+from a3d.runtime.mapping.world_boxes import WORLD_BOXES_FILE, write_world_boxes
 from a3d.runtime.sources.folder import write_frame, write_intrinsics
 from a3d.runtime.structures.geometry import NYU_CROP_INTRINSICS, NYU_CROP_SIZE, Intrinsics
+from a3d.synth.camera import CameraPose
 from a3d.synth.devices import DEVICES
 from a3d.synth.scene import APPEARANCES, SceneConfig, generate_frame
 from a3d.synth.sensor import SENSORS
+from a3d.synth.sequence import orbit, room_of, world_boxes, world_pose
 from a3d.synth.stats import RECORDS_FILE, format_summary, frame_record, read_records, summarise
 
 
@@ -104,21 +113,38 @@ def _parse_size(text: str) -> tuple[int, int]:
     return h, w
 
 
-def _render_one(job: tuple[Path, str, str, int, SceneConfig, str, bool]) -> dict:
-    folder, name, split, seed, config, depth_format, own_intrinsics = job
-    frame = generate_frame(seed, config)
+@dataclass(frozen=True)
+class RenderJob:
+    """One frame to render and write: ``camera`` (a sequence's view, a3d.synth.sequence) and
+    ``noise_seed`` None for a frame of its own room and pose; ``own_intrinsics``: write them into
+    its meta.json (a camera mix)."""
+
+    folder: Path
+    name: str
+    split: str
+    seed: int
+    config: SceneConfig
+    depth_format: str
+    own_intrinsics: bool = False
+    camera: CameraPose | None = None
+    noise_seed: int | None = None
+
+
+def _render_one(job: RenderJob) -> dict:
+    frame = generate_frame(job.seed, job.config, camera=job.camera, noise_seed=job.noise_seed)
     write_frame(
-        folder,
-        name,
+        job.folder,
+        job.name,
         frame.color,
         frame.depth,
         R_tilt=frame.R_tilt,
-        intrinsics_override=config.intrinsics if own_intrinsics else None,
+        intrinsics_override=job.config.intrinsics if job.own_intrinsics else None,
         gt=frame.gt,
         instances=frame.instances,
-        depth_format=depth_format,
+        depth_format=job.depth_format,
+        pose=None if job.camera is None else world_pose(job.camera),
     )
-    return frame_record(name, split, seed, frame)
+    return frame_record(job.name, job.split, job.seed, frame)
 
 
 def _init_worker() -> None:
@@ -172,13 +198,43 @@ def generate(
     for i, frame_config in enumerate(configs):
         split = "test" if i in test else "train"
         name = f"synth_{i:06d}"
-        jobs.append(
-            (out / split, name, split, frame_seed(seed, i), frame_config, depth_format, bool(camera_mix))
+        job = RenderJob(
+            out / split, name, split, frame_seed(seed, i), frame_config, depth_format, bool(camera_mix)
         )
+        jobs.append(job)
     for split in ("train", "test"):
         (out / split).mkdir(parents=True, exist_ok=True)
         write_intrinsics(out / split, config.intrinsics)
-    bar = tqdm(total=frames, desc="a3d-synth", unit="frame", disable=not progress)
+    return _run_jobs(jobs, workers, progress, out / RECORDS_FILE)
+
+
+def generate_sequence(
+    out: Path,
+    frames: int,
+    seed: int,
+    workers: int,
+    config: SceneConfig,
+    depth_format: str = "png",
+    progress: bool = True,
+) -> list[dict]:
+    """Render and write a posed sequence of one room (module docstring); returns its statistics records."""
+    _, layout = room_of(seed, config)
+    folder = out / "frames"
+    folder.mkdir(parents=True, exist_ok=True)
+    write_intrinsics(folder, config.intrinsics)
+    write_world_boxes(out / WORLD_BOXES_FILE, world_boxes(layout))
+    jobs = [
+        RenderJob(
+            folder, f"seq_{i:06d}", "sequence", seed, config, depth_format, False, camera, frame_seed(seed, i)
+        )
+        for i, camera in enumerate(orbit(layout, frames))
+    ]
+    return _run_jobs(jobs, workers, progress, out / RECORDS_FILE)
+
+
+def _run_jobs(jobs: list[RenderJob], workers: int, progress: bool, records_file: Path) -> list[dict]:
+    """Render the jobs in order (on ``workers`` processes), then write their statistics records."""
+    bar = tqdm(total=len(jobs), desc="a3d-synth", unit="frame", disable=not progress)
     records = []
     if workers <= 1:
         _init_worker()
@@ -191,7 +247,7 @@ def generate(
                 records.append(record)
                 bar.update()
     bar.close()
-    with (out / RECORDS_FILE).open("w") as f:
+    with records_file.open("w") as f:
         for record in records:
             f.write(json.dumps(record) + "\n")
     return records
@@ -206,6 +262,12 @@ def build_parser() -> argparse.ArgumentParser:
         "out", nargs="?", type=Path, help="output folder (gets train/, test/ and the statistics)"
     )
     parser.add_argument("--frames", type=int, default=100, help="number of frames")
+    parser.add_argument(
+        "--sequence",
+        type=int,
+        metavar="N",
+        help="one room seen from N poses of a moving camera instead (OUT/frames, OUT/world_boxes.json)",
+    )
     parser.add_argument("--seed", type=int, default=0, help="run seed")
     parser.add_argument(
         "--split",
@@ -289,6 +351,12 @@ def main(argv: list[str] | None = None) -> int:
     world = {k: v if getattr(args, k) is None else getattr(args, k) for k, v in WORLDS[args.world].items()}
     if world["clutter"] < 0 or not 0.0 <= world["empty_share"] <= 1.0 or not 0.05 <= args.camera_scale <= 4:
         parser.error("--clutter must be >= 0, --empty-share in [0, 1] and --camera-scale in [0.05, 4]")
+    if args.sequence is not None and (args.sequence < 1 or args.camera_mix):
+        parser.error(
+            "--sequence must be >= 1 and excludes --camera-mix: a sequence is seen by one camera (--size)"
+        )
+    if args.sequence is not None:
+        world["camera_mix"] = ()
     if world["camera_mix"] and (args.size is not None or args.sensor != "a3d"):
         parser.error(
             "--size and --sensor exclude a camera mix: each preset has its own size and depth model"
@@ -305,6 +373,12 @@ def main(argv: list[str] | None = None) -> int:
         clutter=world["clutter"],
         real_light=world["real_light"],
     )
+    if args.sequence is not None:
+        records = generate_sequence(
+            args.out, args.sequence, args.seed, args.workers, config, args.depth_format
+        )
+        print(format_summary(summarise(records)))
+        return 0
     records = generate(
         args.out,
         args.frames,

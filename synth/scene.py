@@ -125,12 +125,23 @@ class SynthFrame:
     device: str
 
 
-def generate_frame(seed: int, config: SceneConfig = SceneConfig()) -> SynthFrame:
-    """Render the frame of ``seed`` (the same seed always gives the same frame)."""
+def generate_frame(
+    seed: int,
+    config: SceneConfig = SceneConfig(),
+    camera: CameraPose | None = None,
+    noise_seed: int | None = None,
+) -> SynthFrame:
+    """Render the frame of ``seed`` (the same seed always gives the same frame).
+
+    ``camera`` views the room of ``seed`` from that pose instead of the chosen one (a3d.synth.sequence:
+    one room, many views): the room, its materials and its lights stay those of ``seed`` (the lights
+    are drawn for the chosen pose and moved into this one), and ``noise_seed`` draws the sensor's
+    noise, so that every view has its own."""
     rng = np.random.default_rng(seed)
     H, W = config.image_size
     kind, layout = furnish_world(rng, config.room_type, config.clutter, config.labelled)
-    pose = choose_camera(layout, rng, config.camera, config.intrinsics, config.image_size)
+    chosen = choose_camera(layout, rng, config.camera, config.intrinsics, config.image_size)
+    pose = chosen if camera is None else camera
     R = pose.R_tilt
     K = config.intrinsics.matrix()
     placed = [p for p in layout.objects if p.render]
@@ -160,14 +171,18 @@ def generate_frame(seed: int, config: SceneConfig = SceneConfig()) -> SynthFrame
     footprint = t * np.linalg.norm(grid.d, axis=0) / (config.intrinsics.fx * np.maximum(np.abs(cos_inc), 0.2))
     alb = shading.albedo(surf, part, all_parts, mats, room_faces, footprint)
     gloss = np.where(surf.face >= 0, 0.0, mats.gloss[all_parts.material[part]]).astype(np.float32)
-    corners = pose.room_to_tilt(
-        np.array([0, room.width, room.width, 0.0]), np.zeros(4), np.array([0, 0, room.depth, room.depth])
-    )
-    lights = shading.draw_lights(rng, pose.height - room.height, corners)
+    corners = _room_corners(pose, room.width, room.depth)
+    drawn_in = _room_corners(chosen, room.width, room.depth)  # lights are drawn about the chosen pose
+    lights = shading.draw_lights(rng, chosen.height - room.height, drawn_in)
+    if config.real_light:
+        windows = [p.yaw - chosen.heading for p in placed if p.item.glow >= 0]
+        lights = photo.add_daylight(rng, lights, float(rng.choice(windows)) if windows else None)
+    if camera is not None:
+        lights = _moved_lights(lights, chosen, pose)
+    if noise_seed is not None:
+        rng = np.random.default_rng(noise_seed)
     lit_sun = None
     if config.real_light:
-        windows = [p.yaw - pose.heading for p in placed if p.item.glow >= 0]
-        lights = photo.add_daylight(rng, lights, float(rng.choice(windows)) if windows else None)
         if lights.sun_dir is not None:
             centre = np.array([corners[:, 0].mean(), pose.height - room.height / 2, corners[:, 2].mean()])
             radius = 0.5 * math.sqrt(room.width**2 + room.depth**2 + room.height**2) + 0.1
@@ -205,6 +220,23 @@ def generate_frame(seed: int, config: SceneConfig = SceneConfig()) -> SynthFrame
         ),
         config.device,
     )
+
+
+def _room_corners(pose: CameraPose, width: float, depth: float) -> np.ndarray:
+    """The room's four floor corners (4, 3) in the tilt frame of ``pose``."""
+    return pose.room_to_tilt(np.array([0, width, width, 0.0]), np.zeros(4), np.array([0, 0, depth, depth]))
+
+
+def _moved_lights(lights: shading.Lights, old: CameraPose, new: CameraPose) -> shading.Lights:
+    """Lights given in the tilt frame of pose ``old``, in that of pose ``new`` (the same room lights)."""
+    room = old.tilt_to_room(lights.positions)
+    positions = new.room_to_tilt(room[:, 0], room[:, 1], room[:, 2])
+    sun_dir = None
+    if lights.sun_dir is not None:  # a direction turns with the heading only
+        ends = old.tilt_to_room(np.stack([np.zeros(3), lights.sun_dir]))
+        moved = new.room_to_tilt(ends[:, 0], ends[:, 1], ends[:, 2])
+        sun_dir = moved[1] - moved[0]
+    return shading.Lights(lights.ambient, positions, lights.powers, sun_dir, lights.sun)
 
 
 def _glowing_parts(placed: list[Placed], parts: PartArrays) -> np.ndarray:

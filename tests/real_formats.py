@@ -76,6 +76,46 @@ def write_tum(folder: Path, frames: list[SynthFrame], stamps: list[float]) -> li
     return depths
 
 
+def write_tum_trajectory(folder: Path, stamps: list[float], poses: list[np.ndarray]) -> None:
+    """``groundtruth.txt``: one ``timestamp tx ty tz qx qy qz qw`` line per camera-to-world pose."""
+    lines = ["# ground truth trajectory", "# timestamp tx ty tz qx qy qz qw"]
+    for t, T in zip(stamps, poses, strict=True):
+        q = quaternion_of(T[:3, :3])
+        lines.append(f"{t:.4f} " + " ".join(f"{v:.9f}" for v in (*T[:3, 3], *q)))
+    (folder / "groundtruth.txt").write_text("\n".join(lines) + "\n")
+
+
+def quaternion_of(R: np.ndarray) -> np.ndarray:
+    """(qx, qy, qz, qw) of a rotation with a trace > -1 (what the tests' poses have)."""
+    w = np.sqrt(1.0 + np.trace(R)) / 2.0
+    return np.array(
+        [(R[2, 1] - R[1, 2]) / (4 * w), (R[0, 2] - R[2, 0]) / (4 * w), (R[1, 0] - R[0, 1]) / (4 * w), w]
+    )
+
+
+# ----------------------------------------------------------------------------- 7-Scenes
+
+
+def write_seven_scenes(folder: Path, frames: list[SynthFrame], poses: list[np.ndarray]) -> list[np.ndarray]:
+    """A 7-Scenes-style sequence (camera-intrinsics.txt, frame-NNNNNN.color.png / .depth.png in
+    millimetres with 65535 where there is no depth / .pose.txt); returns each frame's depth as the
+    reader must give it."""
+    folder.mkdir(parents=True)
+    K = frames[0].intrinsics.matrix()
+    (folder / "camera-intrinsics.txt").write_text("\n".join(" ".join(f"{v:.6f}" for v in row) for row in K))
+    depths = []
+    for i, (frame, T) in enumerate(zip(frames, poses, strict=True)):
+        mm = np.rint(frame.depth.astype(np.float64) * 1000).astype(np.uint16)
+        mm[mm == 0] = 65535
+        (folder / f"frame-{i:06d}.color.png").write_bytes(png(frame.color))
+        (folder / f"frame-{i:06d}.depth.png").write_bytes(png(mm))
+        (folder / f"frame-{i:06d}.pose.txt").write_text(
+            "\n".join(" ".join(f"{v:.9e}" for v in row) for row in T)
+        )
+        depths.append(np.where(mm == 65535, 0, mm).astype(np.float32) / np.float32(1000))
+    return depths
+
+
 # ----------------------------------------------------------------------------- SUN RGB-D release
 
 

@@ -6,7 +6,7 @@
             [--resume] [--overlap [auto|on|off]] [--headless] [--connect] [--url URL] [--serve]
             [--save FILE.rrd] [--stdout]
             [--intrinsics FX,FY,CX,CY | fr1 | fr2 | fr3] [--depth-scale S] [--resize-depth] [--shard K/N]
-            [--color-topic TOPIC] [--depth-topic TOPIC] [--max-frames N]
+            [--color-topic TOPIC] [--depth-topic TOPIC] [--max-frames N] [--map [MAP.json]]
 
 SOURCE is a frame source (a3d.runtime.sources.registry: an a3d frame folder, README "Frame
 format", and the other kinds registered there; --source-format forces one); for a folder the
@@ -25,6 +25,10 @@ ends with a summary (a3d.runtime.cli.summary); progress is a bar on a terminal, 
 few seconds (a3d.runtime.cli.progress). Live sources and ``--realtime`` work on the newest frame
 only (a3d.runtime.sources.newest); docs/live.md. Frames are logged as they are processed (colour, depth,
 point cloud, detections and, where the frame has it, ground truth).
+
+``--map [MAP.json]`` (a posed source only) fuses the detections of every frame into one box per
+object in the world (a3d.runtime.mapping.object_map, docs/mapping.md), written atomically at the
+end of the run (also an interrupted one).
 
 A bad frame never stops the run: it is named on stderr as ``a3d-run: PATH: problem`` and the rest
 are processed. Exit codes: 0 every frame done, 1 some frames failed, 2 usage error (bad flags, no
@@ -47,6 +51,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import cv2
+import numpy as np
 from tqdm import tqdm
 
 from a3d.runtime.cli.common import build_parser as command_parser
@@ -55,6 +60,8 @@ from a3d.runtime.cli.progress import make_progress
 from a3d.runtime.cli.summary import RunSummary
 from a3d.runtime.errors import InputError
 from a3d.runtime.io.detections_io import format_line, parse_line
+from a3d.runtime.mapping.object_map import ObjectMap
+from a3d.runtime.mapping.world import WORLD_AXES, down_of_up_axis
 from a3d.runtime.network.model import DetectorModel
 from a3d.runtime.pipeline import (
     FRONT_ENDS,
@@ -69,7 +76,7 @@ from a3d.runtime.postprocess.score_calibration import SHOW_THRESHOLD
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.folder import MODEL_FILE
 from a3d.runtime.sources.newest import NewestFrames
-from a3d.runtime.sources.overrides import parse_depth_scale, parse_intrinsics
+from a3d.runtime.sources.overrides import parse_depth_scale, parse_intrinsics, with_overrides
 from a3d.runtime.sources.registry import FrameSource, SourceOptions, kinds, open_source, recognised
 from a3d.runtime.viewer import launch as viewer_launch
 from a3d.runtime.viewer import options as viewer
@@ -88,6 +95,7 @@ LIVE_NOTE = (
 )
 DEFAULT_MODEL = MODEL_FILE
 DEFAULT_OUTPUT = "detections.jsonl"
+DEFAULT_MAP = "map.json"
 VIEW_MIN_SCORE = SHOW_THRESHOLD  # calibrated scores: a detection there is as likely right as wrong
 
 load_model = DetectorModel.load  # the model loader (tests substitute a fake model here)
@@ -167,6 +175,20 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--resize-depth", action="store_true", help="resize depth of another size to the colour's")
     p.add_argument("--shard", metavar="K/N", help="only every N-th frame from the K-th (K = 0..N-1)")
+    p.add_argument(
+        "--world-up",
+        choices=WORLD_AXES,
+        help="posed sources: the poses' world is gravity-aligned with this axis up, so gravity comes from "
+        'each frame\'s pose instead of its depth (docs/sources.md "Camera poses")',
+    )
+    p.add_argument(
+        "--map",
+        nargs="?",
+        const=Path(DEFAULT_MAP),
+        type=Path,
+        metavar="MAP.json",
+        help=f"posed sources: fuse the detections into a world-frame object map (bare --map: {DEFAULT_MAP})",
+    )
     viewer.add_viewer_args(p)
     return p
 
@@ -189,6 +211,8 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
     if not args.source.exists() and ":" not in str(args.source) and not recognised(args.source):
         raise InputError(f"{args.source}: no such file or folder")
     args.shard = _shard(parser, args.shard)
+    if args.map is not None and (args.resume or args.shard != (0, 1)):
+        parser.error("--map needs every frame in order: it excludes --resume and --shard")
     if args.model is None:
         args.model = args.source / DEFAULT_MODEL
         if not args.model.is_file():
@@ -228,6 +252,15 @@ def _job(args: argparse.Namespace) -> _Job:
         extra={key: value for key, value in topics.items() if value is not None},
     )
     source = open_source(args.source, options, args.source_format)
+    if args.world_up is not None:
+        if not getattr(source, "has_poses", False):
+            raise InputError(f"{args.source}: --world-up needs camera poses, and this source has none")
+        source = with_overrides(source, None, None, world_down=down_of_up_axis(args.world_up))
+    if args.map is not None and not getattr(source, "has_poses", False):
+        raise InputError(
+            f"{args.source}: --map needs camera poses, and this source has none "
+            '(docs/sources.md "Camera poses": meta.json "pose", TUM groundtruth.txt, 7-Scenes pose.txt)'
+        )
     # With --overlap on one thread prepares frames, so the network gets one fewer (no oversubscription).
     model = load_model(args.model, threads=max(1, args.threads - 1) if args.overlap == "on" else args.threads)
     front_end = args.front_end or ("live" if _is_live(args, source) else "model")
@@ -311,6 +344,7 @@ def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] 
         total = max(0, len(range(k, count, n)) - len(job.done))
     bar = make_progress(PROG, total)
     summary = RunSummary(args.view_min_score, calibrated=job.config.score_calibration is not None)
+    world_map = None if args.map is None else ObjectMap()
     try:
         with _threads(1 if args.overlap == "on" else args.threads), _warnings_to_stderr():
             for outcome in _frames(todo, job, args):
@@ -322,6 +356,11 @@ def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] 
                     written_at = time.perf_counter()
                     summary.add(outcome.detections)
                     problem = _log(recording, index[outcome.name], outcome, view)
+                    problem = (
+                        problem
+                        or _update_map(world_map, outcome)
+                        or _log_map(recording, index, world_map, outcome)
+                    )
                     logged_at = time.perf_counter()
                 else:
                     summary.fail()
@@ -348,6 +387,8 @@ def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] 
         output.close()
         if recording is not None:
             _flush(recording)
+        if world_map is not None:
+            _write_map(world_map, args.map)
     resumed = f", {len(job.done)} already there" if args.resume else ""
     where = "stdout" if args.output == "-" else args.output
     summary.dropped = None if live is None else live.dropped
@@ -359,6 +400,64 @@ def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] 
     if launched is not None and launched.web_url is not None:
         _serve_until_interrupted(launched)
     return 1 if failures else 0
+
+
+def _update_map(world_map: ObjectMap | None, outcome: FrameOutcome) -> str:
+    """Add a processed frame to the map (with its camera, so the map knows what it should have
+    seen); the problem, if that failed (the line is written either way), else ""."""
+    if world_map is None:
+        return ""
+    assert outcome.prepared is not None and outcome.detections is not None
+    frame = outcome.prepared.frame
+    try:
+        world_map.update(outcome.detections, intrinsics=frame.intrinsics, depth=frame.depth)
+    except Exception as e:  # the line is written; the map must not stop the run
+        return f"{frame.origin}: map: cannot add the frame ({type(e).__name__}: {e})"
+    return ""
+
+
+def _log_map(
+    recording: rr.RecordingStream | None,
+    index: dict[str, int],
+    world_map: ObjectMap | None,
+    outcome: FrameOutcome,
+) -> str:
+    """Log the map after a mapped frame (its camera, the trajectory, the objects); the problem, if
+    logging failed, else ""."""
+    if recording is None or world_map is None or world_map.camera is None:
+        return ""
+    assert outcome.prepared is not None
+    frame = outcome.prepared.frame
+    objects = world_map.objects
+    try:
+        viewer.load_view().log_map(
+            recording,
+            index[outcome.name],
+            camera_pose=world_map.camera,
+            K=frame.intrinsics,
+            image_size=frame.image_size,
+            trajectory=np.array(world_map.trajectory),
+            class_ids=np.array([o.class_id for o in objects], np.int64),
+            boxes=np.array([o.box for o in objects]).reshape(-1, 7),
+            labels=[f"{o.cls} #{o.id} ({o.support})" for o in objects],
+        )
+    except Exception as e:  # the line is written; a viewer problem must not stop the run
+        return f"{frame.origin}: rerun: cannot log the map ({type(e).__name__}: {e})"
+    return ""
+
+
+def _write_map(world_map: ObjectMap, path: Path) -> None:
+    """Write the map (atomically) and say in one line what it holds and which frames it left out."""
+    try:
+        world_map.write(path)
+    except OSError as e:
+        print(f"{PROG}: error: {path}: cannot write the map ({e.strerror or e})", file=sys.stderr)
+        return
+    skipped = ", ".join(f"{n} {why}" for why, n in world_map.frames_skipped.items())
+    n, confirmed, support = len(world_map.objects), len(world_map.confirmed()), world_map.config.min_support
+    frames = world_map.frames_mapped
+    line = f"{n} objects ({confirmed} seen in >= {support} frames) from {frames} frames -> {path}"
+    print(f"{PROG}: map: {line}" + (f"; frames not mapped: {skipped}" if skipped else ""), file=sys.stderr)
 
 
 def _flush(recording: rr.RecordingStream) -> None:

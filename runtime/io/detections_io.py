@@ -23,7 +23,9 @@ are skipped; a frame may appear once.
 (a3d.runtime.frontend.gravity.choose_gravity). ``notes`` (optional, a list of strings) says what
 else degraded on the frame: depth mostly missing, no proposals, boxes clamped
 (a3d.runtime.postprocess.box_limits); an absent list means nothing did.
-Every problem is an ``InputError`` "FILE:LINE: what is wrong".
+``pose`` (optional) is the frame's 4 x 4 camera-to-world pose where its source has one
+(docs/sources.md "Camera poses"), written exactly; it is what places the line's boxes in the world
+(a3d.runtime.mapping). Every problem is an ``InputError`` "FILE:LINE: what is wrong".
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ from a3d.runtime.io.json_input import is_finite_number, parse_json
 from a3d.runtime.structures.boxes import BOX_DIM, SIZE
 from a3d.runtime.structures.classes import CLASSES
 from a3d.runtime.structures.geometry import Intrinsics, box_corners_camera, check_rotation
+from a3d.runtime.structures.pose import check_pose
 
 if TYPE_CHECKING:
     import rerun as rr
@@ -95,6 +98,7 @@ class FrameDetections:
     gravity: str | None = None  # "given", "estimated" or "fallback: ..."; None in older lines
     notes: tuple[str, ...] = ()  # what degraded on this frame, one sentence each
     intrinsics: Intrinsics | None = None  # the frame's camera, for drawing (not part of the line)
+    pose: np.ndarray | None = None  # (4, 4) camera-to-world where the frame has a pose
 
     @property
     def classes(self) -> list[str]:
@@ -177,6 +181,8 @@ def format_line(det: FrameDetections) -> str:
     if det.depth is not None:
         line["depth"] = det.depth
     line["R_tilt"] = np.asarray(det.R_tilt, dtype=np.float64).tolist()
+    if det.pose is not None:
+        line["pose"] = np.asarray(det.pose, dtype=np.float64).tolist()
     amodal = (
         [None] * len(det.class_ids)
         if det.boxes2d_amodal is None
@@ -259,6 +265,9 @@ def parse_line(text: str, where: str) -> FrameDetections:
         check_rotation(R_tilt, "R_tilt")
     except ValueError as e:
         raise InputError(f"{where}: {e}") from None
+    pose = None
+    if obj.get("pose") is not None:
+        pose = check_pose(_array(obj["pose"], (4, 4), where, "pose"), f"{where}: pose")
     dets = obj.get("detections")
     if not isinstance(dets, list):
         raise InputError(f"{where}: 'detections' must be a list")
@@ -298,6 +307,7 @@ def parse_line(text: str, where: str) -> FrameDetections:
         boxes2d_amodal=boxes2d_amodal,
         gravity=_optional_str(obj, "gravity", where),
         notes=_notes(obj.get("notes", []), where),
+        pose=pose,
     )
 
 
@@ -317,8 +327,8 @@ def _array(value, shape: tuple[int, ...], where: str, what: str) -> np.ndarray:
         arr = arr.reshape(shape)
     if arr is None or arr.shape != shape:
         got = "ragged or non-numeric values" if arr is None else f"shape {arr.shape}"
-        if what == "R_tilt":
-            raise InputError(f"{where}: 'R_tilt' must be a 3x3 matrix, got {got}")
+        if what in ("R_tilt", "pose"):
+            raise InputError(f"{where}: '{what}' must be a {shape[0]}x{shape[1]} matrix, got {got}")
         expect = "x".join(map(str, shape[1:])) or "a number"
         raise InputError(f"{where}: every detection's '{what}' must be {expect}, got {got}")
     return arr

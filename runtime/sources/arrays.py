@@ -14,7 +14,7 @@ convention; TUM's 5000 units per metre is 0.0002); 0 means no measurement. ``int
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -22,6 +22,7 @@ import numpy as np
 from a3d.runtime.errors import InputError
 from a3d.runtime.structures.frame import Frame, GroundTruth
 from a3d.runtime.structures.geometry import Intrinsics, check_rotation
+from a3d.runtime.structures.pose import check_pose
 
 MILLIMETRE = 0.001  # metres per unit of a uint16 depth map, unless told otherwise
 PLAUSIBLE_MEDIAN_M = (0.1, 15.0)  # a room's median depth lies within; outside, the unit is likely wrong
@@ -126,6 +127,14 @@ def implausible_depth(depth_m: np.ndarray, integer: bool = True) -> str | None:
     return f"depth: the median valid depth is {median:.3g} m, outside {low:g}-{high:g} m for a room; {fix}"
 
 
+def _as_array_error(check: Callable[[Any, str], np.ndarray], value: Any, what: str) -> np.ndarray:
+    """``check(value, what)``, its InputError raised as the ArrayError of the API."""
+    try:
+        return check(value, what)
+    except InputError as e:
+        raise ArrayError(str(e)) from None
+
+
 def frame_from_arrays(
     color: Any,
     depth: Any,
@@ -137,8 +146,10 @@ def frame_from_arrays(
     origin: str = "",
     timestamp: float | None = None,
     truth: GroundTruth | None = None,
+    pose: Any = None,
 ) -> Frame:
-    """A checked ``Frame`` from arrays (see the module docstring for the conventions)."""
+    """A checked ``Frame`` from arrays (see the module docstring for the conventions); ``pose``
+    the 4 x 4 camera-to-world transform, if known (a3d.runtime.structures.pose)."""
     bgr = color_from(color)
     metres = depth_from(depth, depth_scale)
     if metres.shape != bgr.shape[:2]:
@@ -147,10 +158,16 @@ def frame_from_arrays(
             "(register and resize depth to the colour image first)"
         )
     K = intrinsics_from(intrinsics)
-    rotation = None
-    if R_tilt is not None:
-        try:
-            rotation = check_rotation(R_tilt, "R_tilt")
-        except InputError as e:
-            raise ArrayError(str(e)) from None
-    return Frame(name, bgr, metres, K, rotation, origin=origin or name, truth=truth, timestamp=timestamp)
+    rotation = None if R_tilt is None else _as_array_error(check_rotation, R_tilt, "R_tilt")
+    camera_to_world = None if pose is None else _as_array_error(check_pose, pose, "pose")
+    return Frame(
+        name,
+        bgr,
+        metres,
+        K,
+        rotation,
+        origin=origin or name,
+        truth=truth,
+        timestamp=timestamp,
+        pose=camera_to_world,
+    )

@@ -59,12 +59,14 @@ from a3d.runtime.structures.boxes import BOX_DIM
 from a3d.runtime.structures.classes import CLASSES
 from a3d.runtime.structures.frame import Frame, GroundTruth
 from a3d.runtime.structures.geometry import Intrinsics, check_rotation
+from a3d.runtime.structures.pose import check_pose
 
 logger = logging.getLogger(__name__)
 
 INTRINSICS_FILE = "intrinsics.json"
 MODEL_FILE = "model.onnx"  # a3d-run's default model, kept beside the frames it was made for
-_FOLDER_FILES = {INTRINSICS_FILE, MODEL_FILE}
+LABELS_FILE = "labels.jsonl"  # a3d-labels' record of what each frame sees (docs/mapping.md)
+_FOLDER_FILES = {INTRINSICS_FILE, MODEL_FILE, LABELS_FILE}
 COLOR_SUFFIXES = (".color.png", ".color.jpg", ".color.jpeg")
 DEPTH_SUFFIXES = (".depth.png", ".depth.npy")
 PROPOSALS_SUFFIX = ".proposals.npz"
@@ -84,7 +86,7 @@ PNG_METRE_MEDIAN_MM = 20.0
 """A depth PNG whose median valid value is below this many millimetres is taken to be metres."""
 """Most proposals accepted in a ``.proposals.npz`` file."""
 _INTRINSICS_KEYS = ("fx", "fy", "cx", "cy")
-_META_KEYS = ("intrinsics", "R_tilt")
+_META_KEYS = ("intrinsics", "R_tilt", "pose")
 _OBJECT_KEYS = ("class", "box3d", "box2d_visible", "box2d_amodal", "instance")
 _COLOR_FLAGS = cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION  # EXIF rotation would break registration
 
@@ -122,10 +124,14 @@ class FolderListing:
 
 @dataclass(frozen=True)
 class FrameMeta:
-    """``NAME.meta.json``: a per-frame intrinsics override and gravity, each optional."""
+    """``NAME.meta.json``: a per-frame intrinsics override, gravity and camera pose, each optional.
+    A pose that is no rigid transform does not fail the frame: ``pose_problem`` says what is wrong
+    and the frame is read without a pose (its line notes it)."""
 
     intrinsics: Intrinsics | None = None
     R_tilt: np.ndarray | None = None  # (3, 3) p_tilt = R_tilt p_cam
+    pose: np.ndarray | None = None  # (4, 4) camera-to-world, metres
+    pose_problem: str = ""
 
 
 # ----------------------------------------------------------------------------- listing
@@ -236,6 +242,10 @@ def read_frame(ref: FrameRef, folder_intrinsics: Intrinsics | None, *, with_prop
     color = decode_image(color_data, ref.color_path, _COLOR_FLAGS)
     depth = load_depth()
     warnings: tuple[str, ...] = ()
+    pose_note = ""
+    if meta.pose_problem:
+        pose_note = f"no pose: {meta.pose_problem}"
+        logger.warning("%s (the frame is processed without a pose)", meta.pose_problem)
     if not depth.any():
         warnings = (f"{ref.depth_path}: depth has no valid pixels (all zero)",)
         logger.warning(warnings[0])
@@ -253,6 +263,8 @@ def read_frame(ref: FrameRef, folder_intrinsics: Intrinsics | None, *, with_prop
         depth_file=str(ref.depth_path),
         proposals=proposals,
         warnings=warnings,
+        pose=meta.pose,
+        pose_note=pose_note,
     )
 
 
@@ -385,7 +397,7 @@ def _open_depth_npy(path: Path) -> tuple[tuple[int, int], Callable[[], np.ndarra
 
 
 def read_meta(ref: FrameRef) -> FrameMeta:
-    """The frame's ``NAME.meta.json``, validated (both fields None when the frame has none)."""
+    """The frame's ``NAME.meta.json``, validated (every field None when the frame has none)."""
     if ref.meta_path is None:
         return FrameMeta()
     path = ref.meta_path
@@ -399,7 +411,13 @@ def read_meta(ref: FrameRef) -> FrameMeta:
     R_tilt = None
     if document.get("R_tilt") is not None:
         R_tilt = check_rotation(_numbers(document["R_tilt"], (3, 3), path, "R_tilt"), f"{path}: R_tilt")
-    return FrameMeta(intrinsics, R_tilt)
+    pose, pose_problem = None, ""
+    if document.get("pose") is not None:
+        try:
+            pose = check_pose(_numbers(document["pose"], (4, 4), path, "pose"), f"{path}: pose")
+        except InputError as e:
+            pose_problem = str(e)
+    return FrameMeta(intrinsics, R_tilt, pose, pose_problem)
 
 
 def _parse_intrinsics(value: Any, path: Path, what: str) -> Intrinsics:
@@ -507,6 +525,7 @@ def write_frame(
     gt: GroundTruth | None = None,
     instances: np.ndarray | None = None,
     depth_format: str = "png",
+    pose: np.ndarray | None = None,
 ) -> FrameRef:
     """Write one frame into ``folder`` (created if needed) and return its FrameRef.
 
@@ -514,7 +533,8 @@ def write_frame(
     PNG/JPEG, written unchanged (e.g. a source JPEG, to avoid re-compressing it). ``depth_m`` is
     (H, W) metres, 0 = missing; ``depth_format`` "png" (uint16 millimetres, rounded to the
     nearest millimetre, at most ``MAX_DEPTH_PNG_M``) or "npy" (float32 metres). Ground truth
-    needs ``R_tilt``. Each file is written atomically; an earlier colour file of this frame is
+    needs ``R_tilt``. ``pose`` (4, 4) camera-to-world goes into ``NAME.meta.json`` (checked rigid).
+    Each file is written atomically; an earlier colour file of this frame is
     removed first and the new one written last, so an interrupted write leaves an incomplete
     frame (skipped by ``list_frames``), never a mix. Files of this frame in another format, or
     optional files not given now, are removed (``NAME.proposals.npz`` is left alone). Bad
@@ -531,12 +551,14 @@ def write_frame(
         raise ValueError(f"depth is {'x'.join(map(str, depth.shape))} but colour is {size[0]}x{size[1]}")
     depth_bytes = _encode_depth(depth, depth_format)
     files: dict[str, bytes] = {f".depth.{depth_format}": depth_bytes, color_suffix: color_bytes}
-    if R_tilt is not None or intrinsics_override is not None:
+    if R_tilt is not None or intrinsics_override is not None or pose is not None:
         meta: dict[str, Any] = {}
         if intrinsics_override is not None:
             meta["intrinsics"] = _intrinsics_dict(intrinsics_override)
         if R_tilt is not None:
             meta["R_tilt"] = check_rotation(np.asarray(R_tilt, dtype=np.float64), "R_tilt").tolist()
+        if pose is not None:
+            meta["pose"] = check_pose(pose, "pose").tolist()
         files[".meta.json"] = _json_bytes(meta)
     if gt is not None:
         if R_tilt is None:
@@ -677,6 +699,15 @@ class FolderSource:
 
     def __iter__(self) -> Iterator[FrameLoader]:
         return (self.loader(ref) for ref in self.refs)
+
+    @property
+    def has_poses(self) -> bool:
+        """Whether the folder is posed: its first frame's meta.json gives a pose (a bad one too)."""
+        try:
+            meta = read_meta(self.refs[0]) if self.refs else FrameMeta()
+        except InputError:
+            return False
+        return meta.pose is not None or bool(meta.pose_problem)
 
     def __len__(self) -> int:
         return len(self.refs)

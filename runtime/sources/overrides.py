@@ -11,6 +11,9 @@ source with ``with_overrides``, so a reader only says what its files say:
   depth value back to the integer the file held (exact: ``depth_units_to_metres`` divides whole
   units) and converts it with S instead. Depth that is float metres in its file (a ``.npy``, a
   point cloud) has no unit to replace: one line says so;
+* ``--world-up AXIS`` (a3d-run): the poses' world is gravity-aligned with AXIS up, so each posed
+  frame without its own ``R_tilt`` gets the one its pose gives (a3d.runtime.mapping.world
+  ``rtilt_from_pose``), its line's gravity "given", instead of an estimate from the depth;
 * ``--resize-depth``: depth of another size than the colour image is refused with one line unless
   it is given; then the reader resizes the depth map to the colour image with nearest-neighbour
   sampling (no depth is invented between a near and a far surface) through ``fit_depth``. The
@@ -30,6 +33,7 @@ import cv2
 import numpy as np
 
 from a3d.runtime.errors import InputError
+from a3d.runtime.mapping.world import rtilt_from_pose
 from a3d.runtime.sources.arrays import depth_units_to_metres
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.wording import keyword, option
@@ -91,11 +95,19 @@ def fit_depth(depth: np.ndarray, color_size: tuple[int, int], resize: bool, path
 class OverriddenSource:
     """A source whose frames get the user's intrinsics and depth unit (module docstring)."""
 
-    def __init__(self, source: Any, intrinsics: Intrinsics | None, depth_scale: float | None) -> None:
+    def __init__(
+        self,
+        source: Any,
+        intrinsics: Intrinsics | None,
+        depth_scale: float | None,
+        world_down: np.ndarray | None = None,
+    ) -> None:
         self.source = source
         self.incomplete: list[str] = source.incomplete
         self.intrinsics = intrinsics
         self.depth_scale = depth_scale
+        self.world_down = world_down
+        self.has_poses: bool = getattr(source, "has_poses", False)
 
     def __iter__(self) -> Iterator[FrameLoader]:
         for loader in self.source:
@@ -116,6 +128,8 @@ class OverriddenSource:
                 raise InputError(f"{where}: {given}: this depth is float metres, it has no unit to set")
             units = np.rint(frame.depth.astype(np.float64) / native).astype(np.int64)
             changes["depth"] = depth_units_to_metres(units, self.depth_scale)
+        if self.world_down is not None and frame.pose is not None and frame.R_tilt is None:
+            changes["R_tilt"] = rtilt_from_pose(frame.pose, self.world_down)
         return replace(frame, **changes) if changes else frame
 
 
@@ -126,9 +140,15 @@ class _SizedOverriddenSource(OverriddenSource):
         return len(self.source)
 
 
-def with_overrides(source: Any, intrinsics: Intrinsics | None, depth_scale: float | None) -> Any:
-    """``source`` itself when nothing is overridden, else its ``OverriddenSource``."""
-    if intrinsics is None and depth_scale is None:
+def with_overrides(
+    source: Any,
+    intrinsics: Intrinsics | None,
+    depth_scale: float | None,
+    world_down: np.ndarray | None = None,
+) -> Any:
+    """``source`` itself when nothing is overridden, else its ``OverriddenSource`` (``world_down``:
+    the gravity of the poses' world, for --world-up)."""
+    if intrinsics is None and depth_scale is None and world_down is None:
         return source
     kind = _SizedOverriddenSource if hasattr(source, "__len__") else OverriddenSource
-    return kind(source, intrinsics, depth_scale)
+    return kind(source, intrinsics, depth_scale, world_down)

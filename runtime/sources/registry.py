@@ -138,6 +138,29 @@ def _overridden(source: FrameSource, options: SourceOptions) -> FrameSource:
     return with_overrides(source, options.intrinsics, options.depth_scale)
 
 
+def _claims_seven_scenes(spec: str) -> bool:
+    from a3d.runtime.sources.seven_scenes import is_seven_scenes
+
+    return is_seven_scenes(spec)
+
+
+def _open_seven_scenes(spec: str, options: SourceOptions) -> FrameSource:
+    from a3d.runtime.sources.seven_scenes import SevenScenesSource
+
+    return SevenScenesSource(spec, options.intrinsics)
+
+
+# Before "a3d": a 7-Scenes folder's frame-NNNNNN.color.png files would also look like a frame folder.
+register(
+    SourceKind(
+        "7scenes",
+        _claims_seven_scenes,
+        _open_seven_scenes,
+        "a posed 7-Scenes-style folder (camera-intrinsics.txt, frame-NNNNNN.color/depth.png, .pose.txt)",
+    )
+)
+
+
 def _is_frame_folder(spec: str) -> bool:
     path = Path(spec)
     if not path.is_dir():
@@ -163,10 +186,12 @@ def _claims_tum(spec: str) -> bool:
 
 
 def _open_tum(spec: str, options: SourceOptions) -> FrameSource:
+    from a3d.runtime.sources.trajectory import DEFAULT_MAX_GAP
     from a3d.runtime.sources.tum import DEFAULT_MAX_DIFFERENCE, TumSource
 
     max_difference = float(options.extra.get("max_difference", DEFAULT_MAX_DIFFERENCE))  # type: ignore[arg-type]
-    return TumSource(spec, options.intrinsics, max_difference, options.resize_depth)
+    max_gap = float(options.extra.get("max_pose_gap", DEFAULT_MAX_GAP))  # type: ignore[arg-type]
+    return TumSource(spec, options.intrinsics, max_difference, options.resize_depth, max_gap)
 
 
 register(

@@ -17,6 +17,12 @@ Intrinsics: ``--intrinsics fx,fy,cx,cy`` or a preset name (fr1, fr2, fr3: the be
 published calibrations); without it the folder's name ``rgbd_dataset_freiburgN_*`` selects
 preset ``frN``, and any other name is an error that asks for ``--intrinsics``. The images are
 not undistorted (the benchmark's fr1/fr2 colour images carry a small radial distortion).
+
+Poses: where the folder has ``groundtruth.txt`` (the motion-capture trajectory), each frame gets
+the camera-to-world pose at its colour time (a3d.runtime.sources.trajectory: interpolated, none
+outside the trajectory or across a gap of more than ``max_gap`` seconds, a note saying why). The
+mocap world is not gravity-aligned (docs/sources.md "Camera poses"), so gravity is still estimated
+from each frame's depth.
 """
 
 from __future__ import annotations
@@ -36,6 +42,7 @@ from a3d.runtime.sources.arrays import frame_from_arrays
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.folder import read_color
 from a3d.runtime.sources.overrides import INTRINSICS_PRESETS, fit_depth
+from a3d.runtime.sources.trajectory import DEFAULT_MAX_GAP, TRAJECTORY_FILE, Trajectory, read_trajectory
 from a3d.runtime.sources.wording import option
 from a3d.runtime.structures.frame import Frame
 from a3d.runtime.structures.geometry import Intrinsics
@@ -129,6 +136,7 @@ class TumSource:
         intrinsics: Intrinsics | None = None,
         max_difference: float = DEFAULT_MAX_DIFFERENCE,
         resize_depth: bool = False,
+        max_gap: float = DEFAULT_MAX_GAP,
     ) -> None:
         self.folder = Path(folder)
         self.intrinsics = sequence_intrinsics(self.folder, intrinsics)
@@ -140,6 +148,16 @@ class TumSource:
         self.pairs = [(colour[i], depth[j]) for i, j in pairs]
         self.unpaired = (len(colour) - len(pairs), len(depth) - len(pairs))
         self.max_difference = max_difference
+        self.max_gap = max_gap
+        trajectory_file = self.folder / TRAJECTORY_FILE
+        self.trajectory: Trajectory | None = (
+            read_trajectory(trajectory_file, self.incomplete) if trajectory_file.is_file() else None
+        )
+
+    @property
+    def has_poses(self) -> bool:
+        """Whether the sequence has a trajectory (frames outside it still go without a pose)."""
+        return self.trajectory is not None
 
     def __len__(self) -> int:
         return len(self.pairs)
@@ -170,4 +188,16 @@ class TumSource:
             origin=str(colour.path),
             timestamp=colour.seconds,
         )
-        return replace(frame, color_file=str(colour.path), depth_file=str(depth.path))
+        pose, note = self.pose(colour)
+        files = {"color_file": str(colour.path), "depth_file": str(depth.path)}
+        return replace(frame, **files, pose=pose, pose_note=note)
+
+    def pose(self, colour: Stamped) -> tuple[np.ndarray | None, str]:
+        """The frame's pose at its colour time and "", or None and the note that says why it has
+        none (also a warning); (None, "") for a sequence without a trajectory."""
+        if self.trajectory is None:
+            return None, ""
+        pose, why = self.trajectory.pose_at(colour.seconds, self.max_gap)
+        if why:
+            logger.warning("%s: no pose: %s", colour.path, why)
+        return pose, f"no pose: {why}" if why else ""

@@ -76,6 +76,9 @@ class Frame:
     ``color_file`` / ``depth_file`` are the files a detections line names (None for arrays).
     ``proposals``: precomputed segment proposals to use instead of computing them; ``truth``:
     ground truth when the source has it; ``timestamp`` in seconds when the source has one.
+    ``pose`` (4, 4) camera-to-world (``p_world = pose[:3, :3] p_cam + pose[:3, 3]``, metres;
+    a3d.runtime.structures.pose) when the source has one; ``pose_note`` says why a frame of a posed
+    source has none (a bad or missing pose file, a time outside the trajectory), for its line's notes.
     """
 
     name: str
@@ -90,6 +93,8 @@ class Frame:
     truth: GroundTruth | None = None
     timestamp: float | None = None
     warnings: tuple[str, ...] = ()  # readable but suspicious, e.g. "depth has no valid pixels"
+    pose: np.ndarray | None = None
+    pose_note: str = ""
 
     @property
     def image_size(self) -> tuple[int, int]:

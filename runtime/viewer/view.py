@@ -10,6 +10,9 @@ One entity tree per recording, on a ``frame`` sequence timeline:
 - ``world/camera``: the camera pose (``p_world = R_tilt p_cam``), and under it
   ``world/camera/image`` the pinhole with the colour image, the depth image, the 2D boxes
   and the 3D boxes projected into the image as line strips.
+- ``map`` (``a3d-run --map`` on a posed source): the object map's gravity-aligned frame
+  (a3d.runtime.mapping.object_map), with ``map/objects`` its fused boxes, ``map/trajectory`` the
+  camera's path so far and ``map/camera`` the moving camera (its pose, and a frustum under it).
 
 The default blueprint opens on the 3D view beside the camera's 2D view. The flags that ask for
 it, and the import of this module, are in a3d.runtime.viewer.options (rerun is an optional extra);
@@ -37,23 +40,27 @@ BOX_LINE_RADIUS_M = 0.006  # box edges about as thick as the cloud's points (rad
 GROUND_TRUTH_RGB = (255, 255, 255)  # ground truth in one neutral colour, apart from the class colours
 
 
-def default_blueprint() -> rrb.Blueprint:
-    """3D view of the world beside the camera's view (colour + boxes) and its depth view.
+def default_blueprint(with_map: bool = False) -> rrb.Blueprint:
+    """3D view of the world beside the camera's view (colour + boxes) and its depth view; with
+    ``with_map`` a 3D view of the object map too (under the world's).
 
     The depth image is kept out of the 3D view (rerun would lift it into a second, rainbow point
     cloud over ``world/points``) and out of the colour view (it would cover the photo).
     """
     no_depth = "- world/camera/image/depth"
+    world: rrb.Container | rrb.View = rrb.Spatial3DView(
+        name="3D",
+        origin="world",
+        contents=["+ world/**", no_depth],
+        eye_controls=rrb.EyeControls3D(
+            position=(0.0, -1.0, -1.5), look_target=(0.0, 0.5, 3.0), eye_up=(0.0, -1.0, 0.0)
+        ),
+    )
+    if with_map:
+        world = rrb.Vertical(world, rrb.Spatial3DView(name="map", origin="map", contents=["+ map/**"]))
     return rrb.Blueprint(
         rrb.Horizontal(
-            rrb.Spatial3DView(
-                name="3D",
-                origin="world",
-                contents=["+ world/**", no_depth],
-                eye_controls=rrb.EyeControls3D(
-                    position=(0.0, -1.0, -1.5), look_target=(0.0, 0.5, 3.0), eye_up=(0.0, -1.0, 0.0)
-                ),
-            ),
+            world,
             rrb.Vertical(
                 rrb.Spatial2DView(
                     name="camera", origin="world/camera/image", contents=["+ world/camera/image/**", no_depth]
@@ -77,10 +84,11 @@ def open_recording(args: argparse.Namespace, grpc_url: str | None = None) -> rr.
     ``grpc_url``, on the viewer a3d started there (a3d.runtime.viewer.launch) instead."""
     if args.save:
         Path(args.save).parent.mkdir(parents=True, exist_ok=True)
+    blueprint = default_blueprint(with_map=getattr(args, "map", None) is not None)
     if grpc_url is None:
-        return rr.script_setup(args, APPLICATION_ID, default_blueprint=default_blueprint())
+        return rr.script_setup(args, APPLICATION_ID, default_blueprint=blueprint)
     recording = rr.RecordingStream(APPLICATION_ID)
-    recording.connect_grpc(grpc_url, default_blueprint=default_blueprint())
+    recording.connect_grpc(grpc_url, default_blueprint=blueprint)
     return recording
 
 
@@ -103,9 +111,11 @@ def class_annotations() -> rr.AnnotationContext:
 
 
 def log_static(rec: rr.RecordingStream) -> None:
-    """World axes and the class annotation context."""
-    rec.log("world", rr.ViewCoordinates.RDF, static=True)
-    rec.log("world", class_annotations(), static=True)
+    """World (and map) axes and the class annotation context; both are gravity-aligned with y
+    down, rerun's RDF."""
+    for root in ("world", "map"):
+        rec.log(root, rr.ViewCoordinates.RDF, static=True)
+        rec.log(root, class_annotations(), static=True)
 
 
 def log_detections(
@@ -230,6 +240,39 @@ def log_frame(
                 array=np.asarray(proposals)[: options.max_proposals], array_format=rr.Box2DFormat.XYXY
             ),
         )
+
+
+def log_map(
+    rec: rr.RecordingStream,
+    index: int,
+    *,
+    camera_pose: np.ndarray,
+    K: Intrinsics,
+    image_size: tuple[int, int],
+    trajectory: np.ndarray,
+    class_ids: np.ndarray,
+    boxes: np.ndarray,
+    labels: list[str],
+) -> None:
+    """Log the object map at sequence ``index``: the camera at ``camera_pose`` (4 x 4, camera to the
+    map's frame) with a frustum, its ``trajectory`` (N, 3) so far, and the map's ``boxes`` (N, 7,
+    7-vectors in the map's frame, which is its own tilt frame)."""
+    rec.set_time("frame", sequence=index)
+    rec.log("map/camera", rr.Transform3D(translation=camera_pose[:3, 3], mat3x3=camera_pose[:3, :3]))
+    height, width = image_size
+    rec.log(
+        "map/camera/frustum",
+        rr.Pinhole(
+            image_from_camera=K.matrix(),
+            resolution=[width, height],
+            camera_xyz=rr.ViewCoordinates.RDF,
+            image_plane_distance=0.4,
+        ),
+    )
+    rec.log(
+        "map/trajectory", rr.LineStrips3D([np.asarray(trajectory, np.float64).reshape(-1, 3)], radii=0.01)
+    )
+    rec.log("map/objects", boxes3d_archetype(boxes, np.eye(3), class_ids, labels))
 
 
 def _strided_intrinsics(K: Intrinsics, stride: int) -> Intrinsics:

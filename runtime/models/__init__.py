@@ -1,0 +1,29 @@
+"""The models that install with a3d, by short name (ultralytics' "yolov8n.pt" by name, without a hub).
+
+``accurate``: the real-room model (an ImageNet VGG16 colour trunk beside a small depth trunk), the
+default. ``live``: the small network for cameras at frame rate. Both are int8 ONNX files shipped as
+package data beside this module; each carries its model card in its metadata (``a3d-run
+--model-info NAME``). Anything that is not a short name is a path to a model file.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+MODELS: dict[str, str] = {"accurate": "accurate.onnx", "live": "live.onnx"}
+DEFAULT_MODEL = "accurate"
+HERE = Path(__file__).resolve().parent
+
+
+def model_path(model: str | os.PathLike | None = None) -> Path:
+    """The file of a short name (None: the default model), or ``model`` itself as a path."""
+    if model is None:
+        model = DEFAULT_MODEL
+    if isinstance(model, str) and model in MODELS:
+        return HERE / MODELS[model]
+    return Path(model)
+
+
+def is_model_name(model: str | os.PathLike | None) -> bool:
+    return isinstance(model, str) and model in MODELS

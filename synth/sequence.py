@@ -1,0 +1,100 @@
+"""One room seen by a camera moving round it: a posed RGB-D sequence (``a3d-synth OUT --sequence N``).
+
+The room is that of the run's seed (``generate_frame(seed)`` furnishes it: its objects, materials
+and lights), static; only the camera moves, once round an ellipse about the room's centre, looking
+inward, with a gentle swing of heading, height, pitch and roll (``orbit``). Each view is rendered
+by ``generate_frame(seed, config, camera=pose, noise_seed=...)``, so every frame has its own sensor
+noise and the per-frame ground truth of any a3d-synth frame.
+
+The world is the room's gravity-aligned frame in a3d's convention (a3d.runtime.mapping.world):
+x and z along the room's walls from its corner, y along gravity pointing down (y = -height above
+the floor). ``world_pose`` is each view's camera-to-world pose (written as ``"pose"`` in the frame's
+meta.json) and ``world_boxes`` the class objects' boxes in that world (``world_boxes.json``), so
+that a frame's ground-truth boxes are the world boxes moved into its camera.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from a3d.runtime.mapping.world_boxes import WorldBoxes
+from a3d.runtime.structures.boxes import boxes_array
+from a3d.runtime.structures.geometry import canonical_boxes
+from a3d.runtime.structures.pose import make_pose
+from a3d.synth.camera import CameraPose
+from a3d.synth.layout import Layout, point_rect_distance
+from a3d.synth.scene import SceneConfig
+from a3d.synth.world import furnish_world
+
+WALL_MARGIN = 0.45  # metres between the path and the walls
+CLEARANCE = 0.35  # metres between the path and any furniture footprint, where the room allows
+PATH_SCALES = (0.75, 0.6, 0.9, 0.45, 0.3)  # of the room's half extents, tried in this order
+HEIGHT_M, HEIGHT_SWING_M = 1.4, 0.2
+PITCH_DEG, PITCH_SWING_DEG, ROLL_SWING_DEG, HEADING_SWING = -20.0, 6.0, 2.0, 0.15
+
+
+def room_of(seed: int, config: SceneConfig) -> tuple[str, Layout]:
+    """The furnished room ``generate_frame(seed, config)`` renders (the same first draws)."""
+    return furnish_world(np.random.default_rng(seed), config.room_type, config.clutter, config.labelled)
+
+
+def orbit(layout: Layout, frames: int) -> list[CameraPose]:
+    """``frames`` camera poses once round the room's centre, looking inward (module docstring).
+
+    The ellipse's size is the first of ``PATH_SCALES`` (of the room's half extents, less
+    ``WALL_MARGIN``) on which fewest poses stand within ``CLEARANCE`` of a piece of furniture.
+    """
+    room = layout.room
+    cx, cz = room.width / 2, room.depth / 2
+    half_x, half_z = max(cx - WALL_MARGIN, 0.1), max(cz - WALL_MARGIN, 0.1)
+    angles = 2 * np.pi * np.arange(frames) / frames
+    rects = [p.footprint() for p in layout.objects if p.render and p.item.collides]
+
+    def blocked(scale: float) -> int:
+        xs, zs = cx + scale * half_x * np.sin(angles), cz + scale * half_z * np.cos(angles)
+        return sum(
+            any(point_rect_distance(x, z, r) < CLEARANCE for r in rects) for x, z in zip(xs, zs, strict=True)
+        )
+
+    scale = min(PATH_SCALES, key=blocked)  # min keeps the first of equals
+    poses = []
+    for a in angles:
+        x, z = cx + scale * half_x * math.sin(a), cz + scale * half_z * math.cos(a)
+        heading = math.atan2(cx - x, cz - z) + HEADING_SWING * math.sin(3 * a)
+        poses.append(
+            CameraPose(
+                float(x),
+                float(z),
+                HEIGHT_M + HEIGHT_SWING_M * math.sin(2 * a),
+                heading,
+                math.radians(PITCH_DEG + PITCH_SWING_DEG * math.sin(3 * a + 1.0)),
+                math.radians(ROLL_SWING_DEG * math.sin(2 * a)),
+            )
+        )
+    return poses
+
+
+def world_pose(camera: CameraPose) -> np.ndarray:
+    """The camera-to-world pose (4, 4) of a view: ``p_world = R_y(heading) R_tilt p_cam + (x, -height, z)``
+    (the tilt frame is the world turned by the heading about gravity and moved to the camera)."""
+    c, s = math.cos(camera.heading), math.sin(camera.heading)
+    R_y = np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+    return make_pose(R_y @ camera.R_tilt, [camera.x, -camera.height, camera.z])
+
+
+def world_boxes(layout: Layout) -> WorldBoxes:
+    """The room's rendered class objects as world boxes (the tight box of all their parts, as the
+    per-frame ground truth draws them), ids in layout order."""
+    classes, rows, ids = [], [], []
+    for i, p in enumerate(layout.objects):
+        if not p.render or p.item.cls is None:
+            continue
+        lo, hi = p.item.lo, p.item.hi
+        x, z = p.to_room(0.5 * (lo[0] + hi[0]), 0.5 * (lo[2] + hi[2]))
+        size = hi - lo
+        rows.append([x, -(p.base + 0.5 * (lo[1] + hi[1])), z, size[0], size[2], size[1], p.yaw])
+        classes.append(p.item.cls)
+        ids.append(i)
+    return WorldBoxes(classes, canonical_boxes(boxes_array(rows, len(rows))), np.array(ids, np.int64))
