@@ -50,6 +50,7 @@ import cv2
 import numpy as np
 
 from a3d.runtime.cli.run import VIEW_MIN_SCORE
+from a3d.runtime.models import model_path
 from a3d.runtime.structures.classes import CLASS_COLORS_RGB, CLASSES
 
 RERUN = Path(sys.prefix) / "bin" / "rerun"
@@ -536,7 +537,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         metavar="SOURCE",
         help="run `a3d-run SOURCE --serve` and open the URL it prints (instead of serving a recording)",
     )
-    parser.add_argument("--model", type=Path, default=Path("samples/model.onnx"), help="--a3d-run's model")
+    parser.add_argument("--model", type=Path, default=model_path("live"), help="--a3d-run's model")
     parser.add_argument("--port", type=int, default=0, help="rerun's gRPC port (0: a free one)")
     parser.add_argument(
         "--web-viewer-port", type=int, default=0, help="the web viewer's HTTP port (0: a free one)"

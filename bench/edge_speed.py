@@ -15,7 +15,7 @@ this benchmark measures, in the same run, what the machine can do and how close 
       so fc6 sees 2 x 512 x 7 x 7 inputs; the plain layout's fc6 alone is 1.6 GB in fp32),
       exported twice with a3d-export: fp32, and ``--svd RANK --int8`` calibrated on the first
       ``--calib-frames`` frames;
-  (b) the bundled small model (``--small-model``, default samples/model.onnx when it exists);
+  (b) the bundled small model (``--small-model``, default the bundled live model);
   per stage (read .. rerun logging), the frame time (the period between the moments a3d-run is
   done with consecutive frames), frames/s, frames overlapped and the peak resident memory;
 - the network alone on the same inputs (the runtime's front end on the same frames): ONNX Runtime
@@ -33,7 +33,7 @@ torch eager; a3d-run's peak memory with the int8 model <= 2 GiB. docs/edge-speed
 
     .venv/bin/a3d-synth /tmp/a3d_edge/synth --frames 24 --seed 11 --split test=0.5
     .venv/bin/python -m bench.edge_speed /tmp/a3d_edge/synth/test --work /tmp/a3d_edge/work \\
-        [--small-model samples/model.onnx] [--frames 8] [--max-proposals 500] [--svd 1024]
+        [--small-model runtime/models/live.onnx] [--frames 8] [--max-proposals 500] [--svd 1024]
 
 The checkpoint and the exports are kept in ``--work`` and reused by later runs (``--rebuild``
 makes them again); building them takes about 10 minutes on 2 busy cores and up to 8.4 GB of
@@ -56,6 +56,7 @@ from pathlib import Path
 
 import numpy as np
 
+from a3d.runtime.models import model_path
 from a3d.runtime.pipeline import STAGES as PIPELINE_STAGES
 from a3d.runtime.pipeline import PreparedFrame
 from bench import edge_report as report
@@ -343,7 +344,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.edge_speed", description=__doc__.split("\n\n")[0])
     parser.add_argument("frames", type=Path, help="frames (427 x 561: a3d-synth's test split)")
     parser.add_argument("--work", type=Path, default=Path("/tmp/a3d_edge_speed"), help="checkpoint, models")
-    parser.add_argument("--small-model", type=Path, default=Path("samples/model.onnx"))
+    parser.add_argument("--small-model", type=Path, default=model_path("live"))
     parser.add_argument("--frames", dest="count", type=int, default=8, help="frames per run (1 warm-up)")
     parser.add_argument("--max-proposals", type=int, default=500)
     parser.add_argument("--net", default="vgg16-fused", help="network preset of (a) (a3d.train.model.config)")

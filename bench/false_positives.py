@@ -1,7 +1,7 @@
 """False positives: detections scoring >= 0.5 per frame on frames with no labelled object at all.
 
     .venv/bin/a3d-synth out/fp --frames 20 --seed 11 --world real --empty-share 1 --split test=1
-    .venv/bin/python -m bench.false_positives out/fp/test --model samples/model.onnx [--threshold 0.5]
+    .venv/bin/python -m bench.false_positives out/fp/test --model runtime/models/live.onnx [--threshold 0.5]
     .venv/bin/python -m bench.false_positives FOLDER --detections detections.jsonl
 
 mAP says nothing about frames with nothing to find; a model that calls every cabinet a bookshelf

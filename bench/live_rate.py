@@ -2,7 +2,7 @@
 
 a3d-synth frames of held-out seeds are rendered in memory at 480 x 640 (a Kinect-like camera,
 fx = fy = 525) and run through a3d.runtime.pipeline (prepare / infer / finish) with the bundled
-model (samples/model.onnx, 2 threads) and at most 500 proposals, for each proposal setting in
+model (the bundled live model, 2 threads) and at most 500 proposals, for each proposal setting in
 VARIANTS: the model's own, a3d-run's live front end, and others spelled out (coarser working
 resolution, fewer superpixels, fewer grouping strategies, fewer pair candidates). Per variant it
 prints the median time of every stage (wall, ms), the front end (depth fill + gravity +
@@ -27,6 +27,7 @@ import numpy as np
 
 from a3d.runtime.evaluation.metric import FrameTruth, evaluate
 from a3d.runtime.frontend.proposals import live_proposals
+from a3d.runtime.models import model_path
 from a3d.runtime.network.model import DetectorModel
 from a3d.runtime.pipeline import STAGES, PipelineConfig, finish, infer, prepare
 from a3d.runtime.structures.frame import Frame
@@ -64,7 +65,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--first", type=int, default=910_000, help="first seed (held out of training)")
     parser.add_argument("--count", type=int, default=12)
-    parser.add_argument("--model", default="samples/model.onnx")
+    parser.add_argument("--model", default=str(model_path("live")))
     parser.add_argument("--variants", nargs="+", default=["model", "live"])
     args = parser.parse_args()
     from a3d.synth.scene import SceneConfig, generate_frame

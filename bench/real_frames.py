@@ -1,6 +1,6 @@
 """What a model finds in real frames that have no 3D ground truth, against hand-drawn 2D boxes.
 
-    .venv/bin/python -m bench.real_frames FOLDER --model samples/model.onnx [--model-name LABEL] \\
+    .venv/bin/python -m bench.real_frames FOLDER --model runtime/models/live.onnx [--model-name LABEL] \\
         --boxes bench/data/real_frames_boxes.json [--threshold 0.5] --out DIR
 
 mAP needs 3D boxes, and real frames such as the nine the project looked at have none; what a user

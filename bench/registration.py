@@ -15,7 +15,7 @@ before registration. Both differences, registered - colour camera, are judged ag
 Proposals, the network's scores and the per-class AP of a few dozen objects react chaotically to
 small depth changes, so the comparison needs hundreds of frames.
 
-    .venv/bin/python -m bench.registration --frames 500 --seed 1 --model samples/model.onnx
+    .venv/bin/python -m bench.registration --frames 500 --seed 1 --model runtime/models/live.onnx
 """
 
 from __future__ import annotations
@@ -31,6 +31,7 @@ from tqdm import tqdm
 from a3d.runtime import Detector
 from a3d.runtime.evaluation.metric import EvalConfig, FrameTruth, evaluate
 from a3d.runtime.frontend.registration import register_depth
+from a3d.runtime.models import model_path
 from a3d.synth.cli import frame_seed
 from a3d.synth.depth_camera import offset_depth_camera, render_depth_from
 from a3d.synth.scene import SceneConfig, generate_frame
@@ -47,7 +48,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--frames", type=int, default=16)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--model", default="samples/model.onnx")
+    parser.add_argument("--model", default=str(model_path("live")))
     parser.add_argument("--threads", type=int, default=2)
     args = parser.parse_args()
     cv2.setNumThreads(args.threads)

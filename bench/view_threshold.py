@@ -21,6 +21,7 @@ import argparse
 
 import numpy as np
 
+from a3d.runtime.models import model_path
 from a3d.runtime.network.model import DetectorModel
 from a3d.runtime.pipeline import PipelineConfig, detect
 from a3d.runtime.structures.frame import Frame
@@ -53,7 +54,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--first", type=int, default=920_000, help="first seed (held out of training)")
     parser.add_argument("--count", type=int, default=20)
-    parser.add_argument("--model", default="samples/model.onnx")
+    parser.add_argument("--model", default=str(model_path("live")))
     args = parser.parse_args()
     from a3d.synth.scene import generate_frame
 

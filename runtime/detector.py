@@ -1,7 +1,7 @@
 """The Python API: ``Detector.load(model).detect(color, depth, intrinsics)`` (docs/api.md).
 
     from a3d.runtime import Detector
-    det = Detector.load("samples/model.onnx", threads=2)
+    det = Detector.load(threads=2)  # the bundled default model; Detector.load("live"), or a file
     result = det.detect(color_rgb, depth_m, (fx, fy, cx, cy))   # or a 3x3 K, and R_tilt=...
     for d in result: print(d.class_name, d.score, d.box3d)      # the detections scoring >= 0.5
     image = result.draw(color_rgb)                              # boxes drawn, as the viewer shows them
@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 from a3d.runtime.io.detections_io import FrameDetections
+from a3d.runtime.models import model_path
 from a3d.runtime.network.model import DetectorModel
 from a3d.runtime.pipeline import FrameOutcome, FrontEnd, PipelineConfig, ProposalSource, detect, detect_frames
 from a3d.runtime.postprocess.score_calibration import SHOW_THRESHOLD
@@ -47,7 +48,7 @@ class Detector:
     @classmethod
     def load(
         cls,
-        path: str | os.PathLike,
+        model: str | os.PathLike | None = None,
         threads: int = 2,
         *,
         score_threshold: float | None = None,
@@ -56,21 +57,22 @@ class Detector:
         front_end: FrontEnd = "model",
         raw_scores: bool = False,
     ) -> Detector:
-        """Open and check a model file (ModelError naming it if unusable); the settings default to
+        """Open and check a model: a bundled one by name (``"accurate"``, the default, or ``"live"``;
+        a3d.runtime.models) or a model file (ModelError naming it if unusable); the settings default to
         the model's own (its metadata), each overridable as on a3d-run's command line
         (``score_threshold``: what the pipeline keeps, a3d-run's --score-threshold, below what
         ``detect`` returns; ``front_end="live"``: the faster proposals a3d-run uses for cameras;
         ``raw_scores``: the softmax scores, without the model's score calibration)."""
-        model = DetectorModel.load(path, threads=threads)
+        network = DetectorModel.load(model_path(model), threads=threads)
         config = PipelineConfig.from_metadata(
-            model.metadata,
+            network.metadata,
             proposal_source=proposals,
             max_proposals=max_proposals,
             min_score=score_threshold,
             front_end=front_end,
             raw_scores=raw_scores,
         )
-        return cls(model, config)
+        return cls(network, config)
 
     def detect(
         self,

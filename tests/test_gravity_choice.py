@@ -16,6 +16,7 @@ from a3d.runtime.frontend.depth import fill_depth
 from a3d.runtime.frontend.gravity import GRAVITY_ESTIMATED, GRAVITY_GIVEN, choose_gravity
 from a3d.runtime.structures.geometry import NYU_CROP_INTRINSICS as K
 from a3d.runtime.structures.geometry import rtilt_from_pitch_roll
+from tests.helpers.samples import SAMPLE_MODEL
 from tests.test_gravity import CORNER, ROOM, angle_deg, render
 
 SAMPLES = Path(__file__).resolve().parents[1] / "samples"
@@ -74,7 +75,7 @@ def test_a3d_run_reports_a_gravity_fallback_in_the_line_and_once_on_stderr(
             depth[np.random.default_rng(0).random(depth.shape) < 0.9] = 0
         cv2.imwrite(str(folder / f"{name}.depth.png"), depth)
     out = tmp_path / "det.jsonl"
-    argv = [str(folder), "--model", str(SAMPLES / "model.onnx"), "--output", str(out), "--headless"]
+    argv = [str(folder), "--model", str(SAMPLE_MODEL), "--output", str(out), "--headless"]
     assert run_cli.main([*argv, "--max-proposals", "50"]) == 0
     lines = {d["frame"]: d for d in map(json.loads, out.read_text().splitlines())}
     assert lines["synth_000000"]["gravity"] == GRAVITY_ESTIMATED

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.helpers.samples import SAMPLE_MODEL
+
 ROOT = Path(__file__).resolve().parents[1]
 
 # In a fresh interpreter rerun cannot be imported (as if it were not installed); the probe runs
@@ -51,7 +53,7 @@ def _one_frame(tmp_path: Path) -> Path:
 def test_headless_run_and_api_never_import_rerun(tmp_path: Path) -> None:
     folder = _one_frame(tmp_path)
     out = tmp_path / "det.jsonl"
-    model = ROOT / "samples" / "model.onnx"
+    model = SAMPLE_MODEL
     result = _run_without_rerun(str(folder), "--model", str(model), "--output", str(out), "--headless")
     assert result.returncode == 0, result.stderr[-2000:]
     assert result.stdout.strip().splitlines()[-1] == "exit 0 rerun imported: False"
@@ -60,7 +62,7 @@ def test_headless_run_and_api_never_import_rerun(tmp_path: Path) -> None:
 
 def test_a_view_without_rerun_is_one_line_and_exit_2(tmp_path: Path) -> None:
     folder = _one_frame(tmp_path)
-    model = ROOT / "samples" / "model.onnx"
+    model = SAMPLE_MODEL
     save = tmp_path / "run.rrd"
     result = _run_without_rerun(str(folder), "--model", str(model), "--output", str(tmp_path / "d.jsonl"),
                                 "--save", str(save))  # fmt: skip
@@ -78,7 +80,7 @@ VIEW_MODES = [[], ["--serve"], ["--connect"], ["--stdout"]]
 @pytest.mark.parametrize("flags", VIEW_MODES, ids=lambda flags: " ".join(flags) or "window")
 def test_every_view_mode_without_rerun_names_the_extra(tmp_path: Path, flags: list[str]) -> None:
     """No display and no rerun: the line names 'a3d[view]', not --serve or a viewer that cannot start."""
-    model = ROOT / "samples" / "model.onnx"
+    model = SAMPLE_MODEL
     env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY")}
     result = _run_without_rerun(str(_one_frame(tmp_path)), "--model", str(model), "--output",
                                 str(tmp_path / "d.jsonl"), *flags, env=env)  # fmt: skip

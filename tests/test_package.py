@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from a3d.runtime.models import MODELS
+
 ROOT = Path(__file__).resolve().parents[1]
 TOP_LEVEL = {"runtime": "a3d/runtime", "train": "a3d/train", "export": "a3d/export", "synth": "a3d/synth"}
 
@@ -95,3 +97,5 @@ def test_wheel_contains_every_package(tmp_path: Path) -> None:
                 arc = "/".join([prefix, *module.relative_to(ROOT / top).parts])
                 assert arc in names, f"{arc} is not in the wheel"
     assert "a3d/runtime/py.typed" in names  # PEP 561: type checkers read the runtime's hints
+    for name, file in MODELS.items():  # the bundled models install with the package, by short name
+        assert f"a3d/runtime/models/{file}" in names, f"model {name} is not in the wheel"

@@ -19,11 +19,12 @@ from a3d.runtime.network.cpu_support import int8_dot_products
 from a3d.runtime.network.model import DetectorModel
 from a3d.runtime.sources.folder import list_frames
 from a3d.runtime.structures.classes import CLASSES
+from tests.helpers.samples import SAMPLE_MODEL
 from tests.rrd_reader import as_array, read_columns
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLES = ROOT / "samples"
-MODEL = SAMPLES / "model.onnx"
+MODEL = SAMPLE_MODEL
 MAX_MODEL_BYTES = 25 * 1024 * 1024
 
 

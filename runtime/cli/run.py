@@ -54,14 +54,17 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from a3d.runtime.cli.common import EXIT_USAGE, command
 from a3d.runtime.cli.common import build_parser as command_parser
-from a3d.runtime.cli.common import command
 from a3d.runtime.cli.progress import make_progress
 from a3d.runtime.cli.summary import RunSummary
-from a3d.runtime.errors import InputError
+from a3d.runtime.errors import InputError, ModelError
 from a3d.runtime.io.detections_io import format_line, parse_line
 from a3d.runtime.mapping.object_map import ObjectMap
 from a3d.runtime.mapping.world import WORLD_AXES, down_of_up_axis
+from a3d.runtime.models import DEFAULT_MODEL as DEFAULT_NAME
+from a3d.runtime.models import MODELS, model_path
+from a3d.runtime.models.card import model_card
 from a3d.runtime.network.model import DetectorModel
 from a3d.runtime.pipeline import (
     FRONT_ENDS,
@@ -105,7 +108,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = command_parser(PROG, __doc__.split("\n\n")[0])
     p.add_argument("source", type=Path, help="frame source: an a3d frame folder or another registered kind")
     p.add_argument("--source-format", choices=kinds(), help="the kind of SOURCE (default: recognised)")
-    p.add_argument("--model", type=Path, help=f"model file (default: FOLDER/{DEFAULT_MODEL})")
+    p.add_argument("--model", help=f"a bundled model by name ({', '.join(MODELS)}) or a model file (default: "
+                   f"FOLDER/{DEFAULT_MODEL} where it exists, else {DEFAULT_NAME})")  # fmt: skip
+    p.add_argument("--model-info", action=_ModelInfo, metavar="NAME|FILE",
+                   help="print a model's card (from its metadata) and exit")  # fmt: skip
     p.add_argument("--color-topic", metavar="TOPIC", help="bag: the colour topic (default: the only one)")
     p.add_argument("--depth-topic", metavar="TOPIC", help="bag: the depth topic (default: the only one)")
     p.add_argument("--output", default=DEFAULT_OUTPUT, help="JSON lines file, '-': stdout")
@@ -213,11 +219,22 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
     args.shard = _shard(parser, args.shard)
     if args.map is not None and (args.resume or args.shard != (0, 1)):
         parser.error("--map needs every frame in order: it excludes --resume and --shard")
-    if args.model is None:
-        args.model = args.source / DEFAULT_MODEL
-        if not args.model.is_file():
-            raise InputError(f"no model given and {args.model} does not exist; pass --model FILE")
+    beside = args.source / DEFAULT_MODEL
+    args.model = model_path(args.model) if args.model is not None or not beside.is_file() else beside
     return args
+
+
+class _ModelInfo(argparse.Action):
+    """--model-info NAME|FILE: the model's card, then exit (as --version does, without a source)."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: object, value: object, *_: object) -> None:
+        path = model_path(str(value))
+        try:
+            metadata = DetectorModel.load(path, threads=1).metadata
+        except ModelError as e:
+            parser.exit(EXIT_USAGE, f"{PROG}: error: {e}\n")
+        print("\n".join(model_card(path, metadata)))
+        parser.exit(0)
 
 
 def _shard(parser: argparse.ArgumentParser, text: str | None) -> tuple[int, int]:

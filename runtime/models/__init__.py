@@ -1,9 +1,9 @@
 """The models that install with a3d, by short name (ultralytics' "yolov8n.pt" by name, without a hub).
 
-``accurate``: the real-room model (an ImageNet VGG16 colour trunk beside a small depth trunk), the
-default. ``live``: the small network for cameras at frame rate. Both are int8 ONNX files shipped as
-package data beside this module; each carries its model card in its metadata (``a3d-run
---model-info NAME``). Anything that is not a short name is a path to a model file.
+``live``: the small network trained from scratch on a3d-synth, fast enough for cameras at frame
+rate. The models are int8 ONNX files shipped as package data beside this module; each carries
+its model card in its metadata (``a3d-run --model-info NAME``). Anything that is not a short name
+is a path to a model file.
 """
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-MODELS: dict[str, str] = {"accurate": "accurate.onnx", "live": "live.onnx"}
-DEFAULT_MODEL = "accurate"
+MODELS: dict[str, str] = {"live": "live.onnx"}
+DEFAULT_MODEL = "live"
 HERE = Path(__file__).resolve().parent
 
 
