@@ -271,7 +271,7 @@ def detect_all(source: FolderSource, model: Path, threads: int) -> list[tuple[Fr
     the benchmark (its totals would be wrong)."""
     detector = Detector.load(model, threads=threads)
     results = []
-    for outcome in detector.detect_frames(source):
+    for outcome in detector.detect_frames(source, score_threshold=0):  # all: the count applies its own
         if outcome.detections is None or outcome.prepared is None:
             raise InputError(outcome.problem)
         results.append((outcome.detections, outcome.prepared.frame.color))
