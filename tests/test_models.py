@@ -23,6 +23,7 @@ def test_every_short_name_is_a_bundled_self_describing_model() -> None:
         meta = DetectorModel.load(model_path(name), threads=1).metadata
         assert meta.provenance.get("training_config") and meta.score_calibration is not None
     assert model_path("some/model.onnx") == Path("some/model.onnx") and not is_model_name("some/model.onnx")
+    assert model_path(Path(DEFAULT_MODEL)) == model_path()  # a name typed where a path goes (argparse)
 
 
 @pytest.mark.parametrize("name", sorted(MODELS))

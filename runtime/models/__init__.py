@@ -20,10 +20,11 @@ def model_path(model: str | os.PathLike | None = None) -> Path:
     """The file of a short name (None: the default model), or ``model`` itself as a path."""
     if model is None:
         model = DEFAULT_MODEL
-    if isinstance(model, str) and model in MODELS:
-        return HERE / MODELS[model]
+    if is_model_name(model):
+        return HERE / MODELS[os.fspath(model)]
     return Path(model)
 
 
 def is_model_name(model: str | os.PathLike | None) -> bool:
-    return isinstance(model, str) and model in MODELS
+    """A short name (a path spelled as one counts: names win over files in the working folder)."""
+    return model is not None and os.fspath(model) in MODELS
