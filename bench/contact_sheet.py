@@ -1,8 +1,8 @@
 """A contact sheet of frames with 2D boxes drawn on them (OpenCV only), for bench.real_frames.
 
 A sheet lets a reader judge a model on frames nobody annotated in 3D at a glance: each frame is a
-tile with the model's boxes in the viewer's class colours (``CLASS_COLORS_RGB``, the one table every
-view shares) labelled "class score", and the expected objects as thin dashed grey boxes.
+tile with the model's boxes drawn as a result draws itself (a3d.runtime.viewer.draw: the viewer's
+class colours, "class score" labels), and the expected objects as thin dashed grey boxes.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from a3d.runtime.structures.classes import CLASS_COLORS_RGB, CLASSES
+from a3d.runtime.viewer.draw import draw_detections
 
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 TITLE_HEIGHT = 30
@@ -33,12 +33,6 @@ class TileBoxes:
     expected: np.ndarray  # (M, 4) hand-drawn boxes, drawn dashed
 
 
-def class_color_bgr(class_id: int) -> tuple[int, int, int]:
-    """The viewer's colour of a class, in OpenCV's BGR order."""
-    r, g, b = CLASS_COLORS_RGB[int(class_id)]
-    return b, g, r
-
-
 def dashed_rectangle(image: np.ndarray, box: np.ndarray, color: tuple[int, int, int], dash: int = 7) -> None:
     """A 1-pixel dashed box: OpenCV has none, and a solid one would read as a detection."""
     x1, y1, x2, y2 = (round(float(v)) for v in box)
@@ -52,29 +46,14 @@ def dashed_rectangle(image: np.ndarray, box: np.ndarray, color: tuple[int, int, 
             cv2.line(image, p, q, color, 1, cv2.LINE_AA)
 
 
-def label(image: np.ndarray, text: str, corner: tuple[int, int], color: tuple[int, int, int]) -> None:
-    """``text`` on a filled patch of ``color`` just above ``corner`` (inside the image), in black or
-    white, whichever reads better on that colour."""
-    (w, h), base = cv2.getTextSize(text, FONT, 0.5, 1)
-    x = min(max(corner[0], 0), image.shape[1] - w - 4)
-    y = corner[1] - h - base - 2 if corner[1] - h - base - 2 >= 0 else corner[1]
-    cv2.rectangle(image, (x, y), (x + w + 4, y + h + base + 2), color, cv2.FILLED)
-    luma = 0.114 * color[0] + 0.587 * color[1] + 0.299 * color[2]
-    ink = (0, 0, 0) if luma > 128 else (255, 255, 255)
-    cv2.putText(image, text, (x + 2, y + h + 1), FONT, 0.5, ink, 1, cv2.LINE_AA)
-
-
 def draw_tile(color_bgr: np.ndarray, title: str, shown: TileBoxes) -> np.ndarray:
     """One frame as a tile: a title bar over the image with the expected boxes dashed and the
     model's boxes solid; the highest score is drawn last so its label stays on top."""
     image = color_bgr.copy()
     for box in shown.expected:
         dashed_rectangle(image, box, EXPECTED_COLOR)
-    for i in np.argsort(shown.scores, kind="stable"):
-        colour = class_color_bgr(shown.class_ids[i])
-        x1, y1, x2, y2 = (round(float(v)) for v in shown.boxes[i])
-        cv2.rectangle(image, (x1, y1), (x2, y2), colour, 2)
-        label(image, f"{CLASSES[shown.class_ids[i]]} {shown.scores[i]:.2f}", (x1, y1), colour)
+    order = np.argsort(shown.scores, kind="stable")  # the result's own drawing, in the viewer's colours
+    image = draw_detections(image, shown.class_ids[order], shown.scores[order], shown.boxes[order], bgr=True)
     bar = np.full((TITLE_HEIGHT, image.shape[1], 3), BACKGROUND, np.uint8)
     cv2.putText(bar, title, (6, TITLE_HEIGHT - 9), FONT, 0.6, (255, 255, 255), 1, cv2.LINE_AA)
     return np.vstack([bar, image])
