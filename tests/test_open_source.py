@@ -37,7 +37,7 @@ def test_bad_options_are_one_line_in_python_terms() -> None:
         SourceOptions(depth_scale=-1)
     with pytest.raises(InputError, match=r"^depth_topic: not an option of a3d sources \(theirs: none\)$"):
         open_source(SAMPLES, depth_topic="/camera/depth")
-    with pytest.raises(InputError, match=r"^kind: unknown format 'zip' \(one of: a3d, tum, "):
+    with pytest.raises(InputError, match=r"^kind: unknown format 'zip' \(one of: 7scenes, a3d, tum, "):
         open_source(SAMPLES, kind="zip")
     with pytest.raises(TypeError, match="not both"):
         open_source(SAMPLES, SourceOptions(), depth_scale=0.001)

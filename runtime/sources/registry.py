@@ -196,7 +196,11 @@ def _open_tum(spec: str, options: SourceOptions) -> FrameSource:
 
 register(
     SourceKind(
-        "tum", _claims_tum, _open_tum, "a TUM RGB-D sequence folder (rgb.txt, depth.txt)", ("max_difference",)
+        "tum",
+        _claims_tum,
+        _open_tum,
+        "a TUM RGB-D sequence folder (rgb.txt, depth.txt)",
+        ("max_difference", "max_pose_gap"),
     )
 )
 
