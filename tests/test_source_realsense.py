@@ -10,6 +10,7 @@ frames from a software device and plays the recording back through the same sour
 
 from __future__ import annotations
 
+import functools
 import re
 import sys
 import time
@@ -22,111 +23,16 @@ import pytest
 from a3d.runtime.cli import run as run_cli
 from a3d.runtime.errors import InputError
 from a3d.runtime.io.detections_io import parse_line
+from tests import fake_realsense
+from tests.fake_realsense import DEPTH_SCALE
 from tests.synth_frames import K, assert_same_detections, folder_frames, write_synth_folder
 
-DEPTH_SCALE = 0.001
+fake_sdk = functools.partial(fake_realsense.fake_sdk, intrinsics=(K.fx, K.fy, K.cx, K.cy))
 
 
 @pytest.fixture(scope="module")
 def folder(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return write_synth_folder(tmp_path_factory.mktemp("frames"))
-
-
-class _Frame:
-    def __init__(self, pixels: np.ndarray, layout: str) -> None:
-        self.pixels, self.layout = pixels, layout
-
-    def get_data(self) -> np.ndarray:
-        return self.pixels
-
-    def get_profile(self) -> types.SimpleNamespace:
-        return types.SimpleNamespace(format=lambda: self.layout)
-
-    def __bool__(self) -> bool:
-        return True
-
-
-class _Frameset:
-    def __init__(self, color: _Frame, depth: _Frame, ms: float) -> None:
-        self.color, self.depth, self.ms = color, depth, ms
-
-    def get_color_frame(self) -> _Frame:
-        return self.color
-
-    def get_depth_frame(self) -> _Frame:
-        return self.depth
-
-    def get_timestamp(self) -> float:
-        return self.ms
-
-
-def fake_sdk(
-    frames: list, serials: tuple[str, ...] = ("123",), interrupt_at: int | None = None, period: float = 0.6
-):
-    """A ``pyrealsense2`` stand-in serving ``frames`` ((BGR, uint16 depth) pairs, depth already
-    aligned), one every ``period`` seconds like a camera (slower than the tiny model needs, so a
-    run takes every frame; 0 serves them at once and the run drops the stale ones); ``log``
-    records the calls a3d made. ``interrupt_at``: raise KeyboardInterrupt (as Ctrl-C does) when
-    that frame is waited for."""
-    rs = types.ModuleType("pyrealsense2")
-    rs.log = log = []
-    rs.stream = types.SimpleNamespace(depth="depth", color="color")
-    rs.format = types.SimpleNamespace(rgb8="rgb8", bgr8="bgr8", z16="z16")
-    rs.camera_info = types.SimpleNamespace(serial_number="serial_number")
-
-    class Device:
-        def __init__(self, serial: str) -> None:
-            self.serial = serial
-
-        def get_info(self, what: str) -> str:
-            assert what == "serial_number"
-            return self.serial
-
-        def first_depth_sensor(self) -> types.SimpleNamespace:
-            return types.SimpleNamespace(get_depth_scale=lambda: DEPTH_SCALE)
-
-    class Config:
-        def enable_device(self, serial: str) -> None:
-            log.append(("enable_device", serial))
-
-        def enable_stream(self, stream: str, *layout: str) -> None:
-            log.append(("enable_stream", stream, *layout))
-
-    class Pipeline:
-        def __init__(self) -> None:
-            self.served = 0
-
-        def start(self, config: Config) -> types.SimpleNamespace:
-            log.append(("start",))
-            intr = types.SimpleNamespace(width=160, height=120, fx=K.fx, fy=K.fy, ppx=K.cx, ppy=K.cy)
-            video = types.SimpleNamespace(get_intrinsics=lambda: intr)
-            stream = types.SimpleNamespace(as_video_stream_profile=lambda: video)
-            return types.SimpleNamespace(get_device=lambda: Device(serials[0]), get_stream=lambda s: stream)
-
-        def try_wait_for_frames(self, timeout_ms: int) -> tuple[bool, _Frameset | None]:
-            if self.served == interrupt_at:
-                raise KeyboardInterrupt
-            if self.served >= len(frames):
-                return False, None  # a live camera that stalled
-            time.sleep(period)
-            color, depth = frames[self.served]
-            self.served += 1
-            return True, _Frameset(_Frame(color, "bgr8"), _Frame(depth, "z16"), 1000.0 * self.served)
-
-        def stop(self) -> None:
-            log.append(("stop",))
-
-    class Align:
-        def __init__(self, to: str) -> None:
-            assert to == "color"  # depth aligned to colour, as a3d needs
-
-        def process(self, frameset: _Frameset) -> _Frameset:
-            log.append(("align",))
-            return frameset
-
-    rs.context = lambda: types.SimpleNamespace(query_devices=lambda: [Device(s) for s in serials])
-    rs.config, rs.pipeline, rs.align = Config, Pipeline, Align
-    return rs
 
 
 def run(source: str, model: Path, output: Path, *flags: str) -> int:
