@@ -39,7 +39,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import itertools
 import logging
 import os
 import signal
@@ -59,7 +58,7 @@ from a3d.runtime.cli.common import command
 from a3d.runtime.cli.progress import make_progress
 from a3d.runtime.cli.summary import RunSummary
 from a3d.runtime.errors import InputError
-from a3d.runtime.io.detections_io import format_line, parse_line
+from a3d.runtime.io.detections_io import format_line
 from a3d.runtime.mapping.object_map import ObjectMap
 from a3d.runtime.mapping.world import WORLD_AXES, down_of_up_axis
 from a3d.runtime.network.model import DetectorModel
@@ -73,6 +72,7 @@ from a3d.runtime.pipeline import (
     detect_frames_auto,
 )
 from a3d.runtime.postprocess.score_calibration import SHOW_THRESHOLD
+from a3d.runtime.selection import completed_frames, frames_to_do
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.folder import MODEL_FILE
 from a3d.runtime.sources.newest import NewestFrames
@@ -278,30 +278,6 @@ def _job(args: argparse.Namespace) -> _Job:
     return _Job(source, done, model, config)
 
 
-def _frames_to_do(
-    source: FrameSource,
-    done: set[str],
-    index: dict[str, int],
-    shard: tuple[int, int] = (0, 1),
-    limit: int | None = None,
-) -> Iterator[FrameLoader]:
-    """The source's frames of this ``shard`` (K, N) among its first ``limit`` (all for None):
-    positions K, K + N, ..., lazily, less those already done; ``index`` learns each frame's
-    position as it goes (so a live source is never drained ahead of the run). The source's
-    iterator is closed when this one is, so a camera is stopped however the run ends."""
-    k, n = shard
-    frames = iter(source)
-    try:
-        for position, loader in enumerate(itertools.islice(frames, limit)):
-            index[loader.name] = position
-            if position % n == k and loader.name not in done:
-                yield loader
-    finally:
-        close = getattr(frames, "close", None)
-        if close is not None:
-            close()
-
-
 @dataclass(frozen=True)
 class FrameReport:
     """What a run did with one frame, handed to ``main``'s ``on_frame`` once the frame is written and
@@ -336,7 +312,7 @@ def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] 
     overlapping = False
     index: dict[str, int] = {}  # frame name -> its position in the source (the rerun timeline)
     live = NewestFrames(job.source, realtime=args.realtime) if _is_live(args, job.source) else None
-    todo = _frames_to_do(job.source if live is None else live, job.done, index, args.shard, args.max_frames)
+    todo = frames_to_do(job.source if live is None else live, job.done, index, args.shard, args.max_frames)
     total = None
     if live is None and hasattr(job.source, "__len__"):
         k, n = args.shard
@@ -547,34 +523,6 @@ def _open_output(target: str, append: bool) -> _LineSink:
         return _LineSink(os.open(path, flags, 0o666))
     except OSError as e:
         raise InputError(f"{path}: cannot write ({e.strerror or e})") from None
-
-
-def completed_frames(path: Path) -> set[str]:
-    """Frames that already have a complete line in ``path`` (for --resume); empty if it does not exist.
-
-    A partial last line (no newline: the run was killed while writing it) is cut off the file.
-    Every complete line must be a valid detections line, else InputError: resuming appends to
-    the file, so it must be one a3d-run wrote.
-    """
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        return set()
-    except OSError as e:
-        raise InputError(f"{path}: cannot read ({e.strerror or e})") from None
-    end = data.rfind(b"\n") + 1
-    names: set[str] = set()
-    for number, raw in enumerate(data[:end].split(b"\n")[:-1], start=1):
-        if not raw.strip():
-            continue
-        try:
-            text = raw.decode("utf-8")
-        except UnicodeDecodeError:
-            raise InputError(f"{path}:{number}: not UTF-8 text; not a detections file to resume") from None
-        names.add(parse_line(text, f"{path}:{number}").frame)
-    if end < len(data):
-        os.truncate(path, end)
-    return names
 
 
 # ----------------------------------------------------------------------------- viewer, environment
