@@ -7,6 +7,7 @@
             [--save FILE.rrd] [--stdout]
             [--intrinsics FX,FY,CX,CY | fr1 | fr2 | fr3] [--depth-scale S] [--resize-depth] [--shard K/N]
             [--color-topic TOPIC] [--depth-topic TOPIC] [--max-frames N] [--map [MAP.json]]
+            [--ray [ADDRESS] [--ray-workers N]]
 
 SOURCE is a frame source (a3d.runtime.sources.registry: an a3d frame folder, README "Frame
 format", and the other kinds registered there; --source-format forces one); for a folder the
@@ -29,6 +30,10 @@ point cloud, detections and, where the frame has it, ground truth).
 ``--map [MAP.json]`` (a posed source only) fuses the detections of every frame into one box per
 object in the world (a3d.runtime.mapping.object_map, docs/mapping.md), written atomically at the
 end of the run (also an interrupted one).
+
+``--ray [ADDRESS]`` (the ``ray`` extra) spreads the frames over the actors of a Ray cluster (a new
+local one without ADDRESS), each running one model on ``--threads`` threads; the output is the same
+file, written when the run ends (a3d.runtime.scale, docs/running.md "Scale-out on Ray").
 
 A bad frame never stops the run: it is named on stderr as ``a3d-run: PATH: problem`` and the rest
 are processed. Exit codes: 0 every frame done, 1 some frames failed, 2 usage error (bad flags, no
@@ -72,6 +77,7 @@ from a3d.runtime.pipeline import (
     detect_frames_auto,
 )
 from a3d.runtime.postprocess.score_calibration import SHOW_THRESHOLD
+from a3d.runtime.scale import plan, ray_run
 from a3d.runtime.selection import completed_frames, frames_to_do
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.folder import MODEL_FILE
@@ -176,6 +182,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resize-depth", action="store_true", help="resize depth of another size to the colour's")
     p.add_argument("--shard", metavar="K/N", help="only every N-th frame from the K-th (K = 0..N-1)")
     p.add_argument(
+        "--ray",
+        nargs="?",
+        const="",
+        metavar="ADDRESS",
+        help="run the frames on the actors of a Ray cluster (ADDRESS; bare --ray: a new local one), "
+        "each with its own model on --threads threads; needs pip install 'a3d[ray]' and --headless",
+    )
+    p.add_argument(
+        "--ray-workers",
+        type=int,
+        metavar="N",
+        help="--ray: how many actors (default: the cluster's CPUs / --threads)",
+    )
+    p.add_argument(
         "--world-up",
         choices=WORLD_AXES,
         help="posed sources: the poses' world is gravity-aligned with this axis up, so gravity comes from "
@@ -198,6 +218,7 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
     a missing source or model is InputError, one line without the usage."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    _check_ray(parser, args)
     if args.threads < 1:
         parser.error("--threads must be at least 1")
     if args.max_frames is not None and args.max_frames < 1:
@@ -218,6 +239,29 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
         if not args.model.is_file():
             raise InputError(f"no model given and {args.model} does not exist; pass --model FILE")
     return args
+
+
+def _check_ray(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """--ray: Ray installed (one line naming the extra, before anything else) and no flag that needs
+    the frames in one process (argparse's usage error naming the first)."""
+    if args.ray is None:
+        if args.ray_workers is not None:
+            parser.error("--ray-workers needs --ray")
+        return
+    ray_run.NEEDS.check()
+    if args.ray_workers is not None and args.ray_workers < 1:
+        parser.error("--ray-workers must be at least 1")
+    excluded = {
+        "--output -": args.output == "-",
+        "--realtime": args.realtime,
+        "--map": args.map is not None,
+        f"--overlap {args.overlap}": args.overlap != "auto",
+    }
+    for flag, given in excluded.items():
+        if given:
+            parser.error(f"--ray writes a detections file, each worker doing its frames in turn: not {flag}")
+    if viewer.viewer_requested(args):
+        parser.error("--ray writes the detections only, without a view: add --headless")
 
 
 def _shard(parser: argparse.ArgumentParser, text: str | None) -> tuple[int, int]:
@@ -292,6 +336,8 @@ class FrameReport:
 @command(PROG)
 def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] | None = None) -> int:
     args = _arguments(argv)
+    if args.ray is not None:
+        return _ray_main(args)
     viewer.check_installed(args)  # no rerun: one line naming 'a3d[view]', before a view mode is suggested
     starts_viewer = viewer_launch.launches_viewer(args)
     if starts_viewer:
@@ -376,6 +422,39 @@ def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] 
     if launched is not None and launched.web_url is not None:
         _serve_until_interrupted(launched)
     return 1 if failures else 0
+
+
+def _ray_main(args: argparse.Namespace) -> int:
+    """--ray: the frames on Ray actors (a3d.runtime.scale), with a3d-run's file, problem lines,
+    progress and exit codes; usage errors (a bag or camera, no model) before Ray starts."""
+    plan.check_independent(args.source, args.source_format)  # before a camera is opened
+    job = _job(args)
+    ray_job = ray_run.RayJob(job.source, args.model, job.config, args.threads)
+    runner = ray_run.RayRunner(
+        ray_job, args.output, resume=args.resume, done=job.done, shard=args.shard, limit=args.max_frames
+    )
+    bar = make_progress(PROG, len(runner.listing))
+    try:
+        result = runner.run(
+            workers=args.ray_workers,
+            address=args.ray or None,
+            on_problem=lambda problem: bar.write(f"{PROG}: {problem}"),
+            on_frame=lambda failed: bar.update(failed=failed),
+        )
+    except KeyboardInterrupt:
+        print(f"\n{PROG}: interrupted; the finished blocks are kept: --resume continues", file=sys.stderr)
+        return 130
+    except ray_run.RayFailed as e:
+        print(f"{PROG}: error: {e}; the finished blocks are kept: --resume continues", file=sys.stderr)
+        return 1
+    finally:
+        bar.close()
+    resumed = f", {result.already} already there" if args.resume else ""
+    print(
+        f"{PROG}: {result.written} frames written to {args.output}{resumed}, {len(result.failed)} failed",
+        file=sys.stderr,
+    )
+    return 1 if result.failed else 0
 
 
 def _update_map(world_map: ObjectMap | None, outcome: FrameOutcome) -> str:
