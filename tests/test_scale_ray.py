@@ -22,8 +22,10 @@ from a3d.runtime.errors import InputError
 from a3d.runtime.extras import installed
 from a3d.runtime.io.detections_io import FrameDetections, format_line
 from a3d.runtime.scale.parts import Parts
-from a3d.runtime.scale.plan import check_independent
+from a3d.runtime.scale.plan import INDEPENDENT_KINDS, check_independent
+from a3d.runtime.sources.registry import SourceOptions, open_source
 from tests.helpers.runtime_frames import write_scene_folder
+from tests.real_formats import jpeg, synth_frames, write_seven_scenes, write_sun_release_frame, write_tum
 
 MODEL = Path(__file__).parent / "data" / "pinned_model.onnx"
 FRAMES = [f"f{k}" for k in range(6)]
@@ -90,6 +92,40 @@ def test_only_sources_every_worker_can_read_are_spread(tmp_path: Path) -> None:
         check_independent("realsense")
     with pytest.raises(InputError, match="a bag is read front to back through one reader"):
         check_independent(tmp_path / "run.bag", "bag")
+
+
+def _spreadable_sources(tmp_path: Path) -> dict[str, Path]:
+    """One small source of every kind plan.INDEPENDENT_KINDS names, two frames each."""
+    frames = synth_frames()
+    write_tum(tmp_path / "tum", frames, [1.0, 1.5])
+    write_seven_scenes(tmp_path / "7scenes", frames, [np.eye(4), np.eye(4)])
+    for k, frame in enumerate(frames):
+        folder = tmp_path / "sun" / f"NYU{k:04d}"
+        write_sun_release_frame(
+            folder, jpeg(frame.color), np.rint(frame.depth * 1000.0), frame.intrinsics, None
+        )
+    return {"a3d": write_scene_folder(tmp_path / "a3d", ["f0", "f1"]), "tum": tmp_path / "tum",
+            "7scenes": tmp_path / "7scenes", "sunrgbd": tmp_path / "sun"}  # fmt: skip
+
+
+@needs_ray
+def test_every_spreadable_source_reaches_a_worker_whole(tmp_path: Path) -> None:
+    """A worker gets the driver's opened source through Ray's cloudpickle: the same frames, read the same."""
+    from ray import cloudpickle
+
+    sources = _spreadable_sources(tmp_path)
+    assert sorted(sources) == sorted(INDEPENDENT_KINDS)
+    for kind, path in sources.items():
+        check_independent(path)
+        source = open_source(
+            path, SourceOptions(intrinsics=(70.0, 70.0, 63.5, 47.5)) if kind == "tum" else None
+        )
+        copy = cloudpickle.loads(cloudpickle.dumps(source))
+        assert [loader.name for loader in copy] == [loader.name for loader in source], kind
+        assert len([loader.name for loader in copy]) == 2, kind
+        mine, theirs = list(source)[1].load(), list(copy)[1].load()
+        np.testing.assert_array_equal(theirs.depth, mine.depth, err_msg=kind)
+        assert theirs.intrinsics == mine.intrinsics, kind
 
 
 @needs_ray
