@@ -220,3 +220,16 @@ def test_ray_detect_resumes_from_the_output_and_the_parts(frames: Path, tmp_path
     lines = output.read_text().splitlines()
     assert [lines[k] for k in (0, 1, 4)] == [done[k] for k in (0, 1, 4)]  # kept, timing and all: not redone
     assert _without_timing(output) == _without_timing(plain)
+
+
+@pytest.mark.slow
+@pytest.mark.usefixtures("local_ray")
+def test_a_worker_that_cannot_start_stops_the_run_in_one_line(frames: Path, tmp_path: Path) -> None:
+    from a3d.runtime import Detector
+    from a3d.runtime.scale import RayJob, RayRunner
+    from a3d.runtime.scale.ray_run import RayFailed
+
+    source = open_source(frames)
+    job = RayJob(source, MODEL, Detector.load(MODEL).config, threads=1, cwd=str(tmp_path / "elsewhere"))
+    with pytest.raises(RayFailed, match=r"^Ray: .*elsewhere: the driver's folder is not on this node \("):
+        RayRunner(job, tmp_path / "out.jsonl").run(workers=2)

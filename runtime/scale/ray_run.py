@@ -18,6 +18,7 @@ import itertools
 import logging
 import math
 import os
+import re
 import warnings
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -46,6 +47,8 @@ NEEDS = Needs("ray", ("ray", "pyarrow"))
 BLOCK_FRAMES = 64  # the most frames of a block (one part file: what an interrupted run keeps)
 BLOCKS_PER_WORKER = 4  # a small run still gives every worker several blocks
 RETRIES = 2  # a worker that died (a lost node) is restarted and its block redone this many times
+_ANSI = re.compile(r"\x1b\[[0-9;]*m")  # Ray colours the names in its messages
+_RAISED = re.compile(r"^[A-Za-z_][\w.]*(?:Error|Exception): (.+)$")  # a traceback's last line
 
 
 @dataclass(frozen=True)
@@ -74,10 +77,13 @@ class RayFailed(RuntimeError):
 
     @classmethod
     def of(cls, error: Exception) -> RayFailed:
-        """The first line of what went wrong: the worker's own exception where Ray wraps one."""
-        cause = getattr(error, "cause", None)  # RayTaskError: what the worker raised
-        lines = str(cause if isinstance(cause, Exception) else error).strip().splitlines()
-        return cls(f"Ray: {lines[0] if lines else type(error).__name__}")
+        """What went wrong in one line: the worker's own exception where Ray wraps one (a task's
+        ``cause``) or quotes its traceback (an actor that could not start), else Ray's first line."""
+        cause = getattr(error, "cause", None)
+        text = _ANSI.sub("", str(cause if isinstance(cause, Exception) else error))
+        lines = [line.strip() for line in text.splitlines() if line.strip()]
+        raised = [m.group(1) for line in lines if (m := _RAISED.match(line))]
+        return cls(f"Ray: {raised[-1] if raised else lines[0] if lines else type(error).__name__}")
 
 
 class DetectBlock:
@@ -238,6 +244,9 @@ class _RaySession:
     def __enter__(self) -> Any:
         import ray
 
+        if ray.is_initialized() and self.address is not None:
+            raise InputError(f"address={self.address!r}: Ray is initialised in this process already "
+                             "(ray.init); leave address out to run on that one")  # fmt: skip
         if not ray.is_initialized():
             ray.init(address=self.address, include_dashboard=False, logging_level=logging.ERROR)
             self.started = True
@@ -281,6 +290,9 @@ def ray_detect(
     frame is one line in the result's ``failed`` (and to ``on_problem``), and the run goes on.
     """
     NEEDS.check("ray_detect")
+    for name, value in (("threads", threads), ("workers", 1 if workers is None else workers)):
+        if value < 1:
+            raise InputError(f"{name}: must be at least 1, got {value}")
     check_independent(source, kind)
     frames = open_source(source, source_options, kind)
     detector = Detector.load(model, threads, **detector_options)
