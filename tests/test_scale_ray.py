@@ -73,6 +73,17 @@ def test_parts_merge_into_the_resumed_output_in_source_order(tmp_path: Path) -> 
     assert not parts.folder.exists()
 
 
+def test_a_frame_in_the_output_and_a_part_keeps_the_outputs_line(tmp_path: Path) -> None:
+    """A plain a3d-run --resume between an interrupted --ray run and its --resume redid a part's frame."""
+    output = tmp_path / "out.jsonl"
+    again = _line("b").replace('"timing":{}', '"timing":{"total":1.0}')  # the same frame, another line
+    assert again != _line("b")
+    output.write_text(f"{_line('a')}\n{again}\n")
+    Parts(output).write([(1, _line("b")), (2, _line("c"))])
+    Parts(output).merge({"a": 0, "b": 1, "c": 2})
+    assert output.read_text().splitlines() == [_line("a"), again, _line("c")]
+
+
 def test_a_fresh_run_starts_without_the_old_output_or_parts(tmp_path: Path) -> None:
     output = tmp_path / "out.jsonl"
     output.write_text(f"{_line('a')}\n")

@@ -65,17 +65,14 @@ class Parts:
 
     def merge(self, index: dict[str, int]) -> None:
         """The output's lines and the parts' as one file in source order (``index``: frame name ->
-        position; frames it does not know go last, in their order), then the parts deleted."""
-        files = self.files()
-        parts = itertools.chain.from_iterable(_lines(path) for path in files)
+        position; frames it does not know go last, in their order), then the parts deleted. A frame
+        both hold (a plain a3d-run --resume in between) keeps the output's line."""
+        parts = itertools.chain.from_iterable(_lines(path) for path in self.files())
         if not (self.output.is_file() and self.output.stat().st_size):
             ordered: Iterator[bytes] = parts  # the usual case: parts hold their frames in order already
         else:
-
-            def position(line: bytes) -> int:
-                return index.get(json.loads(line)["frame"], len(index))
-
-            ordered = heapq.merge(_lines(self.output), parts, key=position)
+            both = (_keyed(_lines(self.output), index), _keyed(parts, index))
+            ordered = _first_of_each(heapq.merge(*both, key=lambda item: item[0]))  # stable: output first
 
         def write(f: BinaryIO) -> None:
             for line in ordered:
@@ -95,3 +92,19 @@ def _lines(path: Path) -> Iterator[bytes]:
         for line in f:
             if line.strip():
                 yield line if line.endswith(b"\n") else line + b"\n"
+
+
+def _keyed(lines: Iterator[bytes], index: dict[str, int]) -> Iterator[tuple[int, str, bytes]]:
+    """(position, frame name, line) of each line."""
+    for line in lines:
+        name = json.loads(line)["frame"]
+        yield index.get(name, len(index)), name, line
+
+
+def _first_of_each(items: Iterator[tuple[int, str, bytes]]) -> Iterator[bytes]:
+    """The lines, each frame's first only."""
+    seen: set[str] = set()
+    for _, name, line in items:
+        if name not in seen:
+            seen.add(name)
+            yield line
