@@ -23,6 +23,7 @@ from a3d.runtime.extras import installed
 from a3d.runtime.io.detections_io import FrameDetections, format_line
 from a3d.runtime.scale.parts import Parts
 from a3d.runtime.scale.plan import INDEPENDENT_KINDS, check_independent
+from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.registry import SourceOptions, open_source
 from tests.helpers.runtime_frames import write_scene_folder
 from tests.real_formats import jpeg, synth_frames, write_seven_scenes, write_sun_release_frame, write_tum
@@ -103,6 +104,26 @@ def test_only_sources_every_worker_can_read_are_spread(tmp_path: Path) -> None:
         check_independent("realsense")
     with pytest.raises(InputError, match="a bag is read front to back through one reader"):
         check_independent(tmp_path / "run.bag", "bag")
+
+
+def test_a_worker_finds_frames_by_position_and_names_a_changed_source() -> None:
+    from a3d.runtime.scale.ray_run import _Cursor
+
+    passes = []
+
+    class Source:  # counts how often the worker lists it
+        def __iter__(self) -> Iterator[FrameLoader]:
+            passes.append(1)
+            return (FrameLoader(name, name, lambda: None) for name in "abcd")
+
+    cursor = _Cursor(Source())
+    assert [cursor.at(p, n).name for p, n in ((1, "b"), (2, "c"), (3, "d"))] == ["b", "c", "d"]
+    assert len(passes) == 1  # forward: one pass through the listing
+    assert cursor.at(0, "a").name == "a" and len(passes) == 2  # a block from before: a new pass
+    with pytest.raises(InputError, match=r"^x: the source changed since its frames were listed \(frame 1 "):
+        cursor.at(1, "x").load()
+    with pytest.raises(InputError, match=r"^e: the source changed"):
+        cursor.at(4, "e").load()
 
 
 def _spreadable_sources(tmp_path: Path) -> dict[str, Path]:
