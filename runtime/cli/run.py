@@ -186,8 +186,8 @@ def build_parser() -> argparse.ArgumentParser:
         nargs="?",
         const="",
         metavar="ADDRESS",
-        help="run the frames on the actors of a Ray cluster (ADDRESS; bare --ray: a new local one), "
-        "each with its own model on --threads threads; needs pip install 'a3d[ray]' and --headless",
+        help="run the frames on the actors of a Ray cluster (ADDRESS; a bare --ray, after SOURCE: a new "
+        "local one), each with its own model on --threads threads; needs 'a3d[ray]' and --headless",
     )
     p.add_argument(
         "--ray-workers",
