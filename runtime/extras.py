@@ -18,6 +18,7 @@ EXTRAS: dict[str, tuple[str, ...]] = {
     "sunrgbd": ("scipy",),
     "bag": ("rosbags",),
     "realsense": ("pyrealsense2",),
+    "ray": ("ray",),  # and ray[data]'s pyarrow, which rerun needs too: a3d.runtime.scale checks it
 }
 """The modules each optional extra of pyproject.toml brings (import names, not pip names)."""
 

@@ -108,3 +108,9 @@ def test_a_lazy_import_of_an_extra_is_one_line(capsys: pytest.CaptureFixture[str
 
     with pytest.raises(ModuleNotFoundError):  # a module of no extra: a broken install, traceback kept
         broken([])
+
+
+def test_ray_without_ray_is_one_line(tmp_path: Path) -> None:
+    """a3d-run --ray says which extra it needs before looking at anything else (the folder is not there)."""
+    [(_, _, code, err)] = _in_base_install([("a3d-run", ["frames", "--ray", "--headless"])], cwd=tmp_path)
+    assert (code, err) == (2, ["a3d-run: needs the 'ray' extra: pip install 'a3d[ray]' (ray is missing)"])

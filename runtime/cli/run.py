@@ -7,6 +7,7 @@
             [--save FILE.rrd] [--stdout]
             [--intrinsics FX,FY,CX,CY | fr1 | fr2 | fr3] [--depth-scale S] [--resize-depth] [--shard K/N]
             [--color-topic TOPIC] [--depth-topic TOPIC] [--max-frames N] [--map [MAP.json]]
+            [--ray [ADDRESS] [--ray-workers N]]
 
 SOURCE is a frame source (a3d.runtime.sources.registry: an a3d frame folder, README "Frame
 format", and the other kinds registered there; --source-format forces one); for a folder the
@@ -30,6 +31,10 @@ point cloud, detections and, where the frame has it, ground truth).
 object in the world (a3d.runtime.mapping.object_map, docs/mapping.md), written atomically at the
 end of the run (also an interrupted one).
 
+``--ray [ADDRESS]`` (the ``ray`` extra) spreads the frames over the actors of a Ray cluster (a new
+local one without ADDRESS), each running one model on ``--threads`` threads; the output is the same
+file, written when the run ends (a3d.runtime.scale, docs/running.md "Scale-out on Ray").
+
 A bad frame never stops the run: it is named on stderr as ``a3d-run: PATH: problem`` and the rest
 are processed. Exit codes: 0 every frame done, 1 some frames failed, 2 usage error (bad flags, no
 or unusable model, missing folder, unreadable output) before any frame is processed, 130 interrupted.
@@ -39,7 +44,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import itertools
 import logging
 import os
 import signal
@@ -59,7 +63,7 @@ from a3d.runtime.cli.common import build_parser as command_parser
 from a3d.runtime.cli.progress import make_progress
 from a3d.runtime.cli.summary import RunSummary
 from a3d.runtime.errors import InputError, ModelError
-from a3d.runtime.io.detections_io import format_line, parse_line
+from a3d.runtime.io.detections_io import format_line
 from a3d.runtime.mapping.object_map import ObjectMap
 from a3d.runtime.mapping.world import WORLD_AXES, down_of_up_axis
 from a3d.runtime.models import DEFAULT_MODEL as DEFAULT_NAME
@@ -76,6 +80,8 @@ from a3d.runtime.pipeline import (
     detect_frames_auto,
 )
 from a3d.runtime.postprocess.score_calibration import SHOW_THRESHOLD
+from a3d.runtime.scale import plan, ray_run
+from a3d.runtime.selection import completed_frames, frames_to_do
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.folder import MODEL_FILE
 from a3d.runtime.sources.newest import NewestFrames
@@ -182,6 +188,20 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--resize-depth", action="store_true", help="resize depth of another size to the colour's")
     p.add_argument("--shard", metavar="K/N", help="only every N-th frame from the K-th (K = 0..N-1)")
     p.add_argument(
+        "--ray",
+        nargs="?",
+        const="",
+        metavar="ADDRESS",
+        help="run the frames on the actors of a Ray cluster (ADDRESS; a bare --ray, after SOURCE: a new "
+        "local one), each with its own model on --threads threads; needs 'a3d[ray]' and --headless",
+    )
+    p.add_argument(
+        "--ray-workers",
+        type=int,
+        metavar="N",
+        help="--ray: how many actors (default: the cluster's CPUs / --threads)",
+    )
+    p.add_argument(
         "--world-up",
         choices=WORLD_AXES,
         help="posed sources: the poses' world is gravity-aligned with this axis up, so gravity comes from "
@@ -204,6 +224,7 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
     a missing source or model is InputError, one line without the usage."""
     parser = build_parser()
     args = parser.parse_args(argv)
+    _check_ray(parser, args)
     if args.threads < 1:
         parser.error("--threads must be at least 1")
     if args.max_frames is not None and args.max_frames < 1:
@@ -235,6 +256,29 @@ class _ModelInfo(argparse.Action):
             parser.exit(EXIT_USAGE, f"{PROG}: error: {e}\n")
         print("\n".join(model_card(path, metadata)))
         parser.exit(0)
+
+
+def _check_ray(parser: argparse.ArgumentParser, args: argparse.Namespace) -> None:
+    """--ray: Ray installed (one line naming the extra, before anything else) and no flag that needs
+    the frames in one process (argparse's usage error naming the first)."""
+    if args.ray is None:
+        if args.ray_workers is not None:
+            parser.error("--ray-workers needs --ray")
+        return
+    ray_run.NEEDS.check()
+    if args.ray_workers is not None and args.ray_workers < 1:
+        parser.error("--ray-workers must be at least 1")
+    excluded = {
+        "--output -": args.output == "-",
+        "--realtime": args.realtime,
+        "--map": args.map is not None,
+        f"--overlap {args.overlap}": args.overlap != "auto",
+    }
+    for flag, given in excluded.items():
+        if given:
+            parser.error(f"--ray writes a detections file, each worker doing its frames in turn: not {flag}")
+    if viewer.viewer_requested(args):
+        parser.error("--ray writes the detections only, without a view: add --headless")
 
 
 def _shard(parser: argparse.ArgumentParser, text: str | None) -> tuple[int, int]:
@@ -295,30 +339,6 @@ def _job(args: argparse.Namespace) -> _Job:
     return _Job(source, done, model, config)
 
 
-def _frames_to_do(
-    source: FrameSource,
-    done: set[str],
-    index: dict[str, int],
-    shard: tuple[int, int] = (0, 1),
-    limit: int | None = None,
-) -> Iterator[FrameLoader]:
-    """The source's frames of this ``shard`` (K, N) among its first ``limit`` (all for None):
-    positions K, K + N, ..., lazily, less those already done; ``index`` learns each frame's
-    position as it goes (so a live source is never drained ahead of the run). The source's
-    iterator is closed when this one is, so a camera is stopped however the run ends."""
-    k, n = shard
-    frames = iter(source)
-    try:
-        for position, loader in enumerate(itertools.islice(frames, limit)):
-            index[loader.name] = position
-            if position % n == k and loader.name not in done:
-                yield loader
-    finally:
-        close = getattr(frames, "close", None)
-        if close is not None:
-            close()
-
-
 @dataclass(frozen=True)
 class FrameReport:
     """What a run did with one frame, handed to ``main``'s ``on_frame`` once the frame is written and
@@ -333,6 +353,8 @@ class FrameReport:
 @command(PROG)
 def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] | None = None) -> int:
     args = _arguments(argv)
+    if args.ray is not None:
+        return _ray_main(args)
     viewer.check_installed(args)  # no rerun: one line naming 'a3d[view]', before a view mode is suggested
     starts_viewer = viewer_launch.launches_viewer(args)
     if starts_viewer:
@@ -353,7 +375,7 @@ def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] 
     overlapping = False
     index: dict[str, int] = {}  # frame name -> its position in the source (the rerun timeline)
     live = NewestFrames(job.source, realtime=args.realtime) if _is_live(args, job.source) else None
-    todo = _frames_to_do(job.source if live is None else live, job.done, index, args.shard, args.max_frames)
+    todo = frames_to_do(job.source if live is None else live, job.done, index, args.shard, args.max_frames)
     total = None
     if live is None and hasattr(job.source, "__len__"):
         k, n = args.shard
@@ -417,6 +439,39 @@ def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] 
     if launched is not None and launched.web_url is not None:
         _serve_until_interrupted(launched)
     return 1 if failures else 0
+
+
+def _ray_main(args: argparse.Namespace) -> int:
+    """--ray: the frames on Ray actors (a3d.runtime.scale), with a3d-run's file, problem lines,
+    progress and exit codes; usage errors (a bag or camera, no model) before Ray starts."""
+    plan.check_independent(args.source, args.source_format)  # before a camera is opened
+    job = _job(args)
+    ray_job = ray_run.RayJob(job.source, args.model, job.config, args.threads)
+    runner = ray_run.RayRunner(
+        ray_job, args.output, resume=args.resume, done=job.done, shard=args.shard, limit=args.max_frames
+    )
+    bar = make_progress(PROG, len(runner.listing))
+    try:
+        result = runner.run(
+            workers=args.ray_workers,
+            address=args.ray or None,
+            on_problem=lambda problem: bar.write(f"{PROG}: {problem}"),
+            on_frame=lambda failed: bar.update(failed=failed),
+        )
+    except KeyboardInterrupt:
+        print(f"\n{PROG}: interrupted; the finished blocks are kept: --resume continues", file=sys.stderr)
+        return 130
+    except ray_run.RayFailed as e:
+        print(f"{PROG}: error: {e}; the finished blocks are kept: --resume continues", file=sys.stderr)
+        return 1
+    finally:
+        bar.close()
+    resumed = f", {result.already} already there" if args.resume else ""
+    print(
+        f"{PROG}: {result.written} frames written to {args.output}{resumed}, {len(result.failed)} failed",
+        file=sys.stderr,
+    )
+    return 1 if result.failed else 0
 
 
 def _update_map(world_map: ObjectMap | None, outcome: FrameOutcome) -> str:
@@ -564,34 +619,6 @@ def _open_output(target: str, append: bool) -> _LineSink:
         return _LineSink(os.open(path, flags, 0o666))
     except OSError as e:
         raise InputError(f"{path}: cannot write ({e.strerror or e})") from None
-
-
-def completed_frames(path: Path) -> set[str]:
-    """Frames that already have a complete line in ``path`` (for --resume); empty if it does not exist.
-
-    A partial last line (no newline: the run was killed while writing it) is cut off the file.
-    Every complete line must be a valid detections line, else InputError: resuming appends to
-    the file, so it must be one a3d-run wrote.
-    """
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        return set()
-    except OSError as e:
-        raise InputError(f"{path}: cannot read ({e.strerror or e})") from None
-    end = data.rfind(b"\n") + 1
-    names: set[str] = set()
-    for number, raw in enumerate(data[:end].split(b"\n")[:-1], start=1):
-        if not raw.strip():
-            continue
-        try:
-            text = raw.decode("utf-8")
-        except UnicodeDecodeError:
-            raise InputError(f"{path}:{number}: not UTF-8 text; not a detections file to resume") from None
-        names.add(parse_line(text, f"{path}:{number}").frame)
-    if end < len(data):
-        os.truncate(path, end)
-    return names
 
 
 # ----------------------------------------------------------------------------- viewer, environment

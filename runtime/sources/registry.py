@@ -85,7 +85,14 @@ def kinds() -> list[str]:
 
 def recognised(spec: str | os.PathLike) -> bool:
     """Whether a registered kind claims SOURCE (which need not be a file: ``realsense``)."""
-    return any(kind.claims(os.fspath(spec)) for kind in _KINDS.values())
+    return claiming_kind(spec) is not None
+
+
+def claiming_kind(spec: str | os.PathLike) -> str | None:
+    """The name of the kind that opens SOURCE (the first that claims it), without opening it;
+    None when no kind does."""
+    text = os.fspath(spec)
+    return next((kind.name for kind in _KINDS.values() if kind.claims(text)), None)
 
 
 def open_source(
@@ -101,9 +108,9 @@ def open_source(
             known = ", ".join(_KINDS)
             raise InputError(f"{option('source_format_name')}: unknown format {kind!r} (one of: {known})")
         return _open(_KINDS[kind], text, options)
-    for candidate in _KINDS.values():
-        if candidate.claims(text):
-            return _open(candidate, text, options)
+    claimed = claiming_kind(text)
+    if claimed is not None:
+        return _open(_KINDS[claimed], text, options)
     if not Path(text).exists() and ":" not in text:
         raise InputError(f"{text}: no such file or folder")
     known = "; ".join(f"{k.name}: {k.describe}" for k in _KINDS.values())

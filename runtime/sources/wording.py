@@ -22,6 +22,7 @@ _PYTHON = {
     "source_format_name": "kind",
     "depth_topic": "depth_topic=TOPIC",
     "proposals_precomputed": "Detector.load(..., proposals='precomputed')",
+    "ray": "ray_detect",
 }
 _COMMAND_LINE = {
     "intrinsics": "--intrinsics fx,fy,cx,cy",
@@ -32,6 +33,7 @@ _COMMAND_LINE = {
     "source_format_name": "--source-format",
     "depth_topic": "--depth-topic TOPIC",
     "proposals_precomputed": "--proposals precomputed",
+    "ray": "--ray",
 }
 _words = _PYTHON
 
