@@ -51,3 +51,21 @@ def test_relative_links_point_at_files(doc: Path) -> None:
 def test_the_link_reader_finds_links_and_skips_code() -> None:
     text = "See [a](docs/a.md#x), ![b](img.png) and [web](https://x.org).\n`[c](c.md)`\n```\n[d](d.md)\n```\n"
     assert relative_links(text) == ["docs/a.md", "img.png"]
+
+
+MEASURED = re.compile(r"(?<![\w.])\d+\.\d+(?!\w|\.\d)")  # decimals (a sentence's full stop may follow)
+
+
+def test_the_model_card_quotes_numbers_from_their_home_pages() -> None:
+    """Each number the README's model card quotes stands in a docs page it links (its one home), so a
+    number re-measured there and left stale here fails (the samples' mAP is also re-measured by
+    tests/test_samples.py)."""
+    text = README.read_text(encoding="utf-8")
+    card = text[text.index("## Models") : text.index("\n## ", text.index("## Models") + 1)]
+    homes = sorted({ROOT / t for t in relative_links(card) if t.startswith("docs/") and t.endswith(".md")})
+    assert homes, "the model card links no docs page"
+    pages = "\n".join(page.read_text(encoding="utf-8") for page in homes)
+    quoted = set(MEASURED.findall(INLINE_CODE.sub("", FENCE.sub("", card))))
+    assert {"50.9", "57.3", "74.4"} <= quoted, quoted
+    missing = sorted(n for n in quoted if n not in pages)
+    assert not missing, f"numbers in the README's model card that no linked page holds: {missing}"
