@@ -10,9 +10,11 @@ frames, the re-detection rate, the jitter of their observations (centre, size, y
 mapped detections, the spurious rate (a3d.runtime.mapping.consistency). None of it needs labels.
 
 Where labels exist it puts them beside: the detections' mAP@0.25 on FRAMES' ground truth (the
-classes present, as a3d-eval scores it) and, with ``--world-boxes`` (an a3d-synth sequence's
-world_boxes.json), the map's own precision and recall against the objects the ground truth
-annotates in at least ``--min-support`` frames, and the centre error of the matched ones.
+classes present, as a3d-eval scores it), the same for the map's confirmed boxes projected back into
+every frame (ObjectMap.seen_from: one fixed box per object, so no jitter between frames) and, with
+``--world-boxes`` (an a3d-synth sequence's world_boxes.json), the map's own precision and recall
+against the objects the ground truth annotates in at least ``--min-support`` frames, and the
+centre error of the matched ones.
 """
 
 from __future__ import annotations
@@ -33,19 +35,25 @@ from a3d.runtime.mapping.world import boxes_to_camera, same_boxes
 from a3d.runtime.mapping.world_boxes import read_world_boxes
 from a3d.runtime.sources.folder import list_frames, read_ground_truth, read_meta
 from a3d.runtime.sources.registry import SourceOptions, open_source
+from a3d.runtime.structures.geometry import Intrinsics
 
 IOU = 0.25
 
 
-def build_map(frames: Path, detections: Path) -> ObjectMap:
-    """The object map of a detections file over its posed frame source, frame by frame in order."""
+Cameras = dict[str, tuple[Intrinsics, tuple[int, int]]]  # frame -> its intrinsics and image size
+
+
+def build_map(frames: Path, detections: Path) -> tuple[ObjectMap, Cameras]:
+    """The object map of a detections file over its posed frame source, frame by frame in order,
+    and each mapped frame's camera (to project the map back into it)."""
     lines = {d.frame: d for d in read_detections(detections)}
-    world_map = ObjectMap()
+    world_map, cameras = ObjectMap(), {}
     for loader in open_source(frames, SourceOptions(with_proposals=False)):
         if loader.name in lines:
             frame = loader.load()
             world_map.update(lines[loader.name], frame.pose, intrinsics=frame.intrinsics, depth=frame.depth)
-    return world_map
+            cameras[loader.name] = (frame.intrinsics, frame.depth.shape[:2])
+    return world_map, cameras
 
 
 def annotated_world_ids(frames: Path, world_boxes: Path, min_support: int) -> set[int]:
@@ -72,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--map", type=Path, help="also write the map here")
     p.add_argument("--json", type=Path, help="write the report as JSON here")
     args = p.parse_args(argv)
-    world_map = build_map(args.frames, args.detections)
+    world_map, cameras = build_map(args.frames, args.detections)
     if args.map:
         world_map.write(args.map)
     measures = map_consistency(world_map, args.min_support)
@@ -97,6 +105,12 @@ def main(argv: list[str] | None = None) -> int:
         report["map_at_025_present"] = result.map_present(IOU)
         score = 100 * result.map_present(IOU)
         print(f"labelled: mAP@{IOU} (classes present) {score:.1f} on {len(truth)} frames")
+        back = {name: world_map.seen_from(line, *cameras[name]) for name, line in lines.items()
+                if name in cameras and line.pose is not None}  # fmt: skip
+        mapped = evaluate(truth, back, EvalConfig())
+        report["map_projected_at_025_present"] = mapped.map_present(IOU)
+        print(f"labelled: the map's confirmed boxes projected back into each frame: mAP@{IOU} "
+              f"{100 * mapped.map_present(IOU):.1f} on {len(back)} frames")  # fmt: skip
     if args.world_boxes is not None:
         seen = annotated_world_ids(args.frames, args.world_boxes, args.min_support)
         accuracy = against_world(world_map, read_world_boxes(args.world_boxes), args.min_support, IOU, seen)

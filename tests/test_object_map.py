@@ -134,6 +134,16 @@ def test_map_fuses_noisy_detections_into_one_box_per_object() -> None:
     )
     assert chair.score() == pytest.approx(0.9)
 
+    # Projected back into a frame, the map is one fixed box per object, in that frame's camera.
+    pose = camera(5)
+    back = world_map.seen_from(detections(5, pose, WORLD, CLASSES, [0.9, 0.8]), K, SIZE)
+    R_tilt = rtilt_from_pose(pose)
+    np.testing.assert_allclose(back.boxes3d, boxes_to_camera(fused, pose, R_tilt), atol=1e-9)
+    assert back.class_ids.tolist() == CLASSES.tolist() and back.scores == pytest.approx([0.9, 0.8])
+    assert np.all(back.boxes2d[:, 2:] > back.boxes2d[:, :2])
+    away = pose @ make_pose(R_y(math.pi), [0.0, 0.0, 0.0])  # the same camera turned round
+    assert len(world_map.seen_from(detections(5, away, WORLD, CLASSES, [0.9, 0.8]), K, SIZE)) == 0
+
 
 def test_a_spurious_detection_is_dropped_once_missed_where_it_should_be_seen(tmp_path: Path) -> None:
     world_map = ObjectMap(MapConfig(max_misses=3))

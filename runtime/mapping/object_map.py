@@ -32,7 +32,7 @@ from __future__ import annotations
 import json
 import os
 from collections import Counter
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -43,7 +43,7 @@ from a3d.runtime.mapping.fusion import fuse_boxes
 from a3d.runtime.mapping.world import boxes_to_camera, boxes_to_world
 from a3d.runtime.structures.boxes import CENTER, SIZE, THETA
 from a3d.runtime.structures.classes import CLASSES
-from a3d.runtime.structures.geometry import Intrinsics, iou_3d
+from a3d.runtime.structures.geometry import Intrinsics, box_area_2d, iou_3d, project_boxes_to_2d
 from a3d.runtime.structures.pose import make_pose
 
 MAP_VERSION = 1
@@ -222,6 +222,31 @@ class ObjectMap:
         merged = self._merge()
         return MapUpdate(
             "", tuple(existing[j].id for _, j in pairs), tuple(created), tuple(missed), tuple(dropped), merged
+        )
+
+    def seen_from(
+        self, result: FrameDetections, K: Intrinsics, image_size: tuple[int, int]
+    ) -> FrameDetections:
+        """The confirmed objects as that frame's detections (the frame's pose and gravity, from
+        ``result``): each fused box moved into its camera, scored with its fused score, its 2D box
+        the projected box clipped to the image; objects behind the camera or outside the image are
+        left out. This is the map "projected back", to score against per-frame ground truth."""
+        if self.alignment is None or result.pose is None:
+            raise ValueError(f"{result.frame}: the map has no frame yet, or this frame has no pose")
+        R_tilt = np.asarray(result.R_tilt, np.float64)
+        objects = self.confirmed()
+        world = np.array([o.box for o in objects]).reshape(-1, 7)
+        boxes = boxes_to_camera(world, self.alignment @ result.pose, R_tilt)
+        boxes2d = project_boxes_to_2d(boxes, R_tilt, K, image_size)
+        keep = (boxes[:, 2] > 0.3) & (box_area_2d(boxes2d) > 0)
+        return replace(
+            result,
+            class_ids=np.array([o.class_id for o in objects], np.int64).reshape(-1)[keep],
+            scores=np.array([o.score() for o in objects], np.float64).reshape(-1)[keep],
+            boxes2d=boxes2d[keep],
+            boxes3d=boxes[keep],
+            corners=None,
+            boxes2d_amodal=None,
         )
 
     def _skip(self, why: str) -> MapUpdate:
