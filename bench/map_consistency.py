@@ -115,8 +115,12 @@ def main(argv: list[str] | None = None) -> int:
         seen = annotated_world_ids(args.frames, args.world_boxes, args.min_support)
         accuracy = against_world(world_map, read_world_boxes(args.world_boxes), args.min_support, IOU, seen)
         error = float(np.median(accuracy.centre_errors_m)) if accuracy.centre_errors_m else float("nan")
+        size = float(np.median(accuracy.size_errors)) if accuracy.size_errors else float("nan")
         report.update(
-            map_precision=accuracy.precision, map_recall=accuracy.recall, map_centre_error_m_median=error
+            map_precision=accuracy.precision,
+            map_recall=accuracy.recall,
+            map_centre_error_m_median=error,
+            map_size_error_median=size,
         )
         print(
             f"the map against the world's boxes annotated in >= {args.min_support} frames (3D IoU >= {IOU}):"
@@ -125,7 +129,7 @@ def main(argv: list[str] | None = None) -> int:
             f"  {accuracy.true} of {accuracy.objects} map objects right (precision {accuracy.precision:.2f}),"
         )
         print(f"  {accuracy.true} of {accuracy.world} world objects found (recall {accuracy.recall:.2f}),")
-        print(f"  median centre error of the right ones {error:.3f} m")
+        print(f"  median centre error of the right ones {error:.3f} m, size error {size:.1%}")
     if args.json:
         args.json.write_text(json.dumps(report, indent=1) + "\n")
     return 0

@@ -61,6 +61,7 @@ def test_the_map_against_world_boxes() -> None:
     assert (accuracy.objects, accuracy.true, accuracy.world) == (2, 2, 3)
     assert accuracy.precision == 1.0 and accuracy.recall == pytest.approx(2 / 3)
     assert max(accuracy.centre_errors_m) < 0.05
+    assert len(accuracy.size_errors) == 2 and max(accuracy.size_errors) < 0.05  # 5 % noise, fused
     assert against_world(world_map, world, 3, seen={1, 2}).recall == 1.0
     assert against_world(world_map, world, min_support=7).objects == 0  # nothing seen 7 times
 

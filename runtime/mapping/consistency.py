@@ -95,12 +95,15 @@ def map_consistency(world_map: ObjectMap, min_support: int = 3) -> MapConsistenc
 
 @dataclass(frozen=True)
 class MapAccuracy:
-    """The map against ground truth: supported objects, true ones, world objects, their centre errors."""
+    """The map against ground truth: supported objects, true ones, world objects, and the true
+    ones' centre errors (metres) and size errors (the mean relative error of length, width and
+    height, the footprint's longer side as length on both)."""
 
     objects: int
     true: int
     world: int
     centre_errors_m: list[float]
+    size_errors: list[float]
 
     @property
     def precision(self) -> float:
@@ -126,7 +129,7 @@ def against_world(
     boxes, classes = world.boxes[keep], [class_index(world.classes[i]) for i in keep]
     iou = iou_3d(np.array([o.box for o in objects]).reshape(-1, 7), boxes.reshape(-1, 7), np.eye(3))
     taken: set[int] = set()
-    errors = []
+    errors, size_errors = [], []
     for row, obj in enumerate(objects):
         candidates = [j for j in range(len(keep)) if classes[j] == obj.class_id and j not in taken]
         if not candidates:
@@ -135,4 +138,11 @@ def against_world(
         if iou[row, j] >= iou_threshold:
             taken.add(j)
             errors.append(float(np.linalg.norm(obj.box[CENTER] - boxes[j, CENTER])))
-    return MapAccuracy(len(objects), len(taken), len(keep), errors)
+            ours, truth = _lwh(obj.box), _lwh(boxes[j])
+            size_errors.append(float(np.mean(np.abs(ours - truth) / truth)))
+    return MapAccuracy(len(objects), len(taken), len(keep), errors, size_errors)
+
+
+def _lwh(box: np.ndarray) -> np.ndarray:
+    """(length, width, height) with the footprint's longer side first, whatever the 7-vector's order."""
+    return np.array([max(box[3], box[4]), min(box[3], box[4]), box[5]])
