@@ -6,7 +6,8 @@
             [--resume] [--overlap [auto|on|off]] [--headless] [--connect] [--url URL] [--serve]
             [--save FILE.rrd] [--stdout]
             [--intrinsics FX,FY,CX,CY | fr1 | fr2 | fr3] [--depth-scale S] [--resize-depth] [--shard K/N]
-            [--color-topic TOPIC] [--depth-topic TOPIC] [--max-frames N] [--map [MAP.json]]
+            [--color-topic TOPIC] [--depth-topic TOPIC] [--pose-topic TOPIC] [--max-frames N]
+            [--map [MAP.json]]
             [--ray [ADDRESS] [--ray-workers N]]
 
 SOURCE is a frame source (a3d.runtime.sources.registry: an a3d frame folder, README "Frame
@@ -120,6 +121,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="print a model's card (from its metadata) and exit")  # fmt: skip
     p.add_argument("--color-topic", metavar="TOPIC", help="bag: the colour topic (default: the only one)")
     p.add_argument("--depth-topic", metavar="TOPIC", help="bag: the depth topic (default: the only one)")
+    p.add_argument("--pose-topic", metavar="TOPIC",
+                   help="bag: the camera's PoseStamped/Odometry topic (default: the only one)")  # fmt: skip
     p.add_argument("--output", default=DEFAULT_OUTPUT, help="JSON lines file, '-': stdout")
     p.add_argument("--threads", type=int, default=2, help="CPU threads, OpenCV and ONNX Runtime")
     p.add_argument(
@@ -303,7 +306,7 @@ class _Job:
 
 def _job(args: argparse.Namespace) -> _Job:
     """Open the source, load the model and read the output to resume (InputError / ModelError)."""
-    topics = {"color_topic": args.color_topic, "depth_topic": args.depth_topic}
+    topics = {"color_topic": args.color_topic, "depth_topic": args.depth_topic, "pose_topic": args.pose_topic}
     options = SourceOptions(
         intrinsics=None if args.intrinsics is None else parse_intrinsics(args.intrinsics),
         depth_scale=None if args.depth_scale is None else parse_depth_scale(args.depth_scale),

@@ -21,6 +21,12 @@ Two layouts are recognised from the topics:
   own playback reads: ``p_stream = R p_reference + t``). The SDK records
   depth unregistered, so it always goes through registration.
 
+Poses: a ``geometry_msgs/PoseStamped`` or ``nav_msgs/Odometry`` topic (``--pose-topic``, or the
+bag's only topic of those types) is read as the colour camera's camera-to-world pose over time;
+each frame gets the pose at its colour stamp (a3d.runtime.sources.trajectory: interpolated, none
+outside the topic's span or across a gap of more than ``max_pose_gap`` seconds, a note saying why).
+``/tf`` is not read.
+
 Colour and depth are paired by header stamp: each colour image takes the depth image nearest in
 time, if within ``PAIR_TOLERANCE``; colour images without one are skipped and counted in one
 line. Anything that makes the bag unusable as a whole (no depth topic, an ambiguous topic, no
@@ -34,7 +40,7 @@ import re
 import threading
 from collections import defaultdict
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -49,17 +55,21 @@ from a3d.runtime.sources.registry import SourceOptions
 from a3d.runtime.sources.ros_messages import (
     COLOR_ENCODINGS,
     DEPTH_ENCODINGS,
+    POSE_TYPES,
     color_of,
     depth_of,
     header_seconds,
     image_encoding,
     intrinsics_of,
     is_compressed,
+    pose_row_of,
     transform_of,
 )
-from a3d.runtime.sources.wording import option
+from a3d.runtime.sources.trajectory import DEFAULT_MAX_GAP, Trajectory, frame_pose, trajectory_of
+from a3d.runtime.sources.wording import keyword, option
 from a3d.runtime.structures.frame import Frame
 from a3d.runtime.structures.geometry import Intrinsics
+from a3d.runtime.structures.pose import quaternion_to_rotation
 
 EXTRA = "pip install 'a3d[bag]'"
 PAIR_TOLERANCE = 0.02  # seconds between a colour image's stamp and its depth image's
@@ -116,6 +126,13 @@ class BagSource:
         sdk = any(_SDK_STREAM.match(topic) for topic in self._topics)
         self.plan = self._sdk_plan() if sdk else self._driver_plan()
         self._pairs = self._pair()
+        self.max_gap = float(options.extra.get("max_pose_gap", DEFAULT_MAX_GAP))  # type: ignore[arg-type]
+        self.trajectory = self._trajectory()
+
+    @property
+    def has_poses(self) -> bool:
+        """Whether the bag has a pose topic (frames outside its span still go without a pose)."""
+        return self.trajectory is not None
 
     # ------------------------------------------------------------------------- frames
 
@@ -142,7 +159,11 @@ class BagSource:
             elif metres.shape != rgb.shape[:2] and self.options.resize_depth:
                 metres = cv2.resize(metres, rgb.shape[1::-1], interpolation=cv2.INTER_NEAREST)
             intrinsics = self.options.intrinsics or self.plan.intrinsics
-            return frame_from_arrays(rgb, metres, intrinsics, name=name, origin=origin, timestamp=color.stamp)
+            pose, note = frame_pose(self.trajectory, color.stamp, self.max_gap, origin)
+            frame = frame_from_arrays(
+                rgb, metres, intrinsics, name=name, origin=origin, timestamp=color.stamp, pose=pose
+            )
+            return replace(frame, pose_note=note)
         except InputError as e:
             raise InputError(f"{origin}: {e}") from None
 
@@ -184,6 +205,43 @@ class BagSource:
             out.append(_Message(connection, bag_time, seen[key], header_seconds(msg)))
             seen[key] += 1
         return out
+
+    # ------------------------------------------------------------------------- poses
+
+    def _pose_topic(self) -> str | None:
+        """``--pose-topic``, else the bag's only pose topic (None: none, or several: a note)."""
+        wanted = self.options.extra.get("pose_topic")
+        if wanted is not None:
+            types = self._topics.get(str(wanted))
+            if not types or types[0].msgtype not in POSE_TYPES:
+                raise InputError(
+                    f"{keyword('pose_topic')}: {wanted} is not a PoseStamped or Odometry topic of {self.path}"
+                )
+            return str(wanted)
+        found = sorted(t for t, c in self._topics.items() if c[0].msgtype in POSE_TYPES)
+        if len(found) > 1:
+            self.incomplete.append(
+                f"{self.path}: several pose topics ({', '.join(found)}), so no poses; "
+                f"choose one with {option('pose_topic')}"
+            )
+        return found[0] if len(found) == 1 else None
+
+    def _trajectory(self) -> Trajectory | None:
+        """The pose topic's poses as a trajectory; a message with a bad quaternion is left out
+        and noted (the frames near it then fall in a gap)."""
+        topic = self._pose_topic()
+        if topic is None:
+            return None
+        rows = []
+        for message in self._all(topic):
+            row = pose_row_of(message)
+            try:
+                quaternion_to_rotation(row[4:], f"{self.path}: {topic} at {row[0]:.6f}")
+            except InputError as e:
+                self.incomplete.append(str(e))
+                continue
+            rows.append(row)
+        return trajectory_of(np.array(rows), self.path, f"{self.path.name} {topic}")
 
     # ------------------------------------------------------------------------- layouts
 

@@ -259,7 +259,7 @@ register(
         "bag",
         "bag",
         "a ROS 1 .bag, a ROS 2 bag folder or a RealSense SDK .bag recording (needs: pip install 'a3d[bag]')",
-        ("color_topic", "depth_topic"),
+        ("color_topic", "depth_topic", "pose_topic", "max_pose_gap"),
     )
 )
 register(

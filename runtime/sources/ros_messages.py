@@ -85,6 +85,18 @@ def intrinsics_of(info: Any) -> Intrinsics:
     return Intrinsics(K[0, 0], K[1, 1], K[0, 2], K[1, 2])
 
 
+POSE_TYPES = ("geometry_msgs/msg/PoseStamped", "nav_msgs/msg/Odometry")
+
+
+def pose_row_of(msg: Any) -> np.ndarray:
+    """``t tx ty tz qx qy qz qw`` (a trajectory row: stamp in s) of a PoseStamped or an Odometry
+    (its ``pose.pose``; the covariance and twist are not used)."""
+    pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
+    p, q = pose.position, pose.orientation
+    values = (header_seconds(msg), p.x, p.y, p.z, q.x, q.y, q.z, q.w)
+    return np.array([float(v) for v in values], np.float64)
+
+
 def transform_of(msg: Any) -> tuple[np.ndarray, np.ndarray]:
     """(R, t) of a geometry_msgs/Transform: ``p_parent = R p_child + t``."""
     q = msg.rotation

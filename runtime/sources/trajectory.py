@@ -14,6 +14,7 @@ handheld motion is no pose); the reason is returned for the frame's note.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,6 +23,8 @@ import numpy as np
 from a3d.runtime.errors import InputError
 from a3d.runtime.structures.pose import make_pose, quaternion_to_rotation, slerp
 
+logger = logging.getLogger(__name__)
+
 DEFAULT_MAX_GAP = 0.05  # seconds: five missing samples of a 100 Hz mocap trajectory
 TRAJECTORY_FILE = "groundtruth.txt"
 
@@ -29,12 +32,18 @@ TRAJECTORY_FILE = "groundtruth.txt"
 @dataclass(frozen=True)
 class Trajectory:
     """Poses in time order: ``times`` (N,) seconds, ``positions`` (N, 3) metres, ``quaternions``
-    (N, 4) unit ``(qx, qy, qz, qw)``; ``path`` names the file in notes."""
+    (N, 4) unit ``(qx, qy, qz, qw)``; ``path`` names the file in notes, ``label`` (when given)
+    replaces its name there (a bag's pose topic is no file of its own)."""
 
     times: np.ndarray
     positions: np.ndarray
     quaternions: np.ndarray
     path: Path
+    label: str = ""
+
+    @property
+    def name(self) -> str:
+        return self.label or self.path.name
 
     def __len__(self) -> int:
         return len(self.times)
@@ -45,7 +54,7 @@ class Trajectory:
             return None, f"{self.path} holds no pose"
         first, last = float(self.times[0]), float(self.times[-1])
         if not first <= t <= last:
-            return None, f"time {t:.6f} is outside {self.path.name}'s span [{first:.6f}, {last:.6f}]"
+            return None, f"time {t:.6f} is outside {self.name}'s span [{first:.6f}, {last:.6f}]"
         hi = int(np.searchsorted(self.times, t, side="left"))
         if self.times[hi] == t:
             return self._pose(self.positions[hi], self.quaternions[hi]), ""
@@ -53,7 +62,7 @@ class Trajectory:
         gap = float(self.times[hi] - self.times[lo])
         if gap > max_gap:
             return None, (
-                f"the poses of {self.path.name} around time {t:.6f} are {gap:.3f} s apart "
+                f"the poses of {self.name} around time {t:.6f} are {gap:.3f} s apart "
                 f"(more than {max_gap:g} s)"
             )
         s = (t - float(self.times[lo])) / gap
@@ -62,6 +71,31 @@ class Trajectory:
 
     def _pose(self, position: np.ndarray, quaternion: np.ndarray) -> np.ndarray:
         return make_pose(quaternion_to_rotation(quaternion, str(self.path)), position)
+
+
+def frame_pose(
+    trajectory: Trajectory | None, t: float, max_gap: float, where: object
+) -> tuple[np.ndarray | None, str]:
+    """A frame's pose at time ``t`` and "", or None and the note that says why it has none (also a
+    warning naming ``where``); (None, "") without a trajectory. One wording for every source."""
+    if trajectory is None:
+        return None, ""
+    pose, why = trajectory.pose_at(t, max_gap)
+    if why:
+        logger.warning("%s: no pose: %s", where, why)
+    return pose, f"no pose: {why}" if why else ""
+
+
+def trajectory_of(rows: np.ndarray, path: Path, label: str = "") -> Trajectory:
+    """A Trajectory of valid ``t tx ty tz qx qy qz qw`` rows, sorted by time (a later row at the
+    same time as an earlier one is dropped), quaternions normalised."""
+    table = np.asarray(rows, np.float64).reshape(-1, 8)
+    table = table[np.argsort(table[:, 0], kind="stable")]
+    keep = np.ones(len(table), bool)
+    keep[1:] = np.diff(table[:, 0]) > 0
+    table = table[keep]
+    norms = np.linalg.norm(table[:, 4:], axis=1, keepdims=True)
+    return Trajectory(table[:, 0], table[:, 1:4], table[:, 4:] / np.maximum(norms, 1e-12), path, label)
 
 
 def read_trajectory(path: Path, problems: list[str]) -> Trajectory:
@@ -91,10 +125,4 @@ def read_trajectory(path: Path, problems: list[str]) -> Trajectory:
             problems.append(str(e))
             continue
         rows.append(values)
-    table = np.array(rows, np.float64).reshape(-1, 8)
-    table = table[np.argsort(table[:, 0], kind="stable")]
-    keep = np.ones(len(table), bool)
-    keep[1:] = np.diff(table[:, 0]) > 0
-    table = table[keep]
-    norms = np.linalg.norm(table[:, 4:], axis=1, keepdims=True)
-    return Trajectory(table[:, 0], table[:, 1:4], table[:, 4:] / np.maximum(norms, 1e-12), path)
+    return trajectory_of(np.array(rows, np.float64), path)

@@ -42,7 +42,13 @@ from a3d.runtime.sources.arrays import frame_from_arrays
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.folder import read_color
 from a3d.runtime.sources.overrides import INTRINSICS_PRESETS, fit_depth
-from a3d.runtime.sources.trajectory import DEFAULT_MAX_GAP, TRAJECTORY_FILE, Trajectory, read_trajectory
+from a3d.runtime.sources.trajectory import (
+    DEFAULT_MAX_GAP,
+    TRAJECTORY_FILE,
+    Trajectory,
+    frame_pose,
+    read_trajectory,
+)
 from a3d.runtime.sources.wording import option
 from a3d.runtime.structures.frame import Frame
 from a3d.runtime.structures.geometry import Intrinsics
@@ -195,9 +201,4 @@ class TumSource:
     def pose(self, colour: Stamped) -> tuple[np.ndarray | None, str]:
         """The frame's pose at its colour time and "", or None and the note that says why it has
         none (also a warning); (None, "") for a sequence without a trajectory."""
-        if self.trajectory is None:
-            return None, ""
-        pose, why = self.trajectory.pose_at(colour.seconds, self.max_gap)
-        if why:
-            logger.warning("%s: no pose: %s", colour.path, why)
-        return pose, f"no pose: {why}" if why else ""
+        return frame_pose(self.trajectory, colour.seconds, self.max_gap, colour.path)

@@ -21,6 +21,7 @@ _PYTHON = {
     "source_format": "open_source(..., kind=NAME)",
     "source_format_name": "kind",
     "depth_topic": "depth_topic=TOPIC",
+    "pose_topic": "pose_topic=TOPIC",
     "proposals_precomputed": "Detector.load(..., proposals='precomputed')",
     "ray": "ray_detect",
 }
@@ -32,6 +33,7 @@ _COMMAND_LINE = {
     "source_format": "--source-format NAME",
     "source_format_name": "--source-format",
     "depth_topic": "--depth-topic TOPIC",
+    "pose_topic": "--pose-topic TOPIC",
     "proposals_precomputed": "--proposals precomputed",
     "ray": "--ray",
 }
