@@ -26,7 +26,15 @@ ALIGNED = "/camera/aligned_depth_to_color/image_raw"
 ALIGNED_INFO = "/camera/aligned_depth_to_color/camera_info"
 RAW_DEPTH = "/camera/depth/image_rect_raw"
 RAW_DEPTH_INFO = "/camera/depth/camera_info"
+POSE = "/camera/pose"
 Frames = Sequence[tuple[np.ndarray, np.ndarray]]  # (colour BGR uint8, depth uint16 mm)
+Poses = Sequence[tuple[float, np.ndarray, np.ndarray]]  # (stamp, position xyz, quaternion xyzw)
+
+
+def stamp_as_read(stamp: float) -> float:
+    """The seconds a reader gets back from the header stamp ``_Messages.header`` writes."""
+    sec = int(stamp)
+    return sec + round((stamp - sec) * 1e9) * 1e-9
 
 
 class _Messages:
@@ -77,6 +85,17 @@ class _Messages:
         values = (np.zeros(5), matrix, np.eye(3).reshape(-1), P)
         return self.t["sensor_msgs/msg/CameraInfo"](**fields, **dict(zip(names, values, strict=True)))
 
+    def pose(self, stamp: float, position: np.ndarray, quaternion: np.ndarray) -> object:
+        """A geometry_msgs/PoseStamped in frame ``world``."""
+        x, y, z, w = (float(v) for v in quaternion)
+        pose = self.t["geometry_msgs/msg/Pose"](
+            position=self.t["geometry_msgs/msg/Point"](
+                x=float(position[0]), y=float(position[1]), z=float(position[2])
+            ),
+            orientation=self.t["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=w),
+        )
+        return self.t["geometry_msgs/msg/PoseStamped"](header=self.header(stamp, "world"), pose=pose)
+
     def transform(self, R: np.ndarray, t: np.ndarray) -> object:
         w = np.sqrt(max(1e-12, 1 + np.trace(R))) / 2
         q = [(R[2, 1] - R[1, 2]) / (4 * w), (R[0, 2] - R[2, 0]) / (4 * w), (R[1, 0] - R[0, 1]) / (4 * w), w]
@@ -119,11 +138,15 @@ def write_driver_bag(
     with_raw_depth: bool = True,
     with_aligned: bool = True,
     depth_32f: bool = False,
+    poses: Poses = (),
 ) -> None:
     """A realsense-ros-like bag: colour, aligned depth (16UC1 mm, or 32FC1 m) with camera_info,
-    and an unregistered raw depth topic beside it (which the reader must not pick)."""
+    an unregistered raw depth topic beside it (which the reader must not pick) and ``poses`` on
+    ``POSE`` as PoseStamped."""
     with _Bag(path, ros2) as bag:
         m = bag.m
+        for stamp, position, quaternion in poses:
+            bag.add(POSE, m.pose(stamp, position, quaternion), stamp)
         for i, (color, depth) in enumerate(frames):
             stamp = T0 + i * PERIOD
             size = color.shape[:2]
