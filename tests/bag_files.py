@@ -96,6 +96,20 @@ class _Messages:
         )
         return self.t["geometry_msgs/msg/PoseStamped"](header=self.header(stamp, "world"), pose=pose)
 
+    def tf(
+        self, stamp: float, parent: str, child: str, position: np.ndarray, quaternion: np.ndarray
+    ) -> object:
+        """A tf2_msgs/TFMessage of one transform ``parent`` -> ``child`` (the child's pose in it)."""
+        x, y, z, w = (float(v) for v in quaternion)
+        transform = self.t["geometry_msgs/msg/Transform"](
+            translation=self.t["geometry_msgs/msg/Vector3"](x=position[0], y=position[1], z=position[2]),
+            rotation=self.t["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=w),
+        )
+        stamped = self.t["geometry_msgs/msg/TransformStamped"](
+            header=self.header(stamp, parent), child_frame_id=child, transform=transform
+        )
+        return self.t["tf2_msgs/msg/TFMessage"](transforms=[stamped])
+
     def transform(self, R: np.ndarray, t: np.ndarray) -> object:
         w = np.sqrt(max(1e-12, 1 + np.trace(R))) / 2
         q = [(R[2, 1] - R[1, 2]) / (4 * w), (R[0, 2] - R[2, 0]) / (4 * w), (R[1, 0] - R[0, 1]) / (4 * w), w]
@@ -139,14 +153,18 @@ def write_driver_bag(
     with_aligned: bool = True,
     depth_32f: bool = False,
     poses: Poses = (),
+    tf: Poses = (),
+    tf_parent: str = "map",
 ) -> None:
     """A realsense-ros-like bag: colour, aligned depth (16UC1 mm, or 32FC1 m) with camera_info,
     an unregistered raw depth topic beside it (which the reader must not pick) and ``poses`` on
-    ``POSE`` as PoseStamped."""
+    ``POSE`` as PoseStamped, ``tf`` on ``/tf`` as ``tf_parent`` -> the colour camera's frame."""
     with _Bag(path, ros2) as bag:
         m = bag.m
         for stamp, position, quaternion in poses:
             bag.add(POSE, m.pose(stamp, position, quaternion), stamp)
+        for stamp, position, quaternion in tf:
+            bag.add("/tf", m.tf(stamp, tf_parent, "camera_color_optical_frame", position, quaternion), stamp)
         for i, (color, depth) in enumerate(frames):
             stamp = T0 + i * PERIOD
             size = color.shape[:2]

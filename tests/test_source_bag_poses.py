@@ -1,5 +1,6 @@
 """Camera poses from a bag's PoseStamped topic: interpolated to each colour stamp, none outside the
-topic's span, across a gap or without a pose topic, and a bad quaternion costs only its pose."""
+topic's span, across a gap or without a pose topic, and a bad quaternion costs only its pose;
+without a pose topic, /tf from the world to the colour camera's frame."""
 
 from __future__ import annotations
 
@@ -40,6 +41,7 @@ def pose_matrix(t: float) -> np.ndarray:
 
 
 def posed_frames(path: Path, frames: list, stamps: list[float], ros2: bool, **extra: object) -> tuple:
+    """The source and frames of a bag whose camera moves by ``motion``, posed at ``stamps``."""
     poses = [(t, *motion(stamp_as_read(t))) for t in stamps]
     write_driver_bag(path, frames, K, ros2=ros2, with_raw_depth=False, poses=poses)
     source = open_source(path, SourceOptions(extra=extra))
@@ -92,5 +94,23 @@ def test_a_bag_without_a_pose_topic_gives_frames_without_poses(frames: list, tmp
 def test_the_pose_topic_can_be_named(frames: list, tmp_path: Path) -> None:
     stamps = [T0 + i * PERIOD for i in range(4)]
     _, loaded = posed_frames(tmp_path / "bag", frames, stamps, True, pose_topic=POSE)
+    for frame in loaded:
+        np.testing.assert_allclose(frame.pose, pose_matrix(frame.timestamp), rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("parent", ["map", "camera_link"])
+def test_without_a_pose_topic_tf_from_the_world_to_the_camera_poses_it(
+    frames: list, tmp_path: Path, parent: str
+) -> None:
+    path = tmp_path / "bag"
+    stamps = [T0 + 0.02 * k for k in range(6)]
+    poses = [(t, *motion(stamp_as_read(t))) for t in stamps]
+    write_driver_bag(path, frames, K, ros2=True, with_raw_depth=False, tf=poses, tf_parent=parent)
+    source = open_source(path, SourceOptions())
+    loaded = [loader.load() for loader in source]
+    if parent == "camera_link":  # the camera on its mount, not in the world
+        assert not source.has_poses and all(f.pose is None for f in loaded)
+        return
+    assert source.has_poses
     for frame in loaded:
         np.testing.assert_allclose(frame.pose, pose_matrix(frame.timestamp), rtol=0, atol=1e-9)

@@ -25,7 +25,9 @@ Poses: a ``geometry_msgs/PoseStamped`` or ``nav_msgs/Odometry`` topic (``--pose-
 bag's only topic of those types) is read as the colour camera's camera-to-world pose over time;
 each frame gets the pose at its colour stamp (a3d.runtime.sources.trajectory: interpolated, none
 outside the topic's span or across a gap of more than ``max_pose_gap`` seconds, a note saying why).
-``/tf`` is not read.
+Without a pose topic, ``/tf`` transforms from ``world``, ``map`` or ``odom`` straight to the colour
+``camera_info``'s frame are that trajectory; longer chains (map -> base_link -> camera) are not
+composed.
 
 Colour and depth are paired by header stamp: each colour image takes the depth image nearest in
 time, if within ``PAIR_TOLERANCE``; colour images without one are skipped and counted in one
@@ -64,6 +66,7 @@ from a3d.runtime.sources.ros_messages import (
     is_compressed,
     pose_row_of,
     transform_of,
+    transform_row_of,
 )
 from a3d.runtime.sources.trajectory import DEFAULT_MAX_GAP, Trajectory, frame_pose, trajectory_of
 from a3d.runtime.sources.wording import keyword, option
@@ -76,6 +79,7 @@ PAIR_TOLERANCE = 0.02  # seconds between a colour image's stamp and its depth im
 MILLIMETRE = 0.001
 _IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 _REGISTERED_NAMES = ("aligned_depth_to_color", "depth_registered", "registered")
+WORLD_FRAMES = ("world", "map", "odom")  # /tf parents whose transform to the camera is its pose
 _SDK_STREAM = re.compile(r"^/device_0/sensor_(\d+)/(Depth|Color)_0/image/data$")
 
 
@@ -227,21 +231,47 @@ class BagSource:
         return found[0] if len(found) == 1 else None
 
     def _trajectory(self) -> Trajectory | None:
-        """The pose topic's poses as a trajectory; a message with a bad quaternion is left out
-        and noted (the frames near it then fall in a gap)."""
+        """The pose topic's poses as a trajectory, else the colour camera's in ``/tf``."""
         topic = self._pose_topic()
         if topic is None:
+            return self._tf_trajectory()
+        return self._checked(topic, [pose_row_of(message) for message in self._all(topic)])
+
+    def _tf_trajectory(self) -> Trajectory | None:
+        """The colour camera frame's transforms in ``/tf`` from one of ``WORLD_FRAMES`` (a parent
+        such as ``camera_link`` would pose the camera on its own mount); None when there are none
+        (or from several world frames: a note), or its ``camera_info`` names no frame."""
+        info = self._camera_info(self.plan.color_topic) if "/tf" in self._topics else None
+        camera = info.header.frame_id.lstrip("/") if info is not None else ""
+        if not camera:
             return None
-        rows = []
-        for message in self._all(topic):
-            row = pose_row_of(message)
+        stamped = [
+            s
+            for m in self._all("/tf")
+            for s in m.transforms
+            if s.child_frame_id.lstrip("/") == camera and s.header.frame_id.lstrip("/") in WORLD_FRAMES
+        ]
+        parents = sorted({s.header.frame_id.lstrip("/") for s in stamped})
+        if len(parents) != 1:
+            if parents:
+                self.incomplete.append(
+                    f"{self.path}: /tf gives {camera} several parents ({', '.join(parents)}), so no poses"
+                )
+            return None
+        return self._checked(f"/tf {parents[0]}->{camera}", [transform_row_of(s) for s in stamped])
+
+    def _checked(self, what: str, rows: list[np.ndarray]) -> Trajectory:
+        """A trajectory of ``rows``; a row with a bad quaternion is left out and noted (the
+        frames near it then fall in a gap)."""
+        good = []
+        for row in rows:
             try:
-                quaternion_to_rotation(row[4:], f"{self.path}: {topic} at {row[0]:.6f}")
+                quaternion_to_rotation(row[4:], f"{self.path}: {what} at {row[0]:.6f}")
             except InputError as e:
                 self.incomplete.append(str(e))
                 continue
-            rows.append(row)
-        return trajectory_of(np.array(rows), self.path, f"{self.path.name} {topic}")
+            good.append(row)
+        return trajectory_of(np.array(good), self.path, f"{self.path.name} {what}")
 
     # ------------------------------------------------------------------------- layouts
 

@@ -92,9 +92,16 @@ def pose_row_of(msg: Any) -> np.ndarray:
     """``t tx ty tz qx qy qz qw`` (a trajectory row: stamp in s) of a PoseStamped or an Odometry
     (its ``pose.pose``; the covariance and twist are not used)."""
     pose = msg.pose.pose if hasattr(msg.pose, "pose") else msg.pose
-    p, q = pose.position, pose.orientation
-    values = (header_seconds(msg), p.x, p.y, p.z, q.x, q.y, q.z, q.w)
-    return np.array([float(v) for v in values], np.float64)
+    return _row(header_seconds(msg), pose.position, pose.orientation)
+
+
+def transform_row_of(stamped: Any) -> np.ndarray:
+    """The trajectory row of a TransformStamped: the child frame's pose in the parent frame."""
+    return _row(header_seconds(stamped), stamped.transform.translation, stamped.transform.rotation)
+
+
+def _row(stamp: float, p: Any, q: Any) -> np.ndarray:
+    return np.array([stamp, p.x, p.y, p.z, q.x, q.y, q.z, q.w], np.float64)
 
 
 def transform_of(msg: Any) -> tuple[np.ndarray, np.ndarray]:
