@@ -153,16 +153,19 @@ def write_driver_bag(
     with_aligned: bool = True,
     depth_32f: bool = False,
     poses: Poses = (),
+    pose_topics: Sequence[str] = (POSE,),
     tf: Poses = (),
     tf_parent: str = "map",
 ) -> None:
     """A realsense-ros-like bag: colour, aligned depth (16UC1 mm, or 32FC1 m) with camera_info,
     an unregistered raw depth topic beside it (which the reader must not pick) and ``poses`` on
-    ``POSE`` as PoseStamped, ``tf`` on ``/tf`` as ``tf_parent`` -> the colour camera's frame."""
+    each of ``pose_topics`` as PoseStamped, ``tf`` on ``/tf`` as ``tf_parent`` -> the colour
+    camera's frame."""
     with _Bag(path, ros2) as bag:
         m = bag.m
         for stamp, position, quaternion in poses:
-            bag.add(POSE, m.pose(stamp, position, quaternion), stamp)
+            for topic in pose_topics:
+                bag.add(topic, m.pose(stamp, position, quaternion), stamp)
         for stamp, position, quaternion in tf:
             bag.add("/tf", m.tf(stamp, tf_parent, "camera_color_optical_frame", position, quaternion), stamp)
         for i, (color, depth) in enumerate(frames):

@@ -91,10 +91,16 @@ def test_a_bag_without_a_pose_topic_gives_frames_without_poses(frames: list, tmp
         open_source(path, SourceOptions(extra={"pose_topic": "/odom"}))
 
 
-def test_the_pose_topic_can_be_named(frames: list, tmp_path: Path) -> None:
-    stamps = [T0 + i * PERIOD for i in range(4)]
-    _, loaded = posed_frames(tmp_path / "bag", frames, stamps, True, pose_topic=POSE)
-    for frame in loaded:
+def test_of_several_pose_topics_none_is_guessed_and_one_can_be_named(frames: list, tmp_path: Path) -> None:
+    path = tmp_path / "bag"
+    poses = [(t, *motion(stamp_as_read(t))) for t in (T0 + i * PERIOD for i in range(4))]
+    write_driver_bag(
+        path, frames, K, ros2=True, with_raw_depth=False, poses=poses, pose_topics=(POSE, "/slam")
+    )
+    guessed = open_source(path, SourceOptions())
+    assert not guessed.has_poses and "several pose topics (/camera/pose, /slam)" in guessed.incomplete[0]
+    named = open_source(path, SourceOptions(extra={"pose_topic": "/slam"}))
+    for frame in (loader.load() for loader in named):
         np.testing.assert_allclose(frame.pose, pose_matrix(frame.timestamp), rtol=0, atol=1e-9)
 
 
