@@ -4,6 +4,7 @@ without a pose topic, /tf from the world to the colour camera's frame."""
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -12,10 +13,12 @@ import pytest
 
 pytest.importorskip("rosbags")
 
+from a3d.runtime.cli import run as run_cli
 from a3d.runtime.errors import InputError
 from a3d.runtime.sources.registry import SourceOptions, open_source
 from a3d.runtime.structures.pose import make_pose
 from tests.bag_files import PERIOD, POSE, T0, stamp_as_read, write_driver_bag
+from tests.helpers.runtime_frames import FakeModel
 from tests.synth_frames import K, folder_frames, write_synth_folder
 
 SPIN = 10.0  # rad/s about y: 0.2 rad between poses 0.02 s apart, so slerp is not its linear fallback
@@ -120,3 +123,20 @@ def test_without_a_pose_topic_tf_from_the_world_to_the_camera_poses_it(
     assert source.has_poses
     for frame in loaded:
         np.testing.assert_allclose(frame.pose, pose_matrix(frame.timestamp), rtol=0, atol=1e-9)
+
+
+def test_a3d_run_pose_topic_puts_the_poses_in_the_lines(
+    frames: list, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture
+) -> None:
+    monkeypatch.setattr(run_cli, "load_model", lambda path, threads: FakeModel())
+    stamps = [T0 + i * PERIOD for i in range(4)]
+    source, loaded = posed_frames(tmp_path / "bag", frames, stamps, True)
+    output = tmp_path / "det.jsonl"
+    flags = ["--model", "fake.onnx", "--output", str(output), "--headless"]
+    assert run_cli.main([str(source.path), *flags, "--pose-topic", POSE]) == 0
+    lines = [json.loads(line) for line in output.read_text().splitlines()]
+    assert [line["pose"] for line in lines] == [frame.pose.tolist() for frame in loaded]
+    assert run_cli.main([str(source.path), *flags, "--pose-topic", "/odom"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    says = f"--pose-topic: /odom is not a PoseStamped or Odometry topic of {source.path}"
+    assert err == f"a3d-run: error: {says}"
