@@ -101,7 +101,8 @@ def test_of_several_pose_topics_none_is_guessed_and_one_can_be_named(frames: lis
         path, frames, K, ros2=True, with_raw_depth=False, poses=poses, pose_topics=(POSE, "/slam")
     )
     guessed = open_source(path, SourceOptions())
-    assert not guessed.has_poses and "several pose topics (/camera/pose, /slam)" in guessed.incomplete[0]
+    assert not guessed.has_poses
+    assert "several pose topics (/camera/pose, /slam), none used" in guessed.incomplete[0]
     named = open_source(path, SourceOptions(extra={"pose_topic": "/slam"}))
     for frame in (loader.load() for loader in named):
         np.testing.assert_allclose(frame.pose, pose_matrix(frame.timestamp), rtol=0, atol=1e-9)

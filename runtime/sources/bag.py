@@ -135,7 +135,7 @@ class BagSource:
 
     @property
     def has_poses(self) -> bool:
-        """Whether the bag has a pose topic (frames outside its span still go without a pose)."""
+        """Whether the bag has poses, a topic or /tf (frames outside their span still go without)."""
         return self.trajectory is not None
 
     # ------------------------------------------------------------------------- frames
@@ -225,7 +225,7 @@ class BagSource:
         found = sorted(t for t, c in self._topics.items() if c[0].msgtype in POSE_TYPES)
         if len(found) > 1:
             self.incomplete.append(
-                f"{self.path}: several pose topics ({', '.join(found)}), so no poses; "
+                f"{self.path}: several pose topics ({', '.join(found)}), none used; "
                 f"choose one with {option('pose_topic')}"
             )
         return found[0] if len(found) == 1 else None
