@@ -94,7 +94,7 @@ def label_frame(
     seen = np.zeros(len(boxes), np.int64)
     for i in np.flatnonzero(expected > 0):
         window = _pixel_window(amodal[i], size)
-        inside = valid[window] & _inside_box(tilt_points[window], boxes[i], R_tilt, config)
+        inside = valid[window] & inside_box(tilt_points[window], boxes[i], R_tilt, config)
         seen[i] = int(inside.sum())
         if seen[i] >= config.min_seen_px:
             masks[int(i)] = (inside, window)
@@ -129,7 +129,7 @@ def projected_areas(
     return areas
 
 
-def _inside_box(points: np.ndarray, box: np.ndarray, R_tilt: np.ndarray, config: LabelConfig) -> np.ndarray:
+def inside_box(points: np.ndarray, box: np.ndarray, R_tilt: np.ndarray, config: LabelConfig) -> np.ndarray:
     """Which tilt-frame points (..., 3) lie in ``box`` (camera-frame centre) grown by the margin,
     its bottom raised by the floor gap (y is down in the tilt frame)."""
     d = points - R_tilt @ box[CENTER]

@@ -1,0 +1,55 @@
+"""Fit a gravity-aligned box to the points a user's rough box encloses: labels drawn once, made exact.
+
+Why: labelling a recording (a3d-labels) needs each object's box once, in a gravity-aligned world
+(y down). Typing one to the centimetre is hard; a rough box around the object is easy. This
+module fuses a posed recording's depth into world points and fits, to the points inside a rough
+box (grown by a margin), the box a3d uses: the smallest-area rectangle of their footprint (OpenCV's
+``minAreaRect``), their height range, in the 7-vector convention (l >= w, yaw in [-pi/2, pi/2]).
+docs/mapping.md "Drawing the world boxes" gives the procedure.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import cv2
+import numpy as np
+
+from a3d.runtime.errors import InputError
+from a3d.runtime.mapping.labels import LabelConfig, inside_box
+from a3d.runtime.structures.frame import Frame
+from a3d.runtime.structures.geometry import backproject_depth, boxes_from_corners_tilt
+from a3d.runtime.structures.pose import transform_points
+
+MIN_POINTS = 20  # fewer points inside a rough box are no object's surface
+
+
+def world_points(frames: Iterable[Frame], stride: int = 4) -> np.ndarray:
+    """(N, 3) world points of posed frames' depth (every ``stride``-th pixel each way; frames without
+    a pose are left out): the point cloud to look at in rerun and to fit boxes to."""
+    clouds = []
+    for frame in frames:
+        if frame.pose is None:
+            continue
+        depth = frame.depth[::stride, ::stride]
+        points = backproject_depth(frame.depth, frame.intrinsics)[::stride, ::stride][depth > 0]
+        clouds.append(transform_points(frame.pose, points))
+    return np.concatenate(clouds) if clouds else np.zeros((0, 3))
+
+
+def fit_box(points: np.ndarray, rough: np.ndarray, margin_m: float = 0.1) -> np.ndarray:
+    """The gravity-aligned box (world 7-vector) of the world ``points`` inside ``rough`` grown by
+    ``margin_m``: footprint by the smallest-area rectangle, height by the points' y range."""
+    config = LabelConfig(margin_m=margin_m, floor_gap_m=0.0)
+    points = np.asarray(points, np.float64)
+    inside = points[inside_box(points, np.asarray(rough, np.float64), np.eye(3), config)]
+    if len(inside) < MIN_POINTS:
+        raise InputError(f"rough box {np.round(rough, 3).tolist()}: {len(inside)} points inside, "
+                         f"need {MIN_POINTS} (is it where the object is?)")  # fmt: skip
+    footprint = cv2.boxPoints(cv2.minAreaRect(inside[:, [0, 2]].astype(np.float32))).astype(np.float64)
+    top, bottom = inside[:, 1].min(), inside[:, 1].max()  # y is down: the lower face has the larger y
+    corners = np.zeros((1, 8, 3))
+    corners[0, :4, [0, 2]] = footprint.T
+    corners[0, 4:, [0, 2]] = footprint.T
+    corners[0, :4, 1], corners[0, 4:, 1] = bottom, top
+    return boxes_from_corners_tilt(corners, np.eye(3))[0]

@@ -1,0 +1,55 @@
+"""Fitting a gravity-aligned box to the points inside a user's rough box (a3d.runtime.mapping.box_fit)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from a3d.runtime.errors import InputError
+from a3d.runtime.mapping.box_fit import fit_box, world_points
+from a3d.runtime.mapping.world import box_differences
+from a3d.runtime.structures.frame import Frame
+from a3d.runtime.structures.geometry import Intrinsics, box_corners_camera
+from a3d.runtime.structures.pose import make_pose
+
+TRUE = np.array([1.0, -0.45, 3.0, 1.2, 0.6, 0.9, 0.4])  # a world box (y down: its top at y = -0.9)
+
+
+def surface_points(box: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
+    """Points on the box's faces (what depth sees of an object), from its 8 corners."""
+    c = box_corners_camera(box[None], np.eye(3))[0]
+    faces = [(0, 1, 3), (4, 5, 7), (0, 1, 4), (3, 2, 7), (0, 3, 4), (1, 2, 5)]  # origin, two edges
+    out = []
+    for o, a, b in faces:
+        u, v = rng.random((n, 1)), rng.random((n, 1))
+        out.append(c[o] + u * (c[a] - c[o]) + v * (c[b] - c[o]))
+    return np.concatenate(out)
+
+
+def test_the_fit_recovers_the_box_from_a_rough_one_among_clutter() -> None:
+    rng = np.random.default_rng(0)
+    clutter = rng.uniform([-2, -2, 0], [4, 0, 6], (3000, 3))
+    clutter = clutter[np.abs(clutter[:, 0] - TRUE[0]) + np.abs(clutter[:, 2] - TRUE[2]) > 1.6]  # not on it
+    points = np.vstack([surface_points(TRUE, 400, rng), clutter])
+    rough = TRUE + np.array([0.08, -0.05, -0.06, 0.15, 0.1, 0.1, 0.12])  # off by a hand's width
+    fitted = fit_box(points, rough)
+    assert box_differences(fitted[None], TRUE[None])[0] < 0.02
+    assert fitted[3] >= fitted[4] and abs(fitted[6]) <= np.pi / 2
+
+
+def test_a_rough_box_around_nothing_is_one_line() -> None:
+    with pytest.raises(InputError, match=r"^rough box \[.*\]: 0 points inside, need 20"):
+        fit_box(np.zeros((0, 3)), TRUE)
+
+
+def test_world_points_are_each_posed_frames_depth_moved_into_the_world() -> None:
+    K = Intrinsics(50.0, 50.0, 15.5, 11.5)
+    depth = np.full((24, 32), 2.0, np.float32)
+    depth[0, 0] = 0.0  # no measurement: left out
+    pose = make_pose(np.array([[0.0, 0, 1], [0, 1, 0], [-1, 0, 0]]), [1.0, -1.5, 0.5])
+    color = np.zeros((24, 32, 3), np.uint8)
+    frames = [Frame("a", color, depth, K, pose=pose), Frame("b", color, depth, K)]  # b has no pose
+    points = world_points(frames, stride=1)
+    assert points.shape == (24 * 32 - 1, 3)
+    # every point is 2 m in front of the camera along its optical axis (world +x after the turn)
+    np.testing.assert_allclose(points[:, 0], 1.0 + 2.0, atol=1e-9)
