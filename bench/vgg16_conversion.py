@@ -25,15 +25,11 @@ import torch
 
 from a3d.runtime.network.preprocess import color_input
 from a3d.train.model import A3DNet, NetConfig, load_vgg16_imagenet
-from a3d.train.model.keras_vgg16 import _onnx_in_archive
-from a3d.train.model.weights import _caffe_first_conv
+from a3d.train.model.keras_vgg16 import onnx_bytes
+from a3d.train.model.weights import caffe_first_conv
 
 SIDE = 240  # the ONNX model's input size
 TOLERANCE = 1e-4
-
-
-def onnx_bytes(source: Path) -> bytes:
-    return source.read_bytes() if source.suffix == ".onnx" else _onnx_in_archive(source)
 
 
 def conv5_3_output(model: onnx.ModelProto, image_nhwc: np.ndarray) -> np.ndarray:
@@ -62,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
     for label, index, key in (("conv1_1", 0, "features.0"), ("conv5_3", 12, "features.28")):
         kernel, bias = state[f"{key}.weight"], state[f"{key}.bias"]
         if index == 0:
-            kernel = _caffe_first_conv(kernel)
+            kernel = caffe_first_conv(kernel)
         w_err = float(np.abs(kernel.numpy() - weights[convs[index].input[1]]).max())
         b_err = float(np.abs(bias.numpy() - weights[convs[index].input[2]]).max())
         print(f"{label}: kernel {tuple(kernel.shape)} max |diff| {w_err:.3g}, bias max |diff| {b_err:.3g}")

@@ -18,7 +18,7 @@ import numpy as np
 from a3d.runtime.errors import InputError
 from a3d.runtime.mapping.labels import LabelConfig, inside_box
 from a3d.runtime.structures.frame import Frame
-from a3d.runtime.structures.geometry import backproject_depth, boxes_from_corners_tilt
+from a3d.runtime.structures.geometry import backproject, boxes_from_corners_tilt
 from a3d.runtime.structures.pose import transform_points
 
 MIN_POINTS = 20  # fewer points inside a rough box are no object's surface
@@ -31,8 +31,10 @@ def world_points(frames: Iterable[Frame], stride: int = 4) -> np.ndarray:
     for frame in frames:
         if frame.pose is None:
             continue
+        rows, cols = (index[::stride, ::stride] for index in np.indices(frame.depth.shape, dtype=np.float64))
         depth = frame.depth[::stride, ::stride]
-        points = backproject_depth(frame.depth, frame.intrinsics)[::stride, ::stride][depth > 0]
+        seen = depth > 0  # only the sampled, measured pixels are back-projected
+        points = backproject(cols[seen], rows[seen], depth[seen].astype(np.float64), frame.intrinsics)
         clouds.append(transform_points(frame.pose, points))
     return np.concatenate(clouds) if clouds else np.zeros((0, 3))
 

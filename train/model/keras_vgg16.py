@@ -105,6 +105,11 @@ def convs_from_h5(path: Path) -> list[tuple[np.ndarray, np.ndarray]]:
     return _checked(convs, source)
 
 
+def onnx_bytes(path: Path) -> bytes:
+    """The serialised ONNX model of an ``.onnx`` file, or of the one ``*vgg16*.onnx`` in a wheel/zip."""
+    return path.read_bytes() if path.suffix.lower() == ".onnx" else _onnx_in_archive(path)
+
+
 def _onnx_in_archive(path: Path) -> bytes:
     """The bytes of the one ``*vgg16*.onnx`` member of a wheel or zip."""
     try:
@@ -126,10 +131,8 @@ def read_keras_vgg16(path: str | Path) -> list[tuple[np.ndarray, np.ndarray]]:
     suffix = path.suffix.lower()
     if suffix == ".h5":
         return convs_from_h5(path)
-    if suffix == ".onnx":
-        return convs_from_onnx(path.read_bytes(), str(path))
-    if suffix in (".whl", ".zip"):
-        return convs_from_onnx(_onnx_in_archive(path), str(path))
+    if suffix in (".onnx", ".whl", ".zip"):
+        return convs_from_onnx(onnx_bytes(path), str(path))
     raise ValueError(f"{path}: unknown kind of file (expected one of {', '.join(SUFFIXES)})")
 
 

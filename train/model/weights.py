@@ -69,13 +69,13 @@ def _first_conv_scale(weight: torch.Tensor) -> torch.Tensor:
     return (255.0 * std)[None, :, None, None]
 
 
-def _caffe_first_conv(weight: torch.Tensor) -> torch.Tensor:
+def caffe_first_conv(weight: torch.Tensor) -> torch.Tensor:
     """torchvision conv1_1 (RGB, (x/255 - mean)/std) -> weights for BGR 0..255 inputs."""
     return (weight / _first_conv_scale(weight)).flip(1)
 
 
 def torchvision_first_conv(weight: torch.Tensor) -> torch.Tensor:
-    """The inverse of ``_caffe_first_conv``: conv1_1 for BGR 0..255 inputs -> torchvision's convention,
+    """The inverse of ``caffe_first_conv``: conv1_1 for BGR 0..255 inputs -> torchvision's convention,
     so that a file written with it loads back to the same weights."""
     return weight.flip(1) * _first_conv_scale(weight)
 
@@ -99,7 +99,7 @@ def _trunk_entries(
                 shape = tuple(weight.shape)
                 raise ValueError(f"{source}: {key}.weight has shape {shape}, expected 3x3 kernels")
             if index == 0 and convention == "torchvision":
-                weight = _caffe_first_conv(weight)
+                weight = caffe_first_conv(weight)
             scale = weight.shape[1] / conv.weight.shape[1]
             name = f"{trunk_name}_trunk.features.{index}"
             entries[f"{name}.weight"] = _leading(weight, conv.weight.shape, f"{key}.weight", source) * scale
