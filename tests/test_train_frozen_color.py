@@ -17,6 +17,7 @@ from a3d.train.cli import main
 from a3d.train.color_features import cache_color_features, features_path, trunk_digest
 from a3d.train.config import apply_overrides, load_config
 from a3d.train.dataset import BatchDataset, compute_target_stats
+from a3d.train.loop import param_groups
 from a3d.train.model import A3DNet, NetConfig
 from a3d.train.model.weights import imagenet_init_state
 from a3d.train.roidb import build_roidb
@@ -60,16 +61,21 @@ def test_freezing_leading_convs_and_its_limits() -> None:
         A3DNet(NetConfig(width=0.0625, trunk_norm=True, fuse_channels=8, fc6=16, fc7=16)).freeze_color(1)
 
 
+def _fake_imagenet(path: Path) -> Path:
+    """A small stand-in for the ImageNet file, He-scaled as trained weights are (activations stay O(1))."""
+    vgg = fake_vgg16(0.25, fc6=32, fc7=16, seed=2)
+    for name, value in vgg.items():
+        if name.startswith("features.") and value.ndim == 4:
+            value *= (2.0 / value[0].numel()) ** 0.5
+    torch.save(vgg, path)
+    return path
+
+
 @pytest.fixture(scope="module")
 def frozen_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, dict]:
     root = tmp_path_factory.mktemp("frozen")
     frames = write_scenes(root / "frames", 3, seed=4)
-    weights = root / "vgg16.pth"
-    vgg = fake_vgg16(0.25, fc6=32, fc7=16, seed=2)
-    for name, value in vgg.items():  # He-scaled, as trained weights are: activations stay O(1)
-        if name.startswith("features.") and value.ndim == 4:
-            value *= (2.0 / value[0].numel()) ** 0.5
-    torch.save(vgg, weights)
+    weights = _fake_imagenet(root / "vgg16.pth")
     args = tiny_train_args(frames, root / "run", root / "cache", "solver.iterations=3", "solver.lr_steps=[2]",
                            *FROZEN, f"solver.pretrained={weights}")  # fmt: skip
     assert main(args) == 0
@@ -119,3 +125,36 @@ def test_cached_features_are_the_trunk_on_each_flip(frozen_run: tuple[Path, dict
         np.testing.assert_allclose(a["color_map"], want, rtol=2e-3, atol=2e-3 * float(want.abs().max()))
         flips.add(a["flips"][0])
     assert flips == {False, True}
+
+
+def test_a_fine_tuned_trunk_learns_at_its_own_lr_multiplier() -> None:
+    net = A3DNet(NetConfig(width=0.0625, color_width=0.125, fuse_channels=8, fc6=16, fc7=16))
+    net.freeze_color(10)
+    trainable = {id(p) for p in net.parameters() if p.requires_grad}
+    same = param_groups(net, 0.0005, net.color_trunk, 1.0)
+    assert [g["lr_mult"] for g in same] == [1.0, 1.0]  # the two groups of a plain run, as before
+    groups = param_groups(net, 0.0005, net.color_trunk, 0.1)
+    grouped = [id(p) for g in groups for p in g["params"]]
+    assert sorted(grouped) == sorted(trainable)  # every trainable parameter once
+    conv5 = {id(conv.weight) for _, conv in net.color_trunk.convs()[10:]}
+    slow = {id(p) for g in groups if g["lr_mult"] == 0.1 for p in g["params"]}
+    assert conv5 <= slow and slow == {id(p) for p in net.color_trunk.parameters() if p.requires_grad}
+    assert all(g["weight_decay"] == (0.0005 if all(p.ndim > 1 for p in g["params"]) else 0.0) for g in groups)
+
+
+def test_a_zero_multiplier_keeps_the_tuned_convs_while_the_head_trains(tmp_path: Path) -> None:
+    frames = write_scenes(tmp_path / "frames", 2, seed=5)
+    weights = _fake_imagenet(tmp_path / "vgg16.pth")
+    args = tiny_train_args(frames, tmp_path / "run", tmp_path / "cache", "solver.iterations=2", "solver.lr_steps=[]",
+                           "net.color_width=0.125", "solver.freeze_color=10", 'solver.pretrained_trunks=["color"]',
+                           f"solver.pretrained={weights}", "solver.color_lr_mult=0")  # fmt: skip
+    assert main(args) == 0
+    state = load_checkpoint(tmp_path / "run" / "checkpoint.pt")
+    config = checkpoint_config(tmp_path / "run" / "checkpoint.pt", state)
+    net = A3DNet(config.net)
+    imagenet = imagenet_init_state(net, torch.load(weights, weights_only=True), "vgg16.pth", trunks=("color",))
+    conv5_3 = "color_trunk.features.28.weight"
+    assert torch.equal(state["model"][conv5_3], imagenet[conv5_3])  # tunable, but at lr 0
+    torch.manual_seed(config.solver.seed)
+    init = A3DNet(config.net).state_dict()
+    assert not torch.equal(state["model"]["fc6.weight"], init["fc6.weight"])

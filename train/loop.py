@@ -143,12 +143,24 @@ def iteration_seed(seed: int, iteration: int, rank: int) -> int:
     return int(np.random.SeedSequence([seed, _DROPOUT_STREAM, iteration, rank]).generate_state(1)[0])
 
 
-def param_groups(model: torch.nn.Module, weight_decay: float) -> list[dict]:
-    """Weights decayed; biases and BatchNorm scales/shifts (1-D parameters) not."""
-    params = [p for p in model.parameters() if p.requires_grad]
-    decay = [p for p in params if p.ndim > 1]
-    no_decay = [p for p in params if p.ndim <= 1]
-    return [{"params": decay, "weight_decay": weight_decay}, {"params": no_decay, "weight_decay": 0.0}]
+def param_groups(
+    model: torch.nn.Module, weight_decay: float, slow: torch.nn.Module | None = None, lr_mult: float = 1.0
+) -> list[dict]:
+    """Weights decayed; biases and BatchNorm scales/shifts (1-D parameters) not. The trainable
+    parameters of ``slow`` (an ImageNet trunk being fine-tuned) get groups of their own that learn at
+    ``lr_mult`` times the lr (each group's "lr_mult"), so a head's lr does not wash out what the trunk
+    learnt on real images."""
+    slow_ids = {id(p) for p in slow.parameters()} if slow is not None and lr_mult != 1.0 else set()
+    trainable = [p for p in model.parameters() if p.requires_grad]
+    parts = [(1.0, [p for p in trainable if id(p) not in slow_ids])]
+    if any(id(p) in slow_ids for p in trainable):
+        parts.append((lr_mult, [p for p in trainable if id(p) in slow_ids]))
+    return [
+        {"params": [p for p in params if (p.ndim > 1) == decayed], "weight_decay": weight_decay if decayed else 0.0,
+         "lr_mult": mult}
+        for mult, params in parts
+        for decayed in (True, False)
+    ]  # fmt: skip
 
 
 class MetricsLog:
@@ -335,7 +347,7 @@ class _Run:
         if self.bf16 and dev.type == "cpu" and not bf16_instructions() and info.is_main:
             logger.warning("solver.precision=bf16: this CPU has no native bfloat16 (AMX, AVX-512 BF16), "
                            "so PyTorch emulates it and training runs slower than fp32")  # fmt: skip
-        groups = param_groups(model, solver.weight_decay)
+        groups = param_groups(model, solver.weight_decay, model.color_trunk, solver.color_lr_mult)
         self.optimizer = torch.optim.SGD(groups, lr=solver.lr, momentum=solver.momentum)
         if state:
             load_weights(model, state["model"], self.ckpt_path)
@@ -448,7 +460,7 @@ class _Run:
         """One SGD step; returns the loss terms and the foreground count."""
         solver = self.config.solver
         for group in self.optimizer.param_groups:
-            group["lr"] = lr_at(iteration, solver)
+            group["lr"] = lr_at(iteration, solver) * group.get("lr_mult", 1.0)
         torch.manual_seed(iteration_seed(solver.seed, iteration, self.info.rank))
         terms = forward_loss(self.net, _to_device(batch, self.dev), solver, self.bf16)
         if not torch.isfinite(terms.total):
