@@ -47,8 +47,13 @@ SCORING_RESERVE_S = 150.0
 
 def _bin(name: str) -> list[str]:
     """A console script of this environment, run by its module so no PATH is needed."""
-    modules = {"a3d-synth": "a3d.synth.cli", "a3d-train": "a3d.train.cli", "a3d-export": "a3d.export.cli",
-               "a3d-run": "a3d.runtime.cli.run", "a3d-eval": "a3d.runtime.cli.eval"}  # fmt: skip
+    modules = {
+        "a3d-synth": "a3d.synth.cli",
+        "a3d-train": "a3d.train.cli",
+        "a3d-export": "a3d.export.cli",
+        "a3d-run": "a3d.runtime.cli.run",
+        "a3d-eval": "a3d.runtime.cli.eval",
+    }
     return [sys.executable, "-m", modules[name]]
 
 
@@ -75,14 +80,25 @@ def make_data(work: Path, frames: int, val_frames: int, held_out: int, workers: 
     for name, args in sets:
         folder = work / name
         if not (folder / "synth_objects.jsonl").is_file():
-            _run([*_bin("a3d-synth"), str(folder), *args, "--world", "real", "--workers", str(workers)],
-                 work / "logs" / f"synth_{name}.log")  # fmt: skip
+            _run(
+                [*_bin("a3d-synth"), str(folder), *args, "--world", "real", "--workers", str(workers)],
+                work / "logs" / f"synth_{name}.log",
+            )
     return [work / "a" / "train", work / "b" / "train"]
 
 
-def train_args(data: list[Path], out: Path, weights: Path, cache: Path, device: str, extra: list[str]) -> list[str]:
-    sets = ["solver.pretrained=" + str(weights), "data.images_per_batch=4", "solver.precision=bf16",
-            "data.bg_iou_low=0", f"data.cache_dir={cache}", "log.progress=false", *extra]  # fmt: skip
+def train_args(
+    data: list[Path], out: Path, weights: Path, cache: Path, device: str, extra: list[str]
+) -> list[str]:
+    sets = [
+        "solver.pretrained=" + str(weights),
+        "data.images_per_batch=4",
+        "solver.precision=bf16",
+        "data.bg_iou_low=0",
+        f"data.cache_dir={cache}",
+        "log.progress=false",
+        *extra,
+    ]
     cmd = [*_bin("a3d-train"), *map(str, data), "--out", str(out), "--config", "cpu-imagenet", "--force"]
     cmd += ["--device", device] if device else []
     for item in sets:
@@ -95,22 +111,85 @@ def score(work: Path, name: str, real: Path, boxes: Path, threads: int) -> dict:
     run, ev = work / "runs" / name, work / "eval" / name
     model = run / "model.onnx"
     logs = work / "logs"
-    _run([*_bin("a3d-export"), str(run / "checkpoint.pt"), "-o", str(model), "--threads", str(threads),
-          "--score-calibration", str(work / "val" / "test")], logs / f"export_{name}.log")  # fmt: skip
+    _run(
+        [
+            *_bin("a3d-export"),
+            str(run / "checkpoint.pt"),
+            "-o",
+            str(model),
+            "--threads",
+            str(threads),
+            "--score-calibration",
+            str(work / "val" / "test"),
+        ],
+        logs / f"export_{name}.log",
+    )
     detections = ev / "h350.jsonl"
-    _run([*_bin("a3d-run"), str(work / "h350" / "test"), "--model", str(model), "--headless", "--threads",
-          str(threads), "--output", str(detections)], logs / f"run_{name}.log")  # fmt: skip
-    _run([*_bin("a3d-eval"), str(work / "h350" / "test"), "--detections", str(detections), "--out",
-          str(ev / "h350_eval")], logs / f"eval_{name}.log")  # fmt: skip
+    _run(
+        [
+            *_bin("a3d-run"),
+            str(work / "h350" / "test"),
+            "--model",
+            str(model),
+            "--headless",
+            "--threads",
+            str(threads),
+            "--output",
+            str(detections),
+        ],
+        logs / f"run_{name}.log",
+    )
+    _run(
+        [
+            *_bin("a3d-eval"),
+            str(work / "h350" / "test"),
+            "--detections",
+            str(detections),
+            "--out",
+            str(ev / "h350_eval"),
+        ],
+        logs / f"eval_{name}.log",
+    )
     maps = json.loads((ev / "h350_eval" / "eval.json").read_text())["map"]
-    fp = _run([sys.executable, "-m", "bench.false_positives", str(work / "h350" / "test"), "--detections",
-               str(detections)], logs / f"fp_{name}.log").strip().splitlines()[-1]  # fmt: skip
+    fp = (
+        _run(
+            [
+                sys.executable,
+                "-m",
+                "bench.false_positives",
+                str(work / "h350" / "test"),
+                "--detections",
+                str(detections),
+            ],
+            logs / f"fp_{name}.log",
+        )
+        .strip()
+        .splitlines()[-1]
+    )
     result = {"held_out_map": maps, "false_positives": fp}
     for threshold in (0.5, 0.3):
         out = ev / f"real_{threshold}"
-        _run([sys.executable, "-m", "bench.real_frames", str(real), "--model", str(model), "--model-name", name,
-              "--boxes", str(boxes), "--threshold", str(threshold), "--threads", str(threads), "--out", str(out)],
-             logs / f"real_{name}_{threshold}.log")  # fmt: skip
+        _run(
+            [
+                sys.executable,
+                "-m",
+                "bench.real_frames",
+                str(real),
+                "--model",
+                str(model),
+                "--model-name",
+                name,
+                "--boxes",
+                str(boxes),
+                "--threshold",
+                str(threshold),
+                "--threads",
+                str(threads),
+                "--out",
+                str(out),
+            ],
+            logs / f"real_{name}_{threshold}.log",
+        )
         result[f"real_{threshold}"] = json.loads((out / "real_frames.json").read_text())["total"]
     return result
 
@@ -121,11 +200,15 @@ def _iterations(run: Path) -> int:
 
 
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--work", type=Path, required=True)
     parser.add_argument("--weights", type=Path, required=True, help="a3d-vgg16-weights output")
     parser.add_argument("--real", type=Path, required=True, help="folder of real frames")
-    parser.add_argument("--boxes", type=Path, default=Path(__file__).parent / "data" / "real_frames_boxes.json")
+    parser.add_argument(
+        "--boxes", type=Path, default=Path(__file__).parent / "data" / "real_frames_boxes.json"
+    )
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--frames", type=int, default=1600)
     parser.add_argument("--val-frames", type=int, default=150)
@@ -145,8 +228,10 @@ def main() -> int:
     data = make_data(args.work, args.frames, args.val_frames, args.held_out, cores)
     cache = args.work / "cache"
     print(f"data ready at {time.monotonic() - start:.0f} s", flush=True)
-    _run(train_args(data, args.work / "cachepass", args.weights, cache, args.device, []) + ["--iters", "1"],
-         args.work / "logs" / "cachepass.log")  # fmt: skip
+    _run(
+        [*train_args(data, args.work / "cachepass", args.weights, cache, args.device, []), "--iters", "1"],
+        args.work / "logs" / "cachepass.log",
+    )
     print(f"proposals cached at {time.monotonic() - start:.0f} s", flush=True)
     workers = args.workers or max(1, cores // len(names) - 1)
     budget = []
@@ -159,12 +244,15 @@ def main() -> int:
         cmd = train_args(data, args.work / "runs" / name, args.weights, cache, args.device, extra)
         log = args.work / "logs" / f"train_{name}.log"
         log.parent.mkdir(parents=True, exist_ok=True)
-        procs[name] = subprocess.Popen(cmd + ["--iters", str(args.iters), *budget], stdout=open(log, "w"),
-                                       stderr=subprocess.STDOUT)  # fmt: skip
+        procs[name] = subprocess.Popen(
+            [*cmd, "--iters", str(args.iters), *budget], stdout=open(log, "w"), stderr=subprocess.STDOUT
+        )
     failed = {n: p.wait() for n, p in procs.items()}
     trained = [n for n, code in failed.items() if code == 0]
     for n in set(names) - set(trained):
-        print(f"{n}: training failed: {(args.work / 'logs' / f'train_{n}.log').read_text()[-600:]}", flush=True)
+        print(
+            f"{n}: training failed: {(args.work / 'logs' / f'train_{n}.log').read_text()[-600:]}", flush=True
+        )
     print(f"trained {', '.join(trained)} at {time.monotonic() - start:.0f} s", flush=True)
     threads = max(1, cores // max(1, len(trained)))
     with ThreadPoolExecutor(len(trained) or 1) as pool:
@@ -179,7 +267,10 @@ def main() -> int:
         if sheet.is_file():
             cv2.imwrite(str(args.out / f"{name}.jpg"), cv2.imread(str(sheet)), [cv2.IMWRITE_JPEG_QUALITY, 80])
     (args.out / "ablation.json").write_text(json.dumps(results, indent=2))
-    print("| variant | iterations | held out mAP@0.25 (0.5) | per empty room | real >= 0.5 found, right/det | real >= 0.3 |")
+    print(
+        "| variant | iterations | held out mAP@0.25 (0.5) | per empty room "
+        "| real >= 0.5 found, right/det | real >= 0.3 |"
+    )
     for name, r in results.items():
         if "error" in r:
             print(f"| {name} | error: {r['error'][:200]} |")
@@ -187,8 +278,10 @@ def main() -> int:
         m, a, b = r["held_out_map"], r["real_0.5"], r["real_0.3"]
         held = f"{100 * m['0.25']['all_classes']:.1f} ({100 * m['0.5']['all_classes']:.1f})"
         empty = r["false_positives"].split(":")[1].split()[0]
-        print(f"| {name} | {r['iterations']} | {held} | {empty} | {a['found']} of {a['objects']}; "
-              f"{a['right']}/{a['detections']} | {b['found']}; {b['right']}/{b['detections']} |")  # fmt: skip
+        print(
+            f"| {name} | {r['iterations']} | {held} | {empty} | {a['found']} of {a['objects']}; "
+            f"{a['right']}/{a['detections']} | {b['found']}; {b['right']}/{b['detections']} |"
+        )
     print(f"done at {time.monotonic() - start:.0f} s", flush=True)
     return 0 if len(results) == len(names) and not any("error" in r for r in results.values()) else 1
 

@@ -145,14 +145,23 @@ def test_a_fine_tuned_trunk_learns_at_its_own_lr_multiplier() -> None:
 def test_a_zero_multiplier_keeps_the_tuned_convs_while_the_head_trains(tmp_path: Path) -> None:
     frames = write_scenes(tmp_path / "frames", 2, seed=5)
     weights = _fake_imagenet(tmp_path / "vgg16.pth")
-    args = tiny_train_args(frames, tmp_path / "run", tmp_path / "cache", "solver.iterations=2", "solver.lr_steps=[]",
-                           "net.color_width=0.125", "solver.freeze_color=10", 'solver.pretrained_trunks=["color"]',
-                           f"solver.pretrained={weights}", "solver.color_lr_mult=0")  # fmt: skip
+    sets = (
+        "solver.iterations=2",
+        "solver.lr_steps=[]",
+        "net.color_width=0.125",
+        "solver.freeze_color=10",
+        'solver.pretrained_trunks=["color"]',
+        f"solver.pretrained={weights}",
+        "solver.color_lr_mult=0",
+    )
+    args = tiny_train_args(frames, tmp_path / "run", tmp_path / "cache", *sets)
     assert main(args) == 0
     state = load_checkpoint(tmp_path / "run" / "checkpoint.pt")
     config = checkpoint_config(tmp_path / "run" / "checkpoint.pt", state)
     net = A3DNet(config.net)
-    imagenet = imagenet_init_state(net, torch.load(weights, weights_only=True), "vgg16.pth", trunks=("color",))
+    imagenet = imagenet_init_state(
+        net, torch.load(weights, weights_only=True), "vgg16.pth", trunks=("color",)
+    )
     conv5_3 = "color_trunk.features.28.weight"
     assert torch.equal(state["model"][conv5_3], imagenet[conv5_3])  # tunable, but at lr 0
     torch.manual_seed(config.solver.seed)

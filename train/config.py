@@ -88,7 +88,7 @@ class SolverConfig:
     pretrained: str = ""  # torchvision-layout VGG16 ImageNet state dict; "" = random initialisation
     pretrained_trunks: tuple[str, ...] = ("color", "depth")  # the trunks ``pretrained`` initialises
     freeze_color: int = 0  # leading colour-trunk convs kept fixed; 13 = all (features cached, see below)
-    color_lr_mult: float = 1.0  # lr multiplier of the colour trunk's trainable convs (fine-tuning ImageNet: 0.1)
+    color_lr_mult: float = 1.0  # lr factor of the colour trunk's trainable convs (fine-tuning ImageNet: 0.1)
     init: str = ""  # a3d-train checkpoint to fine-tune: its weights, target statistics and mean sizes
 
 

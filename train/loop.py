@@ -156,11 +156,14 @@ def param_groups(
     if any(id(p) in slow_ids for p in trainable):
         parts.append((lr_mult, [p for p in trainable if id(p) in slow_ids]))
     return [
-        {"params": [p for p in params if (p.ndim > 1) == decayed], "weight_decay": weight_decay if decayed else 0.0,
-         "lr_mult": mult}
+        {
+            "params": [p for p in params if (p.ndim > 1) == decayed],
+            "weight_decay": weight_decay if decayed else 0.0,
+            "lr_mult": mult,
+        }
         for mult, params in parts
         for decayed in (True, False)
-    ]  # fmt: skip
+    ]
 
 
 class MetricsLog:
