@@ -5,7 +5,7 @@ scored on held-out synthetic frames and on real frames (docs/real-model.md "Meas
         --out OUT [--frames 1600] [--val-frames 150] [--held-out 350] [--iters 6000] \\
         [--variants frozen,frozen-aug,conv5-aug,all-aug] [--deadline-s 0] [--device cuda]
 
-Steps, each skipped where its output already exists in W: a3d-synth makes the training frames
+Steps: a3d-synth makes (once per W) the training frames
 (two thirds of ``--frames`` the real-appearance world at seed 0, one third at seed 8 with half the
 rooms empty), the score-calibration frames (seed 1) and the held-out frames (seed 2027, the
 README's 350); one a3d-train pass caches every training frame's proposals; then every variant
@@ -19,7 +19,8 @@ variant's contact sheet at 0.5 (OUT/VARIANT.jpg).
 ``--deadline-s`` fits the run to a wall-clock budget: training gets what is left after the data
 and a reserve for scoring, split evenly as ``--minutes`` among the variants that train at once.
 The processes share the machine's cores: ``--workers`` DataLoader workers each (default: cores /
-variants - 1).
+variants - 1). ``--score-only`` scores the runs already in W/runs (e.g. after a deadline cut the
+scoring short).
 """
 
 from __future__ import annotations
@@ -42,7 +43,8 @@ VARIANTS: dict[str, list[str]] = {
     "all-aug": ["solver.freeze_color=0", "solver.color_lr_mult=0.1", "data.augment=true"],
     "conv5": ["solver.freeze_color=10", "solver.color_lr_mult=0.1"],
 }
-SCORING_RESERVE_S = 150.0
+LR_STEP_SHARE = 0.8  # lr x0.1 after this share of the run (cpu-small: 3800 of 5000)
+SCORING_RESERVE_S = 240.0  # export with score calibration, held-out and real frames: 4 variants, 16 cores
 
 
 def _bin(name: str) -> list[str]:
@@ -199,6 +201,44 @@ def _iterations(run: Path) -> int:
     return max((r.get("iter", 0) for r in lines), default=0)
 
 
+def train_variants(
+    args: argparse.Namespace, names: list[str], data: list[Path], cores: int, start: float
+) -> list[str]:
+    """Cache the proposals once, then train every variant at once; the names of those that finished."""
+    cache = args.work / "cache"
+    _run(
+        [*train_args(data, args.work / "cachepass", args.weights, cache, args.device, []), "--iters", "1"],
+        args.work / "logs" / "cachepass.log",
+    )
+    print(f"proposals cached at {time.monotonic() - start:.0f} s", flush=True)
+    workers = args.workers or max(1, cores // len(names) - 1)
+    budget = []
+    if args.deadline_s:
+        left = args.deadline_s - (time.monotonic() - start) - SCORING_RESERVE_S
+        budget = ["--minutes", f"{max(left, 60.0) / 60.0:.2f}"]
+    procs = {}
+    for name in names:
+        extra = [
+            *VARIANTS[name],
+            f"data.workers={workers}",
+            f"solver.threads={max(1, cores // len(names))}",
+            f"solver.lr_steps=[{round(LR_STEP_SHARE * args.iters)}]",  # scaled with a --minutes fit
+        ]
+        cmd = train_args(data, args.work / "runs" / name, args.weights, cache, args.device, extra)
+        log = args.work / "logs" / f"train_{name}.log"
+        log.parent.mkdir(parents=True, exist_ok=True)
+        procs[name] = subprocess.Popen(
+            [*cmd, "--iters", str(args.iters), *budget], stdout=open(log, "w"), stderr=subprocess.STDOUT
+        )
+    codes = {n: p.wait() for n, p in procs.items()}
+    trained = [n for n, code in codes.items() if code == 0]
+    for n in sorted(set(names) - set(trained)):
+        tail = (args.work / "logs" / f"train_{n}.log").read_text()[-600:]
+        print(f"{n}: training failed: {tail}", flush=True)
+    print(f"trained {', '.join(trained)} at {time.monotonic() - start:.0f} s", flush=True)
+    return trained
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -218,6 +258,7 @@ def main() -> int:
     parser.add_argument("--deadline-s", type=float, default=0.0)
     parser.add_argument("--device", default="")
     parser.add_argument("--workers", type=int, default=0)
+    parser.add_argument("--score-only", action="store_true", help="score the runs already in WORK/runs")
     args = parser.parse_args()
     names = args.variants.split(",")
     unknown = [n for n in names if n not in VARIANTS]
@@ -226,34 +267,11 @@ def main() -> int:
     start, cores = time.monotonic(), len(os.sched_getaffinity(0))
     args.out.mkdir(parents=True, exist_ok=True)
     data = make_data(args.work, args.frames, args.val_frames, args.held_out, cores)
-    cache = args.work / "cache"
     print(f"data ready at {time.monotonic() - start:.0f} s", flush=True)
-    _run(
-        [*train_args(data, args.work / "cachepass", args.weights, cache, args.device, []), "--iters", "1"],
-        args.work / "logs" / "cachepass.log",
-    )
-    print(f"proposals cached at {time.monotonic() - start:.0f} s", flush=True)
-    workers = args.workers or max(1, cores // len(names) - 1)
-    budget = []
-    if args.deadline_s:
-        left = args.deadline_s - (time.monotonic() - start) - SCORING_RESERVE_S
-        budget = ["--minutes", f"{max(left, 60.0) / 60.0:.2f}"]
-    procs = {}
-    for name in names:
-        extra = [*VARIANTS[name], f"data.workers={workers}", f"solver.threads={max(1, cores // len(names))}"]
-        cmd = train_args(data, args.work / "runs" / name, args.weights, cache, args.device, extra)
-        log = args.work / "logs" / f"train_{name}.log"
-        log.parent.mkdir(parents=True, exist_ok=True)
-        procs[name] = subprocess.Popen(
-            [*cmd, "--iters", str(args.iters), *budget], stdout=open(log, "w"), stderr=subprocess.STDOUT
-        )
-    failed = {n: p.wait() for n, p in procs.items()}
-    trained = [n for n, code in failed.items() if code == 0]
-    for n in set(names) - set(trained):
-        print(
-            f"{n}: training failed: {(args.work / 'logs' / f'train_{n}.log').read_text()[-600:]}", flush=True
-        )
-    print(f"trained {', '.join(trained)} at {time.monotonic() - start:.0f} s", flush=True)
+    if args.score_only:
+        trained = [n for n in names if (args.work / "runs" / n / "checkpoint.pt").is_file()]
+    else:
+        trained = train_variants(args, names, data, cores, start)
     threads = max(1, cores // max(1, len(trained)))
     with ThreadPoolExecutor(len(trained) or 1) as pool:
         futures = {n: pool.submit(score, args.work, n, args.real, args.boxes, threads) for n in trained}
