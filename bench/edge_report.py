@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from a3d.runtime.network.cpu_support import INT8_DOT_PRODUCT, cpu_flags, export_advice
-from a3d.runtime.pipeline import FRONT_END_STAGES
+from a3d.runtime.pipeline import FRONT_END_STAGES, OVERLAP_NOISE
 from a3d.runtime.pipeline import STAGES as PIPELINE_STAGES
 from bench.ceilings import CONV, GEMM, Ceilings
 from bench.network_profile import PARTS, NetworkProfile
@@ -20,7 +20,6 @@ TARGET_E2E_OVER_NETWORK = 1.25
 TARGET_TRUNKS_OF_CEILING = 0.75
 TARGET_ORT_OVER_TORCH = 1.3
 TARGET_PEAK_BYTES = 2 * 1024**3
-OVERLAP_NOISE = 1.05  # "never slower": within 5 % of sequential, the spread of runs on a quiet machine
 RUN_STAGES = (*PIPELINE_STAGES, "output", "rerun")
 STAGE_LABELS = {
     "read": "read",

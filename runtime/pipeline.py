@@ -42,6 +42,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Literal, Protocol
 
+import cv2
 import numpy as np
 
 from a3d.runtime.errors import InputError, ModelError
@@ -72,6 +73,8 @@ FrontEnd = Literal["model", "live"]
 FRONT_ENDS: tuple[str, ...] = typing.get_args(FrontEnd)
 MOSTLY_MISSING = 0.5  # a frame with more of its depth missing than this says so in its line
 logger = logging.getLogger(__name__)
+PROBE_FRAMES = 3  # overlapped frames timed by --overlap auto before it keeps overlapping
+OVERLAP_NOISE = 1.05  # "never slower": within 5 % of sequential, the spread of runs on a quiet machine
 STAGES = ("read", "depth_fill", "gravity", "proposals", "lifting", "network_input", "network", "postprocess")
 FRONT_END_STAGES = STAGES[: STAGES.index("network")]  # what ``load_and_prepare`` times
 
@@ -406,27 +409,76 @@ def detect_frames_auto(
     *,
     threads: int,
     narrow: Callable[[int], NetworkRunner],
+    probe: int = PROBE_FRAMES,
 ) -> Iterator[FrameOutcome]:
     """``detect_frames`` that chooses overlap where it is faster: frames run sequentially on
     ``model`` (``threads`` threads) until one after the first (a warm-up) has its timing; the rest
     then overlap, with the network on ``narrow(threads - 1)``, where ``overlap_pays`` for it,
-    else go on sequentially. The source is taken lazily as by ``detect_frames``; the outcomes say
-    which way each frame ran (``overlapped``)."""
+    else go on sequentially. The prediction can be wrong (a network that scales badly to fewer
+    threads, a machine busy elsewhere), so the overlapped frames are timed too: where ``probe`` of
+    them came slower than the timed sequential frame, the run goes back to sequential for good
+    (with a warning). The source is taken lazily as by ``detect_frames``; the outcomes say which
+    way each frame ran (``overlapped``)."""
     items = iter(loaders)
     for i, loader in enumerate(items):
+        began = time.perf_counter()
         outcome = _run_one(loader, lambda item=loader: load_and_prepare(item, config), model, config)
         yield outcome
         if i == 0 or outcome.detections is None:
             continue
+        sequential = time.perf_counter() - began  # the frame and the caller's own work on it
         following = next(items, None)  # a live source's next frame, which the run needs next anyway
         if following is None:
             return
         rest = itertools.chain([following], items)
         if overlap_pays(outcome.detections.timing, threads):
-            yield from detect_frames(rest, narrow(threads - 1), config, overlap=True)
+            opencv_threads = cv2.getNumThreads()  # narrow() may leave OpenCV fewer for the background
+            narrowed = narrow(threads - 1)
+            yield from _overlap_while_faster(
+                rest, config, model=model, narrowed=narrowed, sequential=sequential, probe=probe,
+                opencv_threads=opencv_threads,
+            )  # fmt: skip
         else:
             yield from detect_frames(rest, model, config)
         return
+
+
+def _overlap_while_faster(
+    items: Iterator[FrameLoader],
+    config: PipelineConfig,
+    *,
+    model: NetworkRunner,
+    narrowed: NetworkRunner,
+    sequential: float,
+    probe: int,
+    opencv_threads: int,
+) -> Iterator[FrameOutcome]:
+    """Overlapped frames on ``narrowed``, as ``detect_frames(overlap=True)``; after the first
+    overlapped frame the next ``probe`` are timed and, where their mean period exceeds the
+    ``sequential`` one by more than OVERLAP_NOISE, the frame already prepared runs on ``model``
+    and the rest sequentially, with OpenCV's ``opencv_threads`` back."""
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="a3d-prepare") as pool:
+        current = next(items, None)
+        pending = None if current is None else pool.submit(load_and_prepare, current, config)
+        done, since = 0, 0.0
+        while current is not None and pending is not None:
+            following = next(items, None)
+            ready = pending
+            pending = None if following is None else pool.submit(load_and_prepare, following, config)
+            yield replace(_run_one(current, ready.result, narrowed, config), overlapped=done > 0)
+            current, done = following, done + 1
+            if done == 1:
+                since = time.perf_counter()  # the first overlapped frame was prepared in the foreground
+            elif done == probe + 1 and current is not None and pending is not None:
+                period = (time.perf_counter() - since) / probe
+                if period > OVERLAP_NOISE * sequential:
+                    logger.warning("--overlap auto: overlapped frames took %.0f ms against %.0f ms "
+                                   "sequentially; running sequentially from here", 1e3 * period,
+                                   1e3 * sequential)  # fmt: skip
+                    cv2.setNumThreads(opencv_threads)
+                    yield replace(_run_one(current, pending.result, model, config), overlapped=True)
+                    yield from detect_frames(items, model, config)
+                    return
 
 
 def _run_one(

@@ -12,6 +12,7 @@ import json
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 
@@ -287,6 +288,51 @@ def test_auto_overlap_times_a_frame_then_overlaps_only_where_it_pays(
     # Frames a and b run sequentially (a warms up, b is timed); c is prepared after the choice.
     assert [o.overlapped for o in auto] == [False, False, False, overlaps, overlaps]
     assert narrowed == ([1] if overlaps else [])
+    for a, b in zip(sequential, auto, strict=True):
+        assert a.detections is not None and b.detections is not None
+        assert_same_detections(a.detections, b.detections)
+
+
+class CountedNetwork(TimedNetwork):
+    def __init__(self, seconds: float) -> None:
+        super().__init__(seconds)
+        self.calls = 0
+
+    def run(self, *args):
+        self.calls += 1
+        return super().run(*args)
+
+
+def test_auto_overlap_goes_back_to_sequential_where_overlapped_frames_come_slower(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    names = [chr(ord("a") + i) for i in range(8)]
+    folder = write_scene_folder(tmp_path / "frames", names)
+    model, narrowed = CountedNetwork(0.05), CountedNetwork(0.4)  # the prediction says overlap; it is slower
+    config = PipelineConfig.from_metadata(model.metadata)
+    sequential = list(detect_frames(FolderSource(folder), FakeModel(), config))
+    load_and_prepare = pipeline.load_and_prepare
+
+    def slow_front_end(*args):
+        prepared = load_and_prepare(*args)
+        prepared.timing["proposals"] += 0.2  # as if it took that long: overlap_pays says yes
+        return prepared
+
+    monkeypatch.setattr(pipeline, "load_and_prepare", slow_front_end)
+
+    def narrow(threads: int) -> CountedNetwork:
+        cv2.setNumThreads(1)  # as a3d-run's: OpenCV leaves the cores to the network
+        return narrowed
+
+    monkeypatch.setattr(cv2, "getNumThreads", lambda: 2)  # the run's OpenCV threads before it narrows
+    restored: list[int] = []
+    monkeypatch.setattr(cv2, "setNumThreads", restored.append)
+    auto = list(detect_frames_auto(FolderSource(folder), model, config, threads=2, narrow=narrow, probe=2))
+    # a, b sequential (b timed); c overlapped in the foreground, d and e timed: slower, so f (prepared
+    # in the background) runs on the full model and g, h sequentially.
+    assert [o.overlapped for o in auto] == [False, False, False, True, True, True, False, False]
+    assert narrowed.calls * 5 == model.calls * 3 > 0  # c, d, e on the narrowed model; a, b, f, g, h not
+    assert "running sequentially from here" in caplog.text and restored == [1, 2]
     for a, b in zip(sequential, auto, strict=True):
         assert a.detections is not None and b.detections is not None
         assert_same_detections(a.detections, b.detections)
