@@ -16,7 +16,13 @@ from a3d.runtime.frontend.grouping import (
     concat_ranges,
     group,
 )
-from a3d.runtime.frontend.proposals import ProposalConfig, Proposals, _drop_near_duplicates, propose
+from a3d.runtime.frontend.proposals import (
+    PROPOSAL_STAGES,
+    ProposalConfig,
+    Proposals,
+    _drop_near_duplicates,
+    propose,
+)
 from a3d.runtime.frontend.superpixels import SuperpixelConfig, depth_edges, oversegment
 from a3d.runtime.structures.geometry import Intrinsics, iou_2d
 
@@ -122,9 +128,12 @@ def test_area_filter_and_cap(scene) -> None:
     np.testing.assert_array_equal(capped.scores, props.scores[:7])
 
 
-def test_ranking_is_deterministic(scene) -> None:
+def test_ranking_is_deterministic_and_timing_changes_nothing(scene) -> None:
     color, depth, _, props = scene
-    again = propose(color, depth, K, ProposalConfig(min_area=20))
+    timing: dict[str, float] = {}
+    again = propose(color, depth, K, ProposalConfig(min_area=20), timing)
+    assert tuple(timing) == PROPOSAL_STAGES  # every stage timed, in order
+    assert all(seconds >= 0 for seconds in timing.values())
     np.testing.assert_array_equal(again.superpixels, props.superpixels)
     np.testing.assert_array_equal(again.indptr, props.indptr)
     np.testing.assert_array_equal(again.indices, props.indices)

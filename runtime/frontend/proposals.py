@@ -39,6 +39,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from a3d.runtime.clock import Clock
 from a3d.runtime.frontend.grouping import (
     BoundaryScales,
     PairConfig,
@@ -170,16 +171,28 @@ class Proposals:
         return _sum_segments(sp_area[self.indices], self.indptr)
 
 
+PROPOSAL_STAGES = (
+    "working_images", "superpixels", "region_graph", "grouping", "ranking", "pairs", "selection",
+)  # fmt: skip
+"""The stages of propose() that its ``timing`` receives, in order (bench.frontend prints them)."""
+
+
 def propose(
-    color: np.ndarray, depth_filled: np.ndarray, K: Intrinsics, config: ProposalConfig = ProposalConfig()
+    color: np.ndarray,
+    depth_filled: np.ndarray,
+    K: Intrinsics,
+    config: ProposalConfig = ProposalConfig(),
+    timing: dict[str, float] | None = None,
 ) -> Proposals:
     """Segment proposals for one frame.
 
     `color` (H, W, 3) uint8 BGR; `depth_filled` (H, W) float32 metres, hole-filled
     (a3d.runtime.frontend.depth.fill_depth; zeros are tolerated and treated as unknown depth);
-    `K` the frame's intrinsics.
+    `K` the frame's intrinsics. `timing`, if given, receives the wall seconds of each of
+    PROPOSAL_STAGES (added to what it holds).
     """
     _check_inputs(color, depth_filled, config)
+    clock = Clock(timing)
     H, W = depth_filled.shape
     f = int(config.scale)
     lab = cv2.cvtColor(_block_mean(np.ascontiguousarray(color), f), cv2.COLOR_BGR2Lab)
@@ -190,10 +203,12 @@ def propose(
     K_small = replace(K, fx=K.fx / f, fy=K.fy / f, cx=(K.cx - (f - 1) / 2) / f, cy=(K.cy - (f - 1) / 2) / f)
     normals = surface_normals(depth, K_small, config.normals)
     normal_ok = valid & (np.abs(normals).sum(axis=2) > 0)
+    clock.lap("working_images")
 
     labels = oversegment(
         lab, log_depth, depth_edges(log_depth, valid, config.superpixels), config.superpixels
     )
+    clock.lap("superpixels")
     n_bins = int(config.color_bins)
     bins = (lab.astype(np.int32) * n_bins) >> 8
     bins += np.arange(3, dtype=np.int32) * n_bins
@@ -206,9 +221,11 @@ def propose(
     sp_box = np.concatenate(
         [graph.bbox[:, :2] * f, np.minimum(graph.bbox[:, 2:] * f + f - 1, [W - 1, H - 1])], 1
     )
+    clock.lap("region_graph")
 
     # Hierarchies: superpixels first, then every region the strategies formed.
     hier = group(graph, config.strategies, config.boundary_scales, float(labels.size))
+    clock.lap("grouping")
     indptr = np.concatenate([np.arange(n_sp + 1, dtype=np.int64), hier.indptr[1:] + n_sp])
     indices = np.concatenate([np.arange(n_sp, dtype=np.int64), hier.indices])
     outer = np.concatenate([outer_similarity(graph, config.boundary_scales), hier.outer])
@@ -219,6 +236,7 @@ def propose(
 
     # Pairs of the best distinct regions (down to a quarter of min_area: a piece may be small).
     parts = _ranked_unique(indptr, indices, np.nonzero(area >= config.min_area / 4)[0], score, n_sp)
+    clock.lap("ranking")
     centres = np.tile((np.arange(n_bins) + 0.5) * 256.0 / n_bins, 3)
     pair_ptr, pair_idx, pair_score = combine_pairs(
         graph, indptr, indices, parts, boxes, score, centres, config.pairs
@@ -228,19 +246,22 @@ def propose(
     score = np.concatenate([score, pair_score])
     area = _sum_segments(sp_area[indices], indptr)
     boxes = _member_boxes(sp_box, indptr, indices)
+    clock.lap("pairs")
 
     keep = _ranked_unique(indptr, indices, np.nonzero(area >= config.min_area)[0], score, n_sp)
     keep = _best_distinct(boxes, keep, config.duplicate_iou, config.max_proposals)
     counts = np.diff(indptr)[keep]
     out_indptr = np.zeros(keep.size + 1, np.int64)
     out_indptr[1:] = np.cumsum(counts)
-    return Proposals(
+    proposals = Proposals(
         superpixels=np.ascontiguousarray(full, dtype=np.int32),
         indptr=out_indptr,
         indices=indices[concat_ranges(indptr[keep], counts)].astype(np.int32),
         boxes=boxes[keep],
         scores=score[keep],
     )
+    clock.lap("selection")
+    return proposals
 
 
 def _check_inputs(color: np.ndarray, depth: np.ndarray, config: ProposalConfig) -> None:
