@@ -24,6 +24,7 @@ an occluder, or the shade and the base of a lamp whose pole is too thin to segme
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, fields
 
 import numpy as np
@@ -81,18 +82,97 @@ class RegionGraph:
 
 @dataclass
 class Hierarchies:
-    """The regions formed by merging, all strategies together, in order of creation.
+    """The regions formed by merging, all strategies together, in order of creation, as a merge
+    forest: its member lists are only spelled out for the few regions that need them
+    (LeafSpans), and additive statistics are merged along it (reduce_forest), since the lists of
+    all regions together are about ten times the superpixels per strategy.
 
-    Region k has superpixels `indices[indptr[k]:indptr[k+1]]` (sorted); `strategy` (M,) is the
-    index of the strategy that formed it; `outer` (M, 3) is the mean boundary similarity
-    (colour, depth, normal; 1 = no edge) along its outline when it was formed (0 for a region
-    with no neighbour left).
+    Nodes 0..L-1 (L = `n_superpixels` x strategies) are the leaves, node i superpixel
+    `i % n_superpixels` of strategy `i // n_superpixels`; node L + k is region k, the union of the
+    nodes `children[k]`. The regions of merge round r are `rounds[r]:rounds[r + 1]`; their
+    children are from earlier rounds. `strategy` (M,) is the index of the strategy that formed a
+    region; `outer` (M, 3) the mean boundary similarity (colour, depth, normal; 1 = no edge)
+    along its outline when it was formed (0 for a region with no neighbour left).
     """
 
-    indptr: np.ndarray
-    indices: np.ndarray
+    n_superpixels: int
+    n_leaves: int
+    children: np.ndarray
+    rounds: np.ndarray
     strategy: np.ndarray
     outer: np.ndarray
+
+    @property
+    def n(self) -> int:
+        return int(self.children.shape[0])
+
+
+def reduce_forest(
+    hier: Hierarchies, leaf_values: np.ndarray, merge: Callable[[np.ndarray, np.ndarray], np.ndarray]
+) -> np.ndarray:
+    """(M, ...) per-region values of an additive statistic: `leaf_values` (n_superpixels, ...)
+    per superpixel, `merge(a, b)` the value of a union from its two parts' (elementwise rows),
+    applied round by round."""
+    values = np.empty((hier.n_leaves + hier.n, *leaf_values.shape[1:]), leaf_values.dtype)
+    copies = np.broadcast_to(leaf_values, (hier.n_leaves // hier.n_superpixels, *leaf_values.shape))
+    values[: hier.n_leaves] = copies.reshape(hier.n_leaves, *leaf_values.shape[1:])
+    for lo, hi in zip(hier.rounds[:-1], hier.rounds[1:], strict=True):
+        a, b = hier.children[lo:hi, 0], hier.children[lo:hi, 1]
+        values[hier.n_leaves + lo : hier.n_leaves + hi] = merge(values[a], values[b])
+    return values[hier.n_leaves :]
+
+
+@dataclass
+class LeafSpans:
+    """The leaves of the merge forest in an order where every node's leaves are contiguous:
+    node i's are `order[start[i] : start[i] + size[i]]` (a depth-first order)."""
+
+    order: np.ndarray
+    start: np.ndarray
+    size: np.ndarray
+
+    @classmethod
+    def of(cls, hier: Hierarchies) -> LeafSpans:
+        """Top-down, round by round from the last: a region's children split its span."""
+        n_leaves = hier.n_leaves
+        size = np.ones(n_leaves + hier.n, np.int64)
+        size[n_leaves:] = reduce_forest(hier, np.ones(hier.n_superpixels, np.int64), np.add)
+        is_child = np.zeros(size.size, bool)
+        is_child[hier.children.ravel()] = True
+        roots = np.flatnonzero(~is_child)
+        start = np.zeros(size.size, np.int64)
+        start[roots] = np.cumsum(size[roots]) - size[roots]
+        for lo, hi in zip(hier.rounds[-2::-1], hier.rounds[:0:-1], strict=True):
+            a, b = hier.children[lo:hi, 0], hier.children[lo:hi, 1]
+            start[a] = start[n_leaves + lo : n_leaves + hi]
+            start[b] = start[a] + size[a]
+        order = np.empty(n_leaves, np.int64)
+        order[start[:n_leaves]] = np.arange(n_leaves)
+        return cls(order, start, size)
+
+    def members(
+        self, nodes: np.ndarray, rows: np.ndarray, n_rows: int, n_superpixels: int
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """CSR (indptr, sorted superpixel ids) of `n_rows` rows, row `rows[i]` holding the
+        superpixels of node `nodes[i]` (a row may take several nodes, which must be disjoint).
+        Sorted without a sort: a boolean row x superpixel matrix read back in row-major order,
+        in blocks of bounded size."""
+        superpixel = self.order[concat_ranges(self.start[nodes], self.size[nodes])] % n_superpixels
+        owner = np.repeat(rows, self.size[nodes])
+        block = max(1, _MATRIX_CELLS // max(1, n_superpixels))
+        indices = []
+        for first in range(0, n_rows, block):
+            inside = (owner >= first) & (owner < first + block)
+            matrix = np.zeros((min(block, n_rows - first), n_superpixels), bool)
+            matrix[owner[inside] - first, superpixel[inside]] = True
+            indices.append(np.flatnonzero(matrix) % n_superpixels)
+        indptr = np.zeros(n_rows + 1, np.int64)
+        indptr[1:] = np.cumsum(np.bincount(owner, minlength=n_rows))
+        return indptr, np.concatenate(indices) if indices else np.zeros(0, np.int64)
+
+
+_MATRIX_CELLS = 1 << 24
+"""The largest boolean matrix LeafSpans.members fills at once (16 MB)."""
 
 
 def concat_ranges(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
@@ -180,25 +260,21 @@ def _boundary_similarity(length: np.ndarray, strength: np.ndarray, scales: Bound
 
 def outer_similarity(graph: RegionGraph, scales: BoundaryScales) -> np.ndarray:
     """(N, 3) mean boundary similarity of each superpixel to all its neighbours (0 if none)."""
-    return _outer(graph.pairs, graph.length, graph.strength, scales, np.arange(graph.n), graph.n)
+    similarity = _boundary_similarity(graph.length, graph.strength, scales)
+    return _outer(graph.pairs, graph.length, similarity, 0, graph.n)
 
 
-def _outer(
-    pairs: np.ndarray,
-    length: np.ndarray,
-    strength: np.ndarray,
-    scales: BoundaryScales,
-    nodes: np.ndarray,
-    n: int,
-) -> np.ndarray:
-    """(len(nodes), 3) length-weighted mean boundary similarity of `nodes` over the edges given."""
-    weighted = _boundary_similarity(length, strength, scales) * length[:, None]
-    ends = pairs.ravel()
-    total_len = np.bincount(ends, weights=np.repeat(length, 2), minlength=n)[nodes]
-    total = np.stack(
-        [np.bincount(ends, weights=np.repeat(weighted[:, k], 2), minlength=n) for k in range(3)], 1
-    )
-    return total[nodes] / np.maximum(total_len, 1e-12)[:, None]
+def _outer(pairs: np.ndarray, length: np.ndarray, similarity: np.ndarray, first: int, m: int) -> np.ndarray:
+    """(m, 3) length-weighted mean boundary `similarity` (E, 3) of the nodes first..first+m-1
+    over the edges given (ends outside that range are ignored)."""
+    ends = pairs.ravel() - first
+    inside = (ends >= 0) & (ends < m)
+    ends = ends[inside]
+    lengths = np.repeat(length, 2)[inside]
+    weighted = np.repeat(similarity * length[:, None], 2, axis=0)[inside]
+    total_len = np.bincount(ends, weights=lengths, minlength=m)
+    total = np.stack([np.bincount(ends, weights=weighted[:, k], minlength=m) for k in range(3)], 1)
+    return total / np.maximum(total_len, 1e-12)[:, None]
 
 
 def group(
@@ -226,14 +302,16 @@ def group(
     weights = np.array([[getattr(st, f.name) for f in fields(Strategy)] for st in strategies], float)
     weights = weights.reshape(k, len(fields(Strategy)))
 
+    # Every strategy starts from the same superpixel graph: its similarity terms once, weighted k ways.
     e0 = graph.pairs.shape[0]
     pairs = (graph.pairs[None] + (np.arange(k) * n0)[:, None, None]).reshape(-1, 2)
     length = np.tile(graph.length, k)
     strength = np.tile(graph.strength, (k, 1))
-    sim = _similarity(pairs, length, strength, regions, weights[np.repeat(np.arange(k), e0)], scales)
-    owner = np.arange(n0 * k)  # (strategy, superpixel) -> current region
+    bs = _boundary_similarity(graph.length, graph.strength, scales)
+    terms = _similarity_terms(graph.pairs, graph.length, bs, regions, weights.max(axis=0, initial=0.0)[None])
+    sim = _weighted(np.tile(terms, (k, 1)), weights[np.repeat(np.arange(k), e0)])
     n_total = n0 * k
-    out_ids, out_sp, outers = [], [], []
+    children, rounds, outers = [], [0], []
     while pairs.shape[0] > 0:
         ca, cb = _mutual_best(pairs, sim, n_total)
         m = ca.size
@@ -245,11 +323,12 @@ def group(
         hist[new] = (hist[ca] * wa[:, None] + hist[cb] * wb[:, None]) / (wa + wb)[:, None]
         normal_sum[new] = normal_sum[ca] + normal_sum[cb]
         node_strategy[new] = node_strategy[ca]
+        children.append(np.stack([ca, cb], axis=1))
+        rounds.append(rounds[-1] + m)
 
         remap = np.arange(n_total + m)
         remap[ca] = new
         remap[cb] = new
-        owner = remap[owner]
         # Only edges at a merged region change: re-key them, drop the merged pairs' own edges,
         # sum parallel edges and recompute their similarity; the others keep theirs.
         ra, rb = remap[pairs[:, 0]], remap[pairs[:, 1]]
@@ -259,27 +338,20 @@ def group(
             np.minimum(ra, rb)[moved], np.maximum(ra, rb)[moved], length[moved], strength[moved], n_total + m
         )
         edge_weights = weights[node_strategy[new_pairs[:, 0]]]
-        new_sim = _similarity(new_pairs, new_length, new_strength, regions, edge_weights, scales)
-        outers.append(_outer(new_pairs, new_length, new_strength, scales, new, n_total + m))
+        bs = _boundary_similarity(new_length, new_strength, scales)
+        new_sim = _weighted(_similarity_terms(new_pairs, new_length, bs, regions, edge_weights), edge_weights)
+        outers.append(_outer(new_pairs, new_length, bs, n_total, m))
         pairs = np.concatenate([pairs[~touched], new_pairs])
         length = np.concatenate([length[~touched], new_length])
         strength = np.concatenate([strength[~touched], new_strength])
         sim = np.concatenate([sim[~touched], new_sim])
-
-        made = np.nonzero(owner >= n_total)[0]
-        out_ids.append(owner[made])
-        out_sp.append(made % n0)
         n_total += m
 
-    n_new = n_total - n0 * k
-    ids = np.concatenate(out_ids, dtype=np.int64) - n0 * k if out_ids else np.zeros(0, np.int64)
-    sps = np.concatenate(out_sp, dtype=np.int64) if out_sp else np.zeros(0, np.int64)
-    by_region = np.lexsort((sps, ids))
-    indptr = np.zeros(n_new + 1, np.int64)
-    indptr[1:] = np.cumsum(np.bincount(ids, minlength=n_new))
     return Hierarchies(
-        indptr=indptr,
-        indices=sps[by_region],
+        n_superpixels=n0,
+        n_leaves=n0 * k,
+        children=np.concatenate(children) if children else np.zeros((0, 2), np.int64),
+        rounds=np.asarray(rounds, np.int64),
         strategy=node_strategy[n0 * k : n_total],
         outer=np.concatenate(outers) if outers else np.zeros((0, 3)),
     )
@@ -338,40 +410,43 @@ class _Regions:
     image_area: float
 
 
-def _similarity(
-    pairs: np.ndarray,
-    length: np.ndarray,
-    strength: np.ndarray,
-    r: _Regions,
-    weights: np.ndarray,
-    scales: BoundaryScales,
+def _similarity_terms(
+    pairs: np.ndarray, length: np.ndarray, boundary: np.ndarray, r: _Regions, weights: np.ndarray
 ) -> np.ndarray:
-    """Weighted sum of the similarity terms for the edges `pairs`; `weights` (E, 7) per edge in
-    Strategy field order. Terms no edge uses are not computed."""
+    """(E, 7) similarity terms of the edges `pairs` in Strategy field order, `boundary` (E, 3)
+    their boundary similarities; `weights` (E, 7) or (1, 7): a term is only computed for the
+    edges that weigh it (0 elsewhere), the costlier ones only for those rows."""
     a, b = pairs[:, 0], pairs[:, 1]
-    sim = np.zeros(a.size)
-    w_color, w_bc, w_bd, w_bn, w_normal, w_size, w_fill = weights.T
-    if w_bc.any() or w_bd.any() or w_bn.any():
-        bs = _boundary_similarity(length, strength, scales)
-        sim += w_bc * bs[:, 0] + w_bd * bs[:, 1] + w_bn * bs[:, 2]
+    weights = np.broadcast_to(weights, (a.size, weights.shape[1]))
+    terms = np.zeros((a.size, 7))
+    terms[:, 1:4] = boundary
     joint = r.size[a] + r.size[b]
-    sim += w_size * (1.0 - joint / r.image_area)
-    # The costlier terms only for the edges whose strategy uses them.
-    e = np.nonzero(w_color)[0]
+    terms[:, 5] = 1.0 - joint / r.image_area
+    e = np.nonzero(weights[:, 0])[0]
     if e.size:
-        sim[e] += w_color[e] * np.minimum(r.hist[a[e]], r.hist[b[e]]).sum(axis=1)
-    e = np.nonzero(w_normal)[0]
+        terms[e, 0] = np.minimum(r.hist[a[e]], r.hist[b[e]]).sum(axis=1)
+    e = np.nonzero(weights[:, 4])[0]
     if e.size:
         na, nb = r.normal_sum[a[e]], r.normal_sum[b[e]]
         cos = (na * nb).sum(axis=1) / np.sqrt((na * na).sum(axis=1) * (nb * nb).sum(axis=1)).clip(1e-12)
-        sim[e] += w_normal[e] * np.clip(cos, 0.0, 1.0)
-    e = np.nonzero(w_fill)[0]
+        terms[e, 4] = np.clip(cos, 0.0, 1.0)
+    e = np.nonzero(weights[:, 6])[0]
     if e.size:
         ae, be = a[e], b[e]
         lo = np.minimum(r.bbox[ae, :2], r.bbox[be, :2])
         hi = np.maximum(r.bbox[ae, 2:], r.bbox[be, 2:])
         box_area = np.prod(hi - lo + 1, axis=1)
-        sim[e] += w_fill[e] * (1.0 - (box_area - joint[e]) / r.image_area)
+        terms[e, 6] = 1.0 - (box_area - joint[e]) / r.image_area
+    return terms
+
+
+def _weighted(terms: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """(E,) the weighted sum of the (E, 7) similarity terms, boundary terms first, then size,
+    colour, normal and fill (a fixed order, so equal terms give bit-equal similarities)."""
+    w, t = weights.T, terms.T
+    sim = w[1] * t[1] + w[2] * t[2] + w[3] * t[3]
+    for c in (5, 0, 4, 6):
+        sim += w[c] * t[c]
     return sim
 
 
@@ -399,27 +474,24 @@ def combine_pairs(
     graph: RegionGraph,
     indptr: np.ndarray,
     indices: np.ndarray,
-    rows: np.ndarray,
     boxes: np.ndarray,
     score: np.ndarray,
     bin_centres: np.ndarray,
     config: PairConfig,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Pairs of the candidate regions `rows` (best first; CSR `indptr`/`indices` over the
-    superpixels of `graph`) that are disjoint, close in depth and colour and compact together.
+    """Pairs of candidate regions (best first, at most `config.parts` of them: the caller's cut;
+    CSR `indptr`/`indices` of sorted superpixels of `graph`) that are disjoint, close in depth and
+    colour and compact together.
 
-    `boxes` (C, 4) and `score` (C,) are per candidate; `bin_centres` (B,) the Lab value of each
-    colour-histogram bin. Returns the pairs' CSR (sorted members) and their scores (the lower of
-    the two parts' minus `penalty`), at most `max_pairs` of them, best first.
+    `boxes` (T, 4) and `score` (T,) are per candidate; `bin_centres` (B,) the Lab value of each
+    colour-histogram bin. Returns the pairs as two (P,) candidate indices i < j and their scores
+    (the lower of the two parts' minus `penalty`), at most `max_pairs` of them, best first.
     """
-    parts = rows[: config.parts]
-    t = parts.size
-    empty = np.zeros(1, np.int64), np.zeros(0, np.int64), np.zeros(0)
+    t = indptr.size - 1
     if t < 2 or config.max_pairs <= 0:
-        return empty
-    counts = np.diff(indptr)[parts]
-    members = indices[concat_ranges(indptr[parts], counts)]
-    owner = np.repeat(np.arange(t), counts)
+        return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+    members = indices
+    owner = np.repeat(np.arange(t), np.diff(indptr))
     n_channels = 3
     per_bin = graph.color_hist.shape[1] // n_channels
     lab_sum = (graph.color_hist * bin_centres).reshape(graph.n, n_channels, per_bin).sum(axis=2)
@@ -429,12 +501,13 @@ def combine_pairs(
     depth_n = np.bincount(owner, weights=graph.depth_count[members], minlength=t)
     log_z = np.bincount(owner, weights=graph.depth_sum[members], minlength=t) / np.maximum(depth_n, 1.0)
 
-    b = boxes[parts]
-    box_area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
-    lo = np.minimum(b[:, None, :2], b[None, :, :2])
-    hi = np.maximum(b[:, None, 2:], b[None, :, 2:])
-    union_area = (hi[..., 0] - lo[..., 0]) * (hi[..., 1] - lo[..., 1])
-    color_gap = ((lab[:, None] - lab[None, :]) ** 2).sum(axis=2)
+    # Pairwise, one coordinate / channel at a time (2-D arrays, not strided 3-D reductions).
+    x1, y1, x2, y2 = boxes.T
+    box_area = (x2 - x1) * (y2 - y1)
+    union_w = np.maximum(x2[:, None], x2[None, :]) - np.minimum(x1[:, None], x1[None, :])
+    union_area = union_w * (np.maximum(y2[:, None], y2[None, :]) - np.minimum(y1[:, None], y1[None, :]))
+    gap = [lab[:, None, c] - lab[None, :, c] for c in range(3)]
+    color_gap = gap[0] * gap[0] + gap[1] * gap[1] + gap[2] * gap[2]
     ok = (
         (np.abs(log_z[:, None] - log_z[None, :]) <= config.depth)
         & ((depth_n[:, None] > 0) == (depth_n[None, :] > 0))
@@ -448,16 +521,6 @@ def combine_pairs(
     bits = np.packbits(member_matrix, axis=1)
     disjoint = ~(bits[i] & bits[j]).any(axis=1)
     i, j = i[disjoint], j[disjoint]
-    pair_score = np.minimum(score[parts[i]], score[parts[j]]) - config.penalty
+    pair_score = np.minimum(score[i], score[j]) - config.penalty
     best = np.argsort(-pair_score, kind="stable")[: config.max_pairs]
-    i, j, pair_score = i[best], j[best], pair_score[best]
-    # Members of each pair: both parts' lists, sorted within the pair.
-    n_i, n_j = counts[i], counts[j]
-    part_start = np.cumsum(counts) - counts
-    take = np.concatenate([concat_ranges(part_start[i], n_i), concat_ranges(part_start[j], n_j)])
-    pair_rows = np.concatenate([np.repeat(np.arange(i.size), n_i), np.repeat(np.arange(i.size), n_j)])
-    values = members[take]
-    order = np.lexsort((values, pair_rows))
-    pair_indptr = np.zeros(i.size + 1, np.int64)
-    pair_indptr[1:] = np.cumsum(n_i + n_j)
-    return pair_indptr, values[order], pair_score
+    return i[best], j[best], pair_score[best]

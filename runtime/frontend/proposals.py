@@ -42,13 +42,15 @@ import numpy as np
 from a3d.runtime.clock import Clock
 from a3d.runtime.frontend.grouping import (
     BoundaryScales,
+    Hierarchies,
+    LeafSpans,
     PairConfig,
     Strategy,
     build_graph,
     combine_pairs,
-    concat_ranges,
     group,
     outer_similarity,
+    reduce_forest,
 )
 from a3d.runtime.frontend.normals import NormalConfig, surface_normals
 from a3d.runtime.frontend.superpixels import SuperpixelConfig, depth_edges, oversegment
@@ -226,42 +228,76 @@ def propose(
     # Hierarchies: superpixels first, then every region the strategies formed.
     hier = group(graph, config.strategies, config.boundary_scales, float(labels.size))
     clock.lap("grouping")
-    indptr = np.concatenate([np.arange(n_sp + 1, dtype=np.int64), hier.indptr[1:] + n_sp])
-    indices = np.concatenate([np.arange(n_sp, dtype=np.int64), hier.indices])
+    # Candidates: the superpixels, then every region formed, then the pairs. A superpixel is its
+    # leaf of the first strategy in the merge forest, a region its node, a pair its parts' nodes.
+    spans = LeafSpans.of(hier)
+    nodes = np.concatenate([np.arange(n_sp), hier.n_leaves + np.arange(hier.n)])
+    stats = _candidate_stats(hier, sp_area, sp_box)
     outer = np.concatenate([outer_similarity(graph, config.boundary_scales), hier.outer])
     jitter = np.random.default_rng(config.seed).random(outer.shape[0])
     score = (1.0 - outer) @ np.asarray(config.edge_weights, float) + config.jitter * jitter
-    area = _sum_segments(sp_area[indices], indptr)
-    boxes = _member_boxes(sp_box, indptr, indices)
 
     # Pairs of the best distinct regions (down to a quarter of min_area: a piece may be small).
-    parts = _ranked_unique(indptr, indices, np.nonzero(area >= config.min_area / 4)[0], score, n_sp)
+    parts = _ranked_unique(stats, np.nonzero(stats[:, _AREA] >= config.min_area / 4)[0], score)
+    parts = parts[: config.pairs.parts]
     clock.lap("ranking")
+    part_ptr, part_idx = spans.members(nodes[parts], np.arange(parts.size), parts.size, n_sp)
     centres = np.tile((np.arange(n_bins) + 0.5) * 256.0 / n_bins, 3)
-    pair_ptr, pair_idx, pair_score = combine_pairs(
-        graph, indptr, indices, parts, boxes, score, centres, config.pairs
+    first, second, pair_score = combine_pairs(
+        graph, part_ptr, part_idx, _boxes(stats[parts]), score[parts], centres, config.pairs
     )
-    indptr = np.concatenate([indptr, pair_ptr[1:] + indptr[-1]])
-    indices = np.concatenate([indices, pair_idx])
+    first, second = parts[first], parts[second]
+    stats = np.concatenate([stats, _merge_stats(stats[first], stats[second])])
     score = np.concatenate([score, pair_score])
-    area = _sum_segments(sp_area[indices], indptr)
-    boxes = _member_boxes(sp_box, indptr, indices)
     clock.lap("pairs")
 
-    keep = _ranked_unique(indptr, indices, np.nonzero(area >= config.min_area)[0], score, n_sp)
-    keep = _best_distinct(boxes, keep, config.duplicate_iou, config.max_proposals)
-    counts = np.diff(indptr)[keep]
-    out_indptr = np.zeros(keep.size + 1, np.int64)
-    out_indptr[1:] = np.cumsum(counts)
+    keep = _ranked_unique(stats, np.nonzero(stats[:, _AREA] >= config.min_area)[0], score)
+    keep = _best_distinct(_boxes(stats), keep, config.duplicate_iou, config.max_proposals)
+    row = np.arange(keep.size)
+    single, pair = keep < nodes.size, keep - nodes.size
+    pair_row, pair = row[~single], pair[~single]
+    indptr, indices = spans.members(
+        np.concatenate([nodes[keep[single]], nodes[first[pair]], nodes[second[pair]]]),
+        np.concatenate([row[single], pair_row, pair_row]),
+        keep.size,
+        n_sp,
+    )
     proposals = Proposals(
         superpixels=np.ascontiguousarray(full, dtype=np.int32),
-        indptr=out_indptr,
-        indices=indices[concat_ranges(indptr[keep], counts)].astype(np.int32),
-        boxes=boxes[keep],
+        indptr=indptr,
+        indices=indices.astype(np.int32),
+        boxes=_boxes(stats[keep]),
         scores=score[keep],
     )
     clock.lap("selection")
     return proposals
+
+
+# Columns of a candidate's statistics (int64): superpixel count, full-resolution area, two random
+# 64-bit member-set hashes (wrapping sums), inclusive pixel bounds [umin, vmin, umax, vmax].
+_COUNT, _AREA, _HASH, _LOW, _HIGH = 0, 1, slice(2, 4), slice(4, 6), slice(6, 8)
+
+
+def _candidate_stats(hier: Hierarchies, sp_area: np.ndarray, sp_box: np.ndarray) -> np.ndarray:
+    """(S + M, 8) statistics of the superpixels and then of the regions of `hier`; the hashes
+    are sums of two fixed random codes per superpixel, so equal member sets hash equal."""
+    n_sp = sp_area.size
+    codes = np.random.default_rng(12345).integers(0, np.iinfo(np.int64).max, size=(2, n_sp), dtype=np.int64).T
+    leaves = np.concatenate([np.ones((n_sp, 1), np.int64), sp_area[:, None], codes, sp_box], axis=1)
+    return np.concatenate([leaves, reduce_forest(hier, leaves, _merge_stats)])
+
+
+def _merge_stats(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Statistics of the unions of disjoint candidates from theirs (rows of (N, 8))."""
+    return np.concatenate(
+        [a[:, :4] + b[:, :4], np.minimum(a[:, _LOW], b[:, _LOW]), np.maximum(a[:, _HIGH], b[:, _HIGH])],
+        axis=1,
+    )
+
+
+def _boxes(stats: np.ndarray) -> np.ndarray:
+    """(N, 4) README boxes of candidates: the exact extent of their masks."""
+    return boxes_from_pixel_bounds(stats[:, 4:8])
 
 
 def _check_inputs(color: np.ndarray, depth: np.ndarray, config: ProposalConfig) -> None:
@@ -312,41 +348,26 @@ def _sum_segments(values: np.ndarray, indptr: np.ndarray) -> np.ndarray:
     return np.add.reduceat(values, indptr[:-1]) if values.size else np.zeros(indptr.size - 1, values.dtype)
 
 
-def _member_boxes(sp_box: np.ndarray, indptr: np.ndarray, indices: np.ndarray) -> np.ndarray:
-    """(N, 4) README boxes from the inclusive pixel boxes of each row's superpixels."""
-    starts = indptr[:-1]
-    b = sp_box[indices]
-    lo = np.minimum.reduceat(b[:, :2], starts, axis=0)
-    hi = np.maximum.reduceat(b[:, 2:], starts, axis=0)
-    return boxes_from_pixel_bounds(np.concatenate([lo, hi], axis=1))
+def _ranked_unique(stats: np.ndarray, rows: np.ndarray, score: np.ndarray) -> np.ndarray:
+    """`rows` (ascending) without repeated member sets (the best-scored copy stays), best first
+    (ties by row). Sets are compared by their two random 64-bit hashes (collisions of both are
+    astronomically unlikely) and their size."""
+    ranked = rows[np.argsort(-score[rows], kind="stable")]
+    return ranked[first_of_equal(stats[ranked][:, [2, 3, _COUNT]])]
 
 
-def _ranked_unique(
-    indptr: np.ndarray, indices: np.ndarray, rows: np.ndarray, score: np.ndarray, n_sp: int
-) -> np.ndarray:
-    """`rows` without repeated member sets (the best-scored copy stays), best first (ties by row)."""
-    rows = _unique_members(indptr, indices, rows, -score, n_sp)
-    return rows[np.lexsort((rows, -score[rows]))]
-
-
-def _unique_members(
-    indptr: np.ndarray, indices: np.ndarray, rows: np.ndarray, priority: np.ndarray, n_sp: int
-) -> np.ndarray:
-    """`rows` with identical member sets reduced to the one of lowest priority value.
-
-    Sets are compared by two independent random 64-bit sums of their members (collisions of
-    both are astronomically unlikely) plus their size."""
-    rng = np.random.default_rng(12345)
-    codes = rng.integers(0, np.iinfo(np.int64).max, size=(2, n_sp), dtype=np.int64).astype(np.uint64)
-    starts = indptr[:-1]
-    h1 = np.add.reduceat(codes[0][indices], starts)[rows]
-    h2 = np.add.reduceat(codes[1][indices], starts)[rows]
-    count = np.diff(indptr)[rows].astype(np.uint64)
-    order = np.lexsort((rows, priority[rows], count, h2, h1))
-    key = np.stack([h1, h2, count], axis=1)[order]
-    first = np.ones(order.size, bool)
-    first[1:] = (key[1:] != key[:-1]).any(axis=1)
-    return np.sort(rows[order[first]])
+def first_of_equal(keys: np.ndarray) -> np.ndarray:
+    """(N,) bool: True at the first of each set of equal rows of the (N, C) int64 `keys`.
+    Grouped by the first column alone (one stable sort) unless that column puts unequal rows
+    together, then by all columns."""
+    order = np.argsort(keys[:, 0], kind="stable")
+    same = keys[order[1:]] == keys[order[:-1]]
+    if (same[:, 0] & ~same.all(axis=1)).any():
+        order = np.lexsort(keys.T[::-1])
+        same = keys[order[1:]] == keys[order[:-1]]
+    first = np.ones(keys.shape[0], bool)
+    first[order[1:]] = ~same.all(axis=1)
+    return first
 
 
 def _best_distinct(boxes: np.ndarray, ranked: np.ndarray, iou: float, limit: int) -> np.ndarray:
