@@ -14,6 +14,7 @@ from a3d.runtime.frontend.grouping import (
     LeafSpans,
     PairConfig,
     Strategy,
+    _aggregate_edges,
     build_graph,
     concat_ranges,
     group,
@@ -379,3 +380,21 @@ def test_an_object_cut_in_two_by_an_occluder_is_one_proposal() -> None:
 def test_concat_ranges_known_answer() -> None:
     np.testing.assert_array_equal(concat_ranges(np.array([5, 0, 9]), np.array([2, 0, 3])), [5, 6, 9, 10, 11])
     assert concat_ranges(np.zeros(0, np.int64), np.zeros(0, np.int64)).size == 0
+
+
+@pytest.mark.parametrize("n", [50, 70_000])  # 16-bit radix passes, and the comparison sort beyond
+def test_parallel_edges_are_summed_in_pair_order(n) -> None:
+    rng = np.random.default_rng(n)
+    a = rng.integers(0, 20, 300) * (n // 50)
+    b = a + 1 + rng.integers(0, 3, 300)
+    length = rng.random(300)
+    strength = rng.random((300, 3))
+    pairs, total_len, total_str = _aggregate_edges(a, b, length, strength, n)
+    expected: dict[tuple[int, int], list[float]] = {}
+    for i, key in enumerate(zip(a.tolist(), b.tolist(), strict=True)):
+        expected.setdefault(key, [0.0] * 4)
+        expected[key] = [s + v for s, v in zip(expected[key], [length[i], *strength[i]], strict=True)]
+    assert [tuple(p) for p in pairs.tolist()] == sorted(expected)
+    np.testing.assert_allclose(
+        np.column_stack([total_len, total_str]), [expected[k] for k in sorted(expected)]
+    )

@@ -241,15 +241,29 @@ def build_graph(
 def _aggregate_edges(
     a: np.ndarray, b: np.ndarray, length: np.ndarray, strength: np.ndarray, n: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Sum the statistics of parallel edges (a < b given): unique (E, 2) pairs, lengths, strengths."""
-    key = a * n + b
-    uniq, inverse = np.unique(key, return_inverse=True)
-    m = uniq.size
+    """Sum the statistics of parallel edges (a < b < n given): unique (E, 2) pairs in (a, b)
+    order, lengths, strengths."""
+    order = _pair_order(a, b, n)
+    sa, sb = a[order], b[order]
+    first = np.ones(order.size, bool)
+    first[1:] = (sa[1:] != sa[:-1]) | (sb[1:] != sb[:-1])
+    inverse = np.empty(order.size, np.int64)
+    inverse[order] = np.cumsum(first) - 1
+    m = int(first.sum())
     total_len = np.bincount(inverse, weights=length, minlength=m)
     total_str = np.stack(
         [np.bincount(inverse, weights=strength[:, k], minlength=m) for k in range(strength.shape[1])], axis=1
     )
-    return np.stack(np.divmod(uniq, n), axis=1), total_len, total_str
+    return np.stack([sa[first], sb[first]], axis=1), total_len, total_str
+
+
+def _pair_order(a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
+    """An order sorting the pairs (a, b) of ids below `n` by a, then b: two passes of numpy's
+    radix sort (stable, linear) on 16-bit ids where they fit, one comparison sort otherwise."""
+    if n > 1 << 16:
+        return np.argsort(a * n + b, kind="stable")
+    by_b = np.argsort(b.astype(np.uint16), kind="stable")
+    return by_b[np.argsort(a[by_b].astype(np.uint16), kind="stable")]
 
 
 def _boundary_similarity(length: np.ndarray, strength: np.ndarray, scales: BoundaryScales) -> np.ndarray:
@@ -268,11 +282,10 @@ def _outer(pairs: np.ndarray, length: np.ndarray, similarity: np.ndarray, first:
     """(m, 3) length-weighted mean boundary `similarity` (E, 3) of the nodes first..first+m-1
     over the edges given (ends outside that range are ignored)."""
     ends = pairs.ravel() - first
-    inside = (ends >= 0) & (ends < m)
-    ends = ends[inside]
-    lengths = np.repeat(length, 2)[inside]
-    weighted = np.repeat(similarity * length[:, None], 2, axis=0)[inside]
-    total_len = np.bincount(ends, weights=lengths, minlength=m)
+    at = np.flatnonzero((ends >= 0) & (ends < m))  # edge ends in edge order, as bincount sums them
+    ends, edge = ends[at], at >> 1
+    total_len = np.bincount(ends, weights=length[edge], minlength=m)
+    weighted = similarity[edge] * length[edge, None]
     total = np.stack([np.bincount(ends, weights=weighted[:, k], minlength=m) for k in range(3)], 1)
     return total / np.maximum(total_len, 1e-12)[:, None]
 
@@ -303,13 +316,12 @@ def group(
     weights = weights.reshape(k, len(fields(Strategy)))
 
     # Every strategy starts from the same superpixel graph: its similarity terms once, weighted k ways.
-    e0 = graph.pairs.shape[0]
     pairs = (graph.pairs[None] + (np.arange(k) * n0)[:, None, None]).reshape(-1, 2)
     length = np.tile(graph.length, k)
     strength = np.tile(graph.strength, (k, 1))
     bs = _boundary_similarity(graph.length, graph.strength, scales)
-    terms = _similarity_terms(graph.pairs, graph.length, bs, regions, weights.max(axis=0, initial=0.0)[None])
-    sim = _weighted(np.tile(terms, (k, 1)), weights[np.repeat(np.arange(k), e0)])
+    terms = _similarity_terms(graph.pairs, bs, regions, weights.max(axis=0, initial=0.0)[:, None])
+    sim = np.concatenate([_weighted(terms, w[:, None]) for w in weights]) if k else np.zeros(0)
     n_total = n0 * k
     children, rounds, outers = [], [0], []
     while pairs.shape[0] > 0:
@@ -337,9 +349,9 @@ def group(
         new_pairs, new_length, new_strength = _aggregate_edges(
             np.minimum(ra, rb)[moved], np.maximum(ra, rb)[moved], length[moved], strength[moved], n_total + m
         )
-        edge_weights = weights[node_strategy[new_pairs[:, 0]]]
+        edge_weights = weights.T[:, node_strategy[new_pairs[:, 0]]]
         bs = _boundary_similarity(new_length, new_strength, scales)
-        new_sim = _weighted(_similarity_terms(new_pairs, new_length, bs, regions, edge_weights), edge_weights)
+        new_sim = _weighted(_similarity_terms(new_pairs, bs, regions, edge_weights), edge_weights)
         outers.append(_outer(new_pairs, new_length, bs, n_total, m))
         pairs = np.concatenate([pairs[~touched], new_pairs])
         length = np.concatenate([length[~touched], new_length])
@@ -411,42 +423,45 @@ class _Regions:
 
 
 def _similarity_terms(
-    pairs: np.ndarray, length: np.ndarray, boundary: np.ndarray, r: _Regions, weights: np.ndarray
+    pairs: np.ndarray, boundary: np.ndarray, r: _Regions, weights: np.ndarray
 ) -> np.ndarray:
-    """(E, 7) similarity terms of the edges `pairs` in Strategy field order, `boundary` (E, 3)
-    their boundary similarities; `weights` (E, 7) or (1, 7): a term is only computed for the
-    edges that weigh it (0 elsewhere), the costlier ones only for those rows."""
+    """(7, E) similarity terms of the edges `pairs` in Strategy field order, `boundary` (E, 3)
+    their boundary similarities; `weights` (7, E) or (7, 1): a term is only computed for the
+    edges that weigh it (0 elsewhere), the costlier ones only for those edges. Rows, not
+    columns, so that every term is a contiguous array."""
     a, b = pairs[:, 0], pairs[:, 1]
-    weights = np.broadcast_to(weights, (a.size, weights.shape[1]))
-    terms = np.zeros((a.size, 7))
-    terms[:, 1:4] = boundary
+    weights = np.broadcast_to(weights, (weights.shape[0], a.size))
+    terms = np.zeros((7, a.size))
+    terms[1:4] = boundary.T
     joint = r.size[a] + r.size[b]
-    terms[:, 5] = 1.0 - joint / r.image_area
-    e = np.nonzero(weights[:, 0])[0]
+    terms[5] = 1.0 - joint / r.image_area
+    e = np.nonzero(weights[0])[0]
     if e.size:
-        terms[e, 0] = np.minimum(r.hist[a[e]], r.hist[b[e]]).sum(axis=1)
-    e = np.nonzero(weights[:, 4])[0]
+        terms[0, e] = np.minimum(r.hist[a[e]], r.hist[b[e]]).sum(axis=1)
+    e = np.nonzero(weights[4])[0]
     if e.size:
-        na, nb = r.normal_sum[a[e]], r.normal_sum[b[e]]
-        cos = (na * nb).sum(axis=1) / np.sqrt((na * na).sum(axis=1) * (nb * nb).sum(axis=1)).clip(1e-12)
-        terms[e, 4] = np.clip(cos, 0.0, 1.0)
-    e = np.nonzero(weights[:, 6])[0]
+        na, nb = r.normal_sum[a[e]].T, r.normal_sum[b[e]].T
+        dot = na[0] * nb[0] + na[1] * nb[1] + na[2] * nb[2]
+        norms = (na[0] * na[0] + na[1] * na[1] + na[2] * na[2]) * (
+            nb[0] * nb[0] + nb[1] * nb[1] + nb[2] * nb[2]
+        )
+        terms[4, e] = np.clip(dot / np.sqrt(norms).clip(1e-12), 0.0, 1.0)
+    e = np.nonzero(weights[6])[0]
     if e.size:
-        ae, be = a[e], b[e]
-        lo = np.minimum(r.bbox[ae, :2], r.bbox[be, :2])
-        hi = np.maximum(r.bbox[ae, 2:], r.bbox[be, 2:])
-        box_area = np.prod(hi - lo + 1, axis=1)
-        terms[e, 6] = 1.0 - (box_area - joint[e]) / r.image_area
+        ba, bb = r.bbox[a[e]].T, r.bbox[b[e]].T
+        width = np.maximum(ba[2], bb[2]) - np.minimum(ba[0], bb[0]) + 1
+        height = np.maximum(ba[3], bb[3]) - np.minimum(ba[1], bb[1]) + 1
+        terms[6, e] = 1.0 - (width * height - joint[e]) / r.image_area
     return terms
 
 
 def _weighted(terms: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """(E,) the weighted sum of the (E, 7) similarity terms, boundary terms first, then size,
-    colour, normal and fill (a fixed order, so equal terms give bit-equal similarities)."""
-    w, t = weights.T, terms.T
-    sim = w[1] * t[1] + w[2] * t[2] + w[3] * t[3]
+    """(E,) the weighted sum of the (7, E) similarity terms (`weights` (7, E) or (7, 1)),
+    boundary terms first, then size, colour, normal and fill (a fixed order, so equal terms
+    give bit-equal similarities)."""
+    sim = weights[1] * terms[1] + weights[2] * terms[2] + weights[3] * terms[3]
     for c in (5, 0, 4, 6):
-        sim += w[c] * t[c]
+        sim += weights[c] * terms[c]
     return sim
 
 
