@@ -230,7 +230,7 @@ def build_graph(
         cross = la != lb
         pair_a.append(la[cross])
         pair_b.append(lb[cross])
-        pair_s.append(np.maximum(ga[cross], gb[cross]))
+        pair_s.append(np.maximum(ga, gb)[cross])  # whole planes, then one gather
     a = np.concatenate(pair_a).astype(np.int64)
     b = np.concatenate(pair_b).astype(np.int64)
     s = np.concatenate(pair_s).astype(np.float64)
@@ -402,8 +402,9 @@ def _mutual_best(
             favourite[eb[top[1][::-1]]] = ea[top[1][::-1]]
         taken[ea[pick]] = True
         taken[eb[pick]] = True
-        waiting = taken | taken[favourite]
-        edges = edges[~(waiting[ea] | waiting[eb])]
+        # Every edge end has a favourite (set in the first pass over all edges).
+        waiting = taken[ea] | taken[favourite[ea]] | taken[eb] | taken[favourite[eb]]
+        edges = edges[~waiting]
         if edges.size == 0:
             break
     picked = np.concatenate(chosen)

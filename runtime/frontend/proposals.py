@@ -204,7 +204,7 @@ def propose(
     # Working pixel i covers full pixels f*i .. f*i+f-1, centred at f*i + (f-1)/2.
     K_small = replace(K, fx=K.fx / f, fy=K.fy / f, cx=(K.cx - (f - 1) / 2) / f, cy=(K.cy - (f - 1) / 2) / f)
     normals = surface_normals(depth, K_small, config.normals)
-    normal_ok = valid & (np.abs(normals).sum(axis=2) > 0)
+    normal_ok = valid & ((normals[..., 0] != 0) | (normals[..., 1] != 0) | (normals[..., 2] != 0))
     clock.lap("working_images")
 
     labels = oversegment(
@@ -419,7 +419,9 @@ def _drop_near_duplicates(boxes: np.ndarray, iou: float, rows: np.ndarray) -> np
     close = inter > iou * (area[i] + area[j] - inter)
     better, worse = np.minimum(i[close], j[close]), np.maximum(i[close], j[close])
     state = np.zeros(n, np.int8)  # 0 undecided, 1 kept, -1 dropped
-    state[np.setdiff1d(np.arange(n), worse)] = 1
+    has_better = np.zeros(n, bool)
+    has_better[worse] = True
+    state[~has_better] = 1
     while better.size:
         # A worse box is dropped once one close better box is kept ...
         hit = state[better] == 1
@@ -429,7 +431,7 @@ def _drop_near_duplicates(boxes: np.ndarray, iou: float, rows: np.ndarray) -> np
         better, worse = better[open_pair], worse[open_pair]
         pending = np.zeros(n, bool)
         pending[worse[state[better] != -1]] = True
-        free = np.setdiff1d(worse, np.nonzero(pending)[0])
+        free = worse[~pending[worse]]
         state[free] = 1
         keep_pair = state[worse] == 0
         better, worse = better[keep_pair], worse[keep_pair]
