@@ -118,7 +118,9 @@ def reduce_forest(
     values[: hier.n_leaves] = copies.reshape(hier.n_leaves, *leaf_values.shape[1:])
     for lo, hi in zip(hier.rounds[:-1], hier.rounds[1:], strict=True):
         a, b = hier.children[lo:hi, 0], hier.children[lo:hi, 1]
-        values[hier.n_leaves + lo : hier.n_leaves + hi] = merge(values[a], values[b])
+        values[hier.n_leaves + lo : hier.n_leaves + hi] = merge(
+            values.take(a, axis=0), values.take(b, axis=0)
+        )
     return values[hier.n_leaves :]
 
 
@@ -230,7 +232,7 @@ def build_graph(
         cross = la != lb
         pair_a.append(la[cross])
         pair_b.append(lb[cross])
-        pair_s.append(np.maximum(ga, gb)[cross])  # whole planes, then one gather
+        pair_s.append(np.maximum(ga, gb).reshape(-1, 3).compress(cross.ravel(), axis=0))  # rows by compress
     a = np.concatenate(pair_a).astype(np.int64)
     b = np.concatenate(pair_b).astype(np.int64)
     s = np.concatenate(pair_s).astype(np.float64)
@@ -285,7 +287,7 @@ def _outer(pairs: np.ndarray, length: np.ndarray, similarity: np.ndarray, first:
     at = np.flatnonzero((ends >= 0) & (ends < m))  # edge ends in edge order, as bincount sums them
     ends, edge = ends[at], at >> 1
     total_len = np.bincount(ends, weights=length[edge], minlength=m)
-    weighted = similarity[edge] * length[edge, None]
+    weighted = similarity.take(edge, axis=0) * length[edge, None]
     total = np.stack([np.bincount(ends, weights=weighted[:, k], minlength=m) for k in range(3)], 1)
     return total / np.maximum(total_len, 1e-12)[:, None]
 
@@ -330,10 +332,14 @@ def group(
         new = np.arange(n_total, n_total + m)
         wa, wb = size[ca], size[cb]
         size[new] = wa + wb
-        bbox[new, :2] = np.minimum(bbox[ca, :2], bbox[cb, :2])
-        bbox[new, 2:] = np.maximum(bbox[ca, 2:], bbox[cb, 2:])
-        hist[new] = (hist[ca] * wa[:, None] + hist[cb] * wb[:, None]) / (wa + wb)[:, None]
-        normal_sum[new] = normal_sum[ca] + normal_sum[cb]
+        # Row gathers by take (faster than fancy indexing for 2-D rows).
+        box_a, box_b = bbox.take(ca, axis=0), bbox.take(cb, axis=0)
+        bbox[new, :2] = np.minimum(box_a[:, :2], box_b[:, :2])
+        bbox[new, 2:] = np.maximum(box_a[:, 2:], box_b[:, 2:])
+        hist[new] = (hist.take(ca, axis=0) * wa[:, None] + hist.take(cb, axis=0) * wb[:, None]) / (wa + wb)[
+            :, None
+        ]
+        normal_sum[new] = normal_sum.take(ca, axis=0) + normal_sum.take(cb, axis=0)
         node_strategy[new] = node_strategy[ca]
         children.append(np.stack([ca, cb], axis=1))
         rounds.append(rounds[-1] + m)
@@ -347,16 +353,22 @@ def group(
         touched = (ra >= n_total) | (rb >= n_total)
         moved = touched & (ra != rb)
         new_pairs, new_length, new_strength = _aggregate_edges(
-            np.minimum(ra, rb)[moved], np.maximum(ra, rb)[moved], length[moved], strength[moved], n_total + m
+            np.minimum(ra, rb)[moved],
+            np.maximum(ra, rb)[moved],
+            length[moved],
+            strength.compress(moved, axis=0),
+            n_total + m,
         )
         edge_weights = weights.T[:, node_strategy[new_pairs[:, 0]]]
         bs = _boundary_similarity(new_length, new_strength, scales)
         new_sim = _weighted(_similarity_terms(new_pairs, bs, regions, edge_weights), edge_weights)
         outers.append(_outer(new_pairs, new_length, bs, n_total, m))
-        pairs = np.concatenate([pairs[~touched], new_pairs])
-        length = np.concatenate([length[~touched], new_length])
-        strength = np.concatenate([strength[~touched], new_strength])
-        sim = np.concatenate([sim[~touched], new_sim])
+        # Rows picked by compress: boolean indexing of 2-D arrays is several times slower.
+        kept = ~touched
+        pairs = np.concatenate([pairs.compress(kept, axis=0), new_pairs])
+        length = np.concatenate([length[kept], new_length])
+        strength = np.concatenate([strength.compress(kept, axis=0), new_strength])
+        sim = np.concatenate([sim[kept], new_sim])
         n_total += m
 
     return Hierarchies(
@@ -438,10 +450,12 @@ def _similarity_terms(
     terms[5] = 1.0 - joint / r.image_area
     e = np.nonzero(weights[0])[0]
     if e.size:
-        terms[0, e] = np.minimum(r.hist[a[e]], r.hist[b[e]]).sum(axis=1)
+        common = r.hist.take(a[e], axis=0)
+        np.minimum(common, r.hist.take(b[e], axis=0), out=common)
+        terms[0, e] = common.sum(axis=1)
     e = np.nonzero(weights[4])[0]
     if e.size:
-        na, nb = r.normal_sum[a[e]].T, r.normal_sum[b[e]].T
+        na, nb = r.normal_sum.take(a[e], axis=0).T, r.normal_sum.take(b[e], axis=0).T
         dot = na[0] * nb[0] + na[1] * nb[1] + na[2] * nb[2]
         norms = (na[0] * na[0] + na[1] * na[1] + na[2] * na[2]) * (
             nb[0] * nb[0] + nb[1] * nb[1] + nb[2] * nb[2]
@@ -449,7 +463,7 @@ def _similarity_terms(
         terms[4, e] = np.clip(dot / np.sqrt(norms).clip(1e-12), 0.0, 1.0)
     e = np.nonzero(weights[6])[0]
     if e.size:
-        ba, bb = r.bbox[a[e]].T, r.bbox[b[e]].T
+        ba, bb = r.bbox.take(a[e], axis=0).T, r.bbox.take(b[e], axis=0).T
         width = np.maximum(ba[2], bb[2]) - np.minimum(ba[0], bb[0]) + 1
         height = np.maximum(ba[3], bb[3]) - np.minimum(ba[1], bb[1]) + 1
         terms[6, e] = 1.0 - (width * height - joint[e]) / r.image_area
@@ -535,7 +549,7 @@ def combine_pairs(
     member_matrix = np.zeros((t, graph.n), bool)
     member_matrix[owner, members] = True
     bits = np.packbits(member_matrix, axis=1)
-    disjoint = ~(bits[i] & bits[j]).any(axis=1)
+    disjoint = ~(bits.take(i, axis=0) & bits.take(j, axis=0)).any(axis=1)
     i, j = i[disjoint], j[disjoint]
     pair_score = np.minimum(score[i], score[j]) - config.penalty
     best = np.argsort(-pair_score, kind="stable")[: config.max_pairs]

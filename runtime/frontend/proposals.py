@@ -353,7 +353,7 @@ def _ranked_unique(stats: np.ndarray, rows: np.ndarray, score: np.ndarray) -> np
     (ties by row). Sets are compared by their two random 64-bit hashes (collisions of both are
     astronomically unlikely) and their size."""
     ranked = rows[np.argsort(-score[rows], kind="stable")]
-    return ranked[first_of_equal(stats[ranked][:, [2, 3, _COUNT]])]
+    return ranked[first_of_equal(stats.take(ranked, axis=0)[:, [2, 3, _COUNT]])]
 
 
 def first_of_equal(keys: np.ndarray) -> np.ndarray:
@@ -361,10 +361,12 @@ def first_of_equal(keys: np.ndarray) -> np.ndarray:
     Grouped by the first column alone (one stable sort) unless that column puts unequal rows
     together, then by all columns."""
     order = np.argsort(keys[:, 0], kind="stable")
-    same = keys[order[1:]] == keys[order[:-1]]
+    in_order = keys.take(order, axis=0)
+    same = in_order[1:] == in_order[:-1]
     if (same[:, 0] & ~same.all(axis=1)).any():
         order = np.lexsort(keys.T[::-1])
-        same = keys[order[1:]] == keys[order[:-1]]
+        in_order = keys.take(order, axis=0)
+        same = in_order[1:] == in_order[:-1]
     first = np.ones(keys.shape[0], bool)
     first[order[1:]] = ~same.all(axis=1)
     return first
@@ -413,8 +415,9 @@ def _drop_near_duplicates(boxes: np.ndarray, iou: float, rows: np.ndarray) -> np
     first = np.repeat(np.concatenate([np.arange(n), np.arange(n)]), counts)
     second = np.arange(counts.sum()) + np.repeat(start - (np.cumsum(counts) - counts), counts)
     i, j = order[first], order[second]
-    lo = np.maximum(boxes[i, :2], boxes[j, :2])
-    hi = np.minimum(boxes[i, 2:], boxes[j, 2:])
+    box_i, box_j = boxes.take(i, axis=0), boxes.take(j, axis=0)
+    lo = np.maximum(box_i[:, :2], box_j[:, :2])
+    hi = np.minimum(box_i[:, 2:], box_j[:, 2:])
     inter = np.prod(np.clip(hi - lo, 0.0, None), axis=1)
     close = inter > iou * (area[i] + area[j] - inter)
     better, worse = np.minimum(i[close], j[close]), np.maximum(i[close], j[close])
