@@ -11,6 +11,9 @@ too (their similarities cannot have changed this round), which cuts the number o
 threefold. All strategies run together, as copies of the graph in one disjoint union, so each
 round's numpy calls serve all of them. Region statistics are additive (sizes, histograms, sums,
 boundary sums), so a merge is a sum and the adjacency update is a re-keying plus `np.bincount`.
+The result is the merge forest, not every region's member list (about ten times the superpixels
+per strategy): statistics merge along it (`reduce_forest`) and member lists are spelled out only
+for the regions that need them (`LeafSpans`).
 
 Similarity terms, each in [0, 1] (1 = merge first):
 colour (histogram intersection of Lab histograms), colour/depth/normal boundary (exp of minus
@@ -520,16 +523,15 @@ def combine_pairs(
     t = indptr.size - 1
     if t < 2 or config.max_pairs <= 0:
         return np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
-    members = indices
     owner = np.repeat(np.arange(t), np.diff(indptr))
     n_channels = 3
     per_bin = graph.color_hist.shape[1] // n_channels
     lab_sum = (graph.color_hist * bin_centres).reshape(graph.n, n_channels, per_bin).sum(axis=2)
-    size = np.bincount(owner, weights=graph.size[members], minlength=t)
-    lab = np.stack([np.bincount(owner, weights=lab_sum[members, c], minlength=t) for c in range(3)], 1)
+    size = np.bincount(owner, weights=graph.size[indices], minlength=t)
+    lab = np.stack([np.bincount(owner, weights=lab_sum[indices, c], minlength=t) for c in range(3)], 1)
     lab /= size[:, None]
-    depth_n = np.bincount(owner, weights=graph.depth_count[members], minlength=t)
-    log_z = np.bincount(owner, weights=graph.depth_sum[members], minlength=t) / np.maximum(depth_n, 1.0)
+    depth_n = np.bincount(owner, weights=graph.depth_count[indices], minlength=t)
+    log_z = np.bincount(owner, weights=graph.depth_sum[indices], minlength=t) / np.maximum(depth_n, 1.0)
 
     # Pairwise, one coordinate / channel at a time (2-D arrays, not strided 3-D reductions).
     x1, y1, x2, y2 = boxes.T
@@ -547,7 +549,7 @@ def combine_pairs(
     i, j = np.nonzero(np.triu(ok, 1))
     # Only disjoint parts pair up (a union with an overlap is not a new combination).
     member_matrix = np.zeros((t, graph.n), bool)
-    member_matrix[owner, members] = True
+    member_matrix[owner, indices] = True
     bits = np.packbits(member_matrix, axis=1)
     disjoint = ~(bits.take(i, axis=0) & bits.take(j, axis=0)).any(axis=1)
     i, j = i[disjoint], j[disjoint]

@@ -27,7 +27,7 @@ exactly the extent of its mask.
 Measured with bench/frontend.py on 60 held-out a3d-synth frames (537 objects, 427 x 561):
 recall of the visible boxes at IoU 0.5 of about 0.93 with 1000 proposals and 0.94 with 2000
 (0.95 / 0.96 without the 2-3 % of objects smaller than `min_area`), at IoU 0.7 about 0.8;
-about 0.12 s per frame on one core.
+about 50 ms per frame (docs/edge-speed.md "The proposal front end").
 """
 
 from __future__ import annotations
