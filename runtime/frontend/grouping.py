@@ -235,7 +235,7 @@ def build_graph(
         cross = la != lb
         pair_a.append(la[cross])
         pair_b.append(lb[cross])
-        pair_s.append(np.maximum(ga, gb).reshape(-1, 3).compress(cross.ravel(), axis=0))  # rows by compress
+        pair_s.append(np.maximum(ga, gb).reshape(-1, 3).compress(cross.ravel(), axis=0))  # 2-D masks: slow
     a = np.concatenate(pair_a).astype(np.int64)
     b = np.concatenate(pair_b).astype(np.int64)
     s = np.concatenate(pair_s).astype(np.float64)
