@@ -35,7 +35,6 @@ from __future__ import annotations
 
 import itertools
 import logging
-import time
 import typing
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
@@ -45,6 +44,7 @@ from typing import TYPE_CHECKING, Literal, Protocol
 import cv2
 import numpy as np
 
+from a3d.runtime.clock import Clock
 from a3d.runtime.errors import InputError, ModelError
 from a3d.runtime.frontend.depth import fill_depth_info
 from a3d.runtime.frontend.frame_proposals import frame_proposals
@@ -150,19 +150,6 @@ class PipelineConfig:
 # ----------------------------------------------------------------------------- stages
 
 
-class _Clock:
-    """Lap timer: ``lap(stage)`` adds the seconds since the previous lap to ``timing[stage]``."""
-
-    def __init__(self, timing: dict[str, float]) -> None:
-        self.timing = timing
-        self.last = time.perf_counter()
-
-    def lap(self, stage: str) -> None:
-        now = time.perf_counter()
-        self.timing[stage] = self.timing.get(stage, 0.0) + (now - self.last)
-        self.last = now
-
-
 @dataclass(eq=False)
 class PreparedFrame:
     """A frame after the CPU front end, ready for the network.
@@ -198,7 +185,7 @@ def prepare(frame: Frame, config: PipelineConfig, timing: dict[str, float] | Non
     """Stage 1: everything before the network (see the module docstring); ``timing`` may already
     hold the frame's read time."""
     timing = {} if timing is None else timing
-    clock = _Clock(timing)
+    clock = Clock(timing)
     notes: list[str] = [frame.pose_note] if frame.pose_note else []
     fill = fill_depth_info(frame.depth)
     filled = fill.depth
@@ -230,7 +217,7 @@ def prepare(frame: Frame, config: PipelineConfig, timing: dict[str, float] | Non
 def load_and_prepare(loader: FrameLoader, config: PipelineConfig) -> PreparedFrame:
     """Read the frame (timed as "read"), then stage 1."""
     timing: dict[str, float] = {}
-    clock = _Clock(timing)
+    clock = Clock(timing)
     frame = loader.load()
     clock.lap("read")
     return prepare(frame, config, timing)
@@ -257,7 +244,7 @@ def _proposals(
 
 def infer(model: NetworkRunner, prepared: PreparedFrame) -> NetworkOutput:
     """Stage 2: one model call over all RoIs of the frame (skipped when there are none)."""
-    clock = _Clock(prepared.timing)
+    clock = Clock(prepared.timing)
     n, c = len(prepared.rois), NUM_OUTPUTS
     shapes = {"class_probs": (n, c), "deltas3d": (n, c, BOX_DIM), "deltas2d": (n, c, 4)}
     if n == 0:
@@ -276,7 +263,7 @@ def infer(model: NetworkRunner, prepared: PreparedFrame) -> NetworkOutput:
 
 def finish(prepared: PreparedFrame, out: NetworkOutput, config: PipelineConfig) -> FrameDetections:
     """Stage 3: selection, decoding and corners; the frame's detections line."""
-    clock = _Clock(prepared.timing)
+    clock = Clock(prepared.timing)
     class_scores = out.probs[:, 1:]
     if config.score_calibration is not None:
         class_scores = config.score_calibration.apply(class_scores)

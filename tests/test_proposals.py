@@ -10,13 +10,25 @@ import pytest
 
 from a3d.runtime.frontend.grouping import (
     BoundaryScales,
+    Hierarchies,
+    LeafSpans,
     PairConfig,
     Strategy,
+    _aggregate_edges,
     build_graph,
     concat_ranges,
     group,
+    reduce_forest,
 )
-from a3d.runtime.frontend.proposals import ProposalConfig, Proposals, _drop_near_duplicates, propose
+from a3d.runtime.frontend.proposals import (
+    DEFAULT_STRATEGIES,
+    PROPOSAL_STAGES,
+    ProposalConfig,
+    Proposals,
+    _drop_near_duplicates,
+    first_of_equal,
+    propose,
+)
 from a3d.runtime.frontend.superpixels import SuperpixelConfig, depth_edges, oversegment
 from a3d.runtime.structures.geometry import Intrinsics, iou_2d
 
@@ -122,9 +134,12 @@ def test_area_filter_and_cap(scene) -> None:
     np.testing.assert_array_equal(capped.scores, props.scores[:7])
 
 
-def test_ranking_is_deterministic(scene) -> None:
+def test_ranking_is_deterministic_and_timing_changes_nothing(scene) -> None:
     color, depth, _, props = scene
-    again = propose(color, depth, K, ProposalConfig(min_area=20))
+    timing: dict[str, float] = {}
+    again = propose(color, depth, K, ProposalConfig(min_area=20), timing)
+    assert tuple(timing) == PROPOSAL_STAGES  # every stage timed, in order
+    assert all(seconds >= 0 for seconds in timing.values())
     np.testing.assert_array_equal(again.superpixels, props.superpixels)
     np.testing.assert_array_equal(again.indptr, props.indptr)
     np.testing.assert_array_equal(again.indices, props.indices)
@@ -208,17 +223,24 @@ def two_tone_graph() -> tuple[np.ndarray, object]:
     return labels, graph
 
 
+def region_members(hier: Hierarchies) -> tuple[np.ndarray, np.ndarray]:
+    """The CSR (indptr, sorted indices) of every region of `hier`, through LeafSpans."""
+    rows = np.arange(hier.n)
+    return LeafSpans.of(hier).members(hier.n_leaves + rows, rows, hier.n, hier.n_superpixels)
+
+
 def test_hierarchies_are_binary_trees_that_find_the_two_halves() -> None:
     labels, graph = two_tone_graph()
     strategies = (Strategy(color=1.0, size=1.0, fill=1.0), Strategy(boundary_color=1.0, size=1.0))
     hier = group(graph, strategies, BoundaryScales(), float(labels.size))
+    indptr, indices = region_members(hier)
     n = graph.n
     left = frozenset(np.unique(labels[:, :32]).tolist())
     right = frozenset(np.unique(labels[:, 32:]).tolist())
     for s in range(len(strategies)):
         rows = np.nonzero(hier.strategy == s)[0]
         regions = [frozenset([k]) for k in range(n)]
-        regions += [frozenset(hier.indices[hier.indptr[i] : hier.indptr[i + 1]].tolist()) for i in rows]
+        regions += [frozenset(indices[indptr[i] : indptr[i + 1]].tolist()) for i in rows]
         assert len(regions) == 2 * n - 1  # a connected graph merges down to one region
         assert regions[-1] == frozenset(range(n))
         # Every merge joins two earlier, disjoint regions.
@@ -230,12 +252,74 @@ def test_hierarchies_are_binary_trees_that_find_the_two_halves() -> None:
         # The dark and the light half each appear as a region before they are joined.
         assert left in regions and right in regions
     # Run alone, a strategy forms exactly the regions it forms in company.
-    alone = group(graph, strategies[1:], BoundaryScales(), float(labels.size))
-    rows = np.nonzero(hier.strategy == 1)[0]
-    np.testing.assert_array_equal(np.diff(alone.indptr), np.diff(hier.indptr)[rows])
-    np.testing.assert_array_equal(
-        alone.indices, np.concatenate([hier.indices[hier.indptr[i] : hier.indptr[i + 1]] for i in rows])
+    alone_indptr, alone_indices = region_members(
+        group(graph, strategies[1:], BoundaryScales(), float(labels.size))
     )
+    rows = np.nonzero(hier.strategy == 1)[0]
+    np.testing.assert_array_equal(np.diff(alone_indptr), np.diff(indptr)[rows])
+    np.testing.assert_array_equal(
+        alone_indices, np.concatenate([indices[indptr[i] : indptr[i + 1]] for i in rows])
+    )
+
+
+def reference_sets(hier: Hierarchies) -> list[set[int]]:
+    """Each region's superpixels, by plain recursion over the merge forest's children."""
+    nodes: list[set[int]] = [{leaf % hier.n_superpixels} for leaf in range(hier.n_leaves)]
+    for a, b in hier.children.tolist():
+        assert nodes[a].isdisjoint(nodes[b])
+        nodes.append(nodes[a] | nodes[b])
+    return nodes[hier.n_leaves :]
+
+
+def test_forest_members_and_statistics_match_a_plain_recursion() -> None:
+    color, depth, _ = draw_scene(seed=2)
+    lab = cv2.cvtColor(color, cv2.COLOR_BGR2Lab)
+    log_depth = np.log(depth)
+    ones = np.ones(depth.shape, bool)
+    config = SuperpixelConfig(n_segments=60)
+    labels = oversegment(lab, log_depth, depth_edges(log_depth, ones, config), config)
+    bins = (lab.astype(np.int32) * 8 >> 8) + np.arange(3) * 8
+    grad = np.random.default_rng(0).random((*depth.shape, 3)).astype(np.float32)
+    normals = np.zeros((*depth.shape, 3), np.float32)
+    normals[..., 2] = -1.0
+    graph = build_graph(labels, bins, 24, grad, log_depth, ones, normals, ones)
+    hier = group(graph, DEFAULT_STRATEGIES[:4], BoundaryScales(), float(labels.size))
+    sets = reference_sets(hier)
+    assert hier.n == 4 * (graph.n - 1)  # every strategy merges the connected graph down to one
+    # Members of arbitrary rows, several nodes per row (a pair), sorted.
+    rng = np.random.default_rng(1)
+    chosen = rng.choice(hier.n, 40, replace=False)
+    disjoint_pair = next((a, b) for a in range(hier.n) for b in range(hier.n) if sets[a].isdisjoint(sets[b]))
+    nodes = hier.n_leaves + np.array([*chosen, *disjoint_pair])
+    rows = np.array([*range(40), 40, 40])
+    indptr, indices = LeafSpans.of(hier).members(nodes, rows, 41, hier.n_superpixels)
+    expected = [sorted(sets[c]) for c in chosen] + [sorted(sets[disjoint_pair[0]] | sets[disjoint_pair[1]])]
+    assert [indices[indptr[i] : indptr[i + 1]].tolist() for i in range(41)] == expected
+    # Additive statistics merged along the forest: sums, minima and maxima over the member sets.
+    values = rng.integers(-(2**62), 2**62, (graph.n, 3))
+    merged = reduce_forest(hier, values, lambda a, b: np.stack([a[:, 0] + b[:, 0],
+                           np.minimum(a[:, 1], b[:, 1]), np.maximum(a[:, 2], b[:, 2])], axis=1))  # fmt: skip
+    for k, members in enumerate(sets):
+        m = sorted(members)
+        wrapped = (int(values[m, 0].astype(object).sum()) + 2**63) % 2**64 - 2**63  # int64 wrap-around
+        assert merged[k].tolist() == [wrapped, values[m, 1].min(), values[m, 2].max()]
+
+
+def test_first_of_equal_keeps_the_first_of_each_distinct_row() -> None:
+    rng = np.random.default_rng(4)
+    keys = rng.integers(0, 3, (200, 3))
+    keys[:, 0] = rng.integers(0, 2, 200)  # many rows share a first column but differ later
+    seen: set[tuple[int, ...]] = set()
+    expected = []
+    for row in map(tuple, keys.tolist()):
+        expected.append(row not in seen)
+        seen.add(row)
+    np.testing.assert_array_equal(first_of_equal(keys), expected)
+    unique_first = keys.copy()
+    unique_first[:, 0] = np.arange(200) % 50  # equal first columns only where the rows are equal
+    unique_first[:, 1:] = unique_first[:, :1]
+    np.testing.assert_array_equal(first_of_equal(unique_first), np.arange(200) < 50)
+    assert first_of_equal(np.zeros((0, 3), np.int64)).size == 0
 
 
 def greedy_reference(boxes: np.ndarray, threshold: float) -> list[int]:
@@ -296,3 +380,21 @@ def test_an_object_cut_in_two_by_an_occluder_is_one_proposal() -> None:
 def test_concat_ranges_known_answer() -> None:
     np.testing.assert_array_equal(concat_ranges(np.array([5, 0, 9]), np.array([2, 0, 3])), [5, 6, 9, 10, 11])
     assert concat_ranges(np.zeros(0, np.int64), np.zeros(0, np.int64)).size == 0
+
+
+@pytest.mark.parametrize("n", [50, 70_000])  # 16-bit radix passes, and the comparison sort beyond
+def test_parallel_edges_are_summed_in_pair_order(n) -> None:
+    rng = np.random.default_rng(n)
+    a = rng.integers(0, 20, 300) * (n // 50)
+    b = a + 1 + rng.integers(0, 3, 300)
+    length = rng.random(300)
+    strength = rng.random((300, 3))
+    pairs, total_len, total_str = _aggregate_edges(a, b, length, strength, n)
+    expected: dict[tuple[int, int], list[float]] = {}
+    for i, key in enumerate(zip(a.tolist(), b.tolist(), strict=True)):
+        expected.setdefault(key, [0.0] * 4)
+        expected[key] = [s + v for s, v in zip(expected[key], [length[i], *strength[i]], strict=True)]
+    assert [tuple(p) for p in pairs.tolist()] == sorted(expected)
+    np.testing.assert_allclose(
+        np.column_stack([total_len, total_str]), [expected[k] for k in sorted(expected)]
+    )

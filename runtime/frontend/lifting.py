@@ -92,7 +92,7 @@ def lift(
         ],
         axis=1,
     )
-    count, sum_u, sum_v = _segment_sum(per_sp[indices], indptr).T
+    count, sum_u, sum_v = _segment_sum(per_sp.take(indices, axis=0), indptr).T
 
     z, n_raw = _segment_medians(sp, depth_raw.ravel(), indptr, indices, n_sp, config.bin_width)
     from_filled = (count > 0) & (n_raw == 0)
@@ -190,10 +190,11 @@ def _segment_medians(
     bins = np.minimum(scaled.astype(np.int32), n_bins - 1)
     trash = n_used * n_bins  # the key of pixels without a value or outside every segment
     first_key = np.where(used, compact * np.int32(n_bins), np.int32(-1))[sp]
-    key = np.where(positive & (first_key >= 0), first_key + bins, np.int32(trash))
-    # cum[k]: pixels with key < k, so superpixel s has cum[s * n_bins + b] - cum[s * n_bins] in bins < b.
-    cum = np.zeros(trash + 2, dtype=np.int64)
-    np.cumsum(np.bincount(key, minlength=trash + 1), out=cum[1:])
+    # cum[k]: pixels with key < k, so superpixel s has cum[s * n_bins + b] - cum[s * n_bins] in bins < b;
+    # counted at key + 1 and summed in place (a second array of this size costs more than the sum).
+    key = np.where(positive & (first_key >= 0), first_key + bins + 1, np.int32(trash + 1))
+    cum = np.bincount(key, minlength=trash + 2)
+    np.cumsum(cum, out=cum)
     member_start = compact[indices].astype(np.int64) * n_bins
     base = _segment_sum(cum[member_start], indptr)
     counts = _segment_sum(cum[member_start + n_bins], indptr) - base

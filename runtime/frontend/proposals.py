@@ -27,7 +27,7 @@ exactly the extent of its mask.
 Measured with bench/frontend.py on 60 held-out a3d-synth frames (537 objects, 427 x 561):
 recall of the visible boxes at IoU 0.5 of about 0.93 with 1000 proposals and 0.94 with 2000
 (0.95 / 0.96 without the 2-3 % of objects smaller than `min_area`), at IoU 0.7 about 0.8;
-about 0.12 s per frame on one core.
+about 50 ms per frame (docs/edge-speed.md "The proposal front end").
 """
 
 from __future__ import annotations
@@ -39,15 +39,18 @@ from typing import Any
 import cv2
 import numpy as np
 
+from a3d.runtime.clock import Clock
 from a3d.runtime.frontend.grouping import (
     BoundaryScales,
+    Hierarchies,
+    LeafSpans,
     PairConfig,
     Strategy,
     build_graph,
     combine_pairs,
-    concat_ranges,
     group,
     outer_similarity,
+    reduce_forest,
 )
 from a3d.runtime.frontend.normals import NormalConfig, surface_normals
 from a3d.runtime.frontend.superpixels import SuperpixelConfig, depth_edges, oversegment
@@ -170,16 +173,28 @@ class Proposals:
         return _sum_segments(sp_area[self.indices], self.indptr)
 
 
+PROPOSAL_STAGES = (
+    "working_images", "superpixels", "region_graph", "grouping", "ranking", "pairs", "selection",
+)  # fmt: skip
+"""The stages of propose() that its ``timing`` receives, in order (bench.frontend prints them)."""
+
+
 def propose(
-    color: np.ndarray, depth_filled: np.ndarray, K: Intrinsics, config: ProposalConfig = ProposalConfig()
+    color: np.ndarray,
+    depth_filled: np.ndarray,
+    K: Intrinsics,
+    config: ProposalConfig = ProposalConfig(),
+    timing: dict[str, float] | None = None,
 ) -> Proposals:
     """Segment proposals for one frame.
 
     `color` (H, W, 3) uint8 BGR; `depth_filled` (H, W) float32 metres, hole-filled
     (a3d.runtime.frontend.depth.fill_depth; zeros are tolerated and treated as unknown depth);
-    `K` the frame's intrinsics.
+    `K` the frame's intrinsics. `timing`, if given, receives the wall seconds of each of
+    PROPOSAL_STAGES (added to what it holds).
     """
     _check_inputs(color, depth_filled, config)
+    clock = Clock(timing)
     H, W = depth_filled.shape
     f = int(config.scale)
     lab = cv2.cvtColor(_block_mean(np.ascontiguousarray(color), f), cv2.COLOR_BGR2Lab)
@@ -189,11 +204,13 @@ def propose(
     # Working pixel i covers full pixels f*i .. f*i+f-1, centred at f*i + (f-1)/2.
     K_small = replace(K, fx=K.fx / f, fy=K.fy / f, cx=(K.cx - (f - 1) / 2) / f, cy=(K.cy - (f - 1) / 2) / f)
     normals = surface_normals(depth, K_small, config.normals)
-    normal_ok = valid & (np.abs(normals).sum(axis=2) > 0)
+    normal_ok = valid & ((normals[..., 0] != 0) | (normals[..., 1] != 0) | (normals[..., 2] != 0))
+    clock.lap("working_images")
 
     labels = oversegment(
         lab, log_depth, depth_edges(log_depth, valid, config.superpixels), config.superpixels
     )
+    clock.lap("superpixels")
     n_bins = int(config.color_bins)
     bins = (lab.astype(np.int32) * n_bins) >> 8
     bins += np.arange(3, dtype=np.int32) * n_bins
@@ -206,41 +223,81 @@ def propose(
     sp_box = np.concatenate(
         [graph.bbox[:, :2] * f, np.minimum(graph.bbox[:, 2:] * f + f - 1, [W - 1, H - 1])], 1
     )
+    clock.lap("region_graph")
 
     # Hierarchies: superpixels first, then every region the strategies formed.
     hier = group(graph, config.strategies, config.boundary_scales, float(labels.size))
-    indptr = np.concatenate([np.arange(n_sp + 1, dtype=np.int64), hier.indptr[1:] + n_sp])
-    indices = np.concatenate([np.arange(n_sp, dtype=np.int64), hier.indices])
+    clock.lap("grouping")
+    # Candidates: the superpixels, then every region formed, then the pairs. A superpixel is its
+    # leaf of the first strategy in the merge forest, a region its node, a pair its parts' nodes.
+    spans = LeafSpans.of(hier)
+    nodes = np.concatenate([np.arange(n_sp), hier.n_leaves + np.arange(hier.n)])
+    stats = _candidate_stats(hier, sp_area, sp_box)
     outer = np.concatenate([outer_similarity(graph, config.boundary_scales), hier.outer])
     jitter = np.random.default_rng(config.seed).random(outer.shape[0])
     score = (1.0 - outer) @ np.asarray(config.edge_weights, float) + config.jitter * jitter
-    area = _sum_segments(sp_area[indices], indptr)
-    boxes = _member_boxes(sp_box, indptr, indices)
 
     # Pairs of the best distinct regions (down to a quarter of min_area: a piece may be small).
-    parts = _ranked_unique(indptr, indices, np.nonzero(area >= config.min_area / 4)[0], score, n_sp)
+    parts = _ranked_unique(stats, np.nonzero(stats[:, _AREA] >= config.min_area / 4)[0], score)
+    parts = parts[: config.pairs.parts]
+    clock.lap("ranking")
+    part_ptr, part_idx = spans.members(nodes[parts], np.arange(parts.size), parts.size, n_sp)
     centres = np.tile((np.arange(n_bins) + 0.5) * 256.0 / n_bins, 3)
-    pair_ptr, pair_idx, pair_score = combine_pairs(
-        graph, indptr, indices, parts, boxes, score, centres, config.pairs
+    first, second, pair_score = combine_pairs(
+        graph, part_ptr, part_idx, _boxes(stats[parts]), score[parts], centres, config.pairs
     )
-    indptr = np.concatenate([indptr, pair_ptr[1:] + indptr[-1]])
-    indices = np.concatenate([indices, pair_idx])
+    first, second = parts[first], parts[second]
+    stats = np.concatenate([stats, _merge_stats(stats[first], stats[second])])
     score = np.concatenate([score, pair_score])
-    area = _sum_segments(sp_area[indices], indptr)
-    boxes = _member_boxes(sp_box, indptr, indices)
+    clock.lap("pairs")
 
-    keep = _ranked_unique(indptr, indices, np.nonzero(area >= config.min_area)[0], score, n_sp)
-    keep = _best_distinct(boxes, keep, config.duplicate_iou, config.max_proposals)
-    counts = np.diff(indptr)[keep]
-    out_indptr = np.zeros(keep.size + 1, np.int64)
-    out_indptr[1:] = np.cumsum(counts)
-    return Proposals(
+    keep = _ranked_unique(stats, np.nonzero(stats[:, _AREA] >= config.min_area)[0], score)
+    keep = _best_distinct(_boxes(stats), keep, config.duplicate_iou, config.max_proposals)
+    row = np.arange(keep.size)
+    single, pair = keep < nodes.size, keep - nodes.size
+    pair_row, pair = row[~single], pair[~single]
+    indptr, indices = spans.members(
+        np.concatenate([nodes[keep[single]], nodes[first[pair]], nodes[second[pair]]]),
+        np.concatenate([row[single], pair_row, pair_row]),
+        keep.size,
+        n_sp,
+    )
+    proposals = Proposals(
         superpixels=np.ascontiguousarray(full, dtype=np.int32),
-        indptr=out_indptr,
-        indices=indices[concat_ranges(indptr[keep], counts)].astype(np.int32),
-        boxes=boxes[keep],
+        indptr=indptr,
+        indices=indices.astype(np.int32),
+        boxes=_boxes(stats[keep]),
         scores=score[keep],
     )
+    clock.lap("selection")
+    return proposals
+
+
+# Columns of a candidate's statistics (int64): superpixel count, full-resolution area, two random
+# 64-bit member-set hashes (wrapping sums), inclusive pixel bounds [umin, vmin, umax, vmax].
+_COUNT, _AREA, _HASH, _LOW, _HIGH = 0, 1, slice(2, 4), slice(4, 6), slice(6, 8)
+
+
+def _candidate_stats(hier: Hierarchies, sp_area: np.ndarray, sp_box: np.ndarray) -> np.ndarray:
+    """(S + M, 8) statistics of the superpixels and then of the regions of `hier`; the hashes
+    are sums of two fixed random codes per superpixel, so equal member sets hash equal."""
+    n_sp = sp_area.size
+    codes = np.random.default_rng(12345).integers(0, np.iinfo(np.int64).max, size=(2, n_sp), dtype=np.int64).T
+    leaves = np.concatenate([np.ones((n_sp, 1), np.int64), sp_area[:, None], codes, sp_box], axis=1)
+    return np.concatenate([leaves, reduce_forest(hier, leaves, _merge_stats)])
+
+
+def _merge_stats(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Statistics of the unions of disjoint candidates from theirs (rows of (N, 8))."""
+    return np.concatenate(
+        [a[:, :4] + b[:, :4], np.minimum(a[:, _LOW], b[:, _LOW]), np.maximum(a[:, _HIGH], b[:, _HIGH])],
+        axis=1,
+    )
+
+
+def _boxes(stats: np.ndarray) -> np.ndarray:
+    """(N, 4) README boxes of candidates: the exact extent of their masks."""
+    return boxes_from_pixel_bounds(stats[:, 4:8])
 
 
 def _check_inputs(color: np.ndarray, depth: np.ndarray, config: ProposalConfig) -> None:
@@ -291,41 +348,28 @@ def _sum_segments(values: np.ndarray, indptr: np.ndarray) -> np.ndarray:
     return np.add.reduceat(values, indptr[:-1]) if values.size else np.zeros(indptr.size - 1, values.dtype)
 
 
-def _member_boxes(sp_box: np.ndarray, indptr: np.ndarray, indices: np.ndarray) -> np.ndarray:
-    """(N, 4) README boxes from the inclusive pixel boxes of each row's superpixels."""
-    starts = indptr[:-1]
-    b = sp_box[indices]
-    lo = np.minimum.reduceat(b[:, :2], starts, axis=0)
-    hi = np.maximum.reduceat(b[:, 2:], starts, axis=0)
-    return boxes_from_pixel_bounds(np.concatenate([lo, hi], axis=1))
+def _ranked_unique(stats: np.ndarray, rows: np.ndarray, score: np.ndarray) -> np.ndarray:
+    """`rows` (ascending) without repeated member sets (the best-scored copy stays), best first
+    (ties by row). Sets are compared by their two random 64-bit hashes (collisions of both are
+    astronomically unlikely) and their size."""
+    ranked = rows[np.argsort(-score[rows], kind="stable")]
+    return ranked[first_of_equal(stats.take(ranked, axis=0)[:, [2, 3, _COUNT]])]
 
 
-def _ranked_unique(
-    indptr: np.ndarray, indices: np.ndarray, rows: np.ndarray, score: np.ndarray, n_sp: int
-) -> np.ndarray:
-    """`rows` without repeated member sets (the best-scored copy stays), best first (ties by row)."""
-    rows = _unique_members(indptr, indices, rows, -score, n_sp)
-    return rows[np.lexsort((rows, -score[rows]))]
-
-
-def _unique_members(
-    indptr: np.ndarray, indices: np.ndarray, rows: np.ndarray, priority: np.ndarray, n_sp: int
-) -> np.ndarray:
-    """`rows` with identical member sets reduced to the one of lowest priority value.
-
-    Sets are compared by two independent random 64-bit sums of their members (collisions of
-    both are astronomically unlikely) plus their size."""
-    rng = np.random.default_rng(12345)
-    codes = rng.integers(0, np.iinfo(np.int64).max, size=(2, n_sp), dtype=np.int64).astype(np.uint64)
-    starts = indptr[:-1]
-    h1 = np.add.reduceat(codes[0][indices], starts)[rows]
-    h2 = np.add.reduceat(codes[1][indices], starts)[rows]
-    count = np.diff(indptr)[rows].astype(np.uint64)
-    order = np.lexsort((rows, priority[rows], count, h2, h1))
-    key = np.stack([h1, h2, count], axis=1)[order]
-    first = np.ones(order.size, bool)
-    first[1:] = (key[1:] != key[:-1]).any(axis=1)
-    return np.sort(rows[order[first]])
+def first_of_equal(keys: np.ndarray) -> np.ndarray:
+    """(N,) bool: True at the first of each set of equal rows of the (N, C) int64 `keys`.
+    Grouped by the first column alone (one stable sort) unless that column puts unequal rows
+    together, then by all columns."""
+    order = np.argsort(keys[:, 0], kind="stable")
+    in_order = keys.take(order, axis=0)
+    same = in_order[1:] == in_order[:-1]
+    if (same[:, 0] & ~same.all(axis=1)).any():
+        order = np.lexsort(keys.T[::-1])
+        in_order = keys.take(order, axis=0)
+        same = in_order[1:] == in_order[:-1]
+    first = np.ones(keys.shape[0], bool)
+    first[order[1:]] = ~same.all(axis=1)
+    return first
 
 
 def _best_distinct(boxes: np.ndarray, ranked: np.ndarray, iou: float, limit: int) -> np.ndarray:
@@ -371,13 +415,16 @@ def _drop_near_duplicates(boxes: np.ndarray, iou: float, rows: np.ndarray) -> np
     first = np.repeat(np.concatenate([np.arange(n), np.arange(n)]), counts)
     second = np.arange(counts.sum()) + np.repeat(start - (np.cumsum(counts) - counts), counts)
     i, j = order[first], order[second]
-    lo = np.maximum(boxes[i, :2], boxes[j, :2])
-    hi = np.minimum(boxes[i, 2:], boxes[j, 2:])
+    box_i, box_j = boxes.take(i, axis=0), boxes.take(j, axis=0)
+    lo = np.maximum(box_i[:, :2], box_j[:, :2])
+    hi = np.minimum(box_i[:, 2:], box_j[:, 2:])
     inter = np.prod(np.clip(hi - lo, 0.0, None), axis=1)
     close = inter > iou * (area[i] + area[j] - inter)
     better, worse = np.minimum(i[close], j[close]), np.maximum(i[close], j[close])
     state = np.zeros(n, np.int8)  # 0 undecided, 1 kept, -1 dropped
-    state[np.setdiff1d(np.arange(n), worse)] = 1
+    has_better = np.zeros(n, bool)
+    has_better[worse] = True
+    state[~has_better] = 1
     while better.size:
         # A worse box is dropped once one close better box is kept ...
         hit = state[better] == 1
@@ -387,7 +434,7 @@ def _drop_near_duplicates(boxes: np.ndarray, iou: float, rows: np.ndarray) -> np
         better, worse = better[open_pair], worse[open_pair]
         pending = np.zeros(n, bool)
         pending[worse[state[better] != -1]] = True
-        free = np.setdiff1d(worse, np.nonzero(pending)[0])
+        free = worse[~pending[worse]]
         state[free] = 1
         keep_pair = state[worse] == 0
         better, worse = better[keep_pair], worse[keep_pair]

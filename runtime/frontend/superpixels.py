@@ -98,7 +98,7 @@ def oversegment(
     phase = config.depth_phase * log_depth
     depth_image = np.stack([lab[..., 0], 128 + 127 * np.cos(phase), 128 + 127 * np.sin(phase)], axis=2)
     cv2.watershed(depth_image.astype(np.uint8), markers)
-    features = np.concatenate([lab.astype(np.float32), config.depth_weight * log_depth[..., None]], axis=2)
+    features = np.stack([*np.moveaxis(lab, 2, 0), config.depth_weight * log_depth]).astype(np.float32)
     _fill_unlabelled(markers, features)
     return _compact_labels(markers)
 
@@ -133,14 +133,15 @@ def _grid_seeds(lab: np.ndarray, barrier: np.ndarray, n_segments: int) -> np.nda
 
 def _fill_unlabelled(markers: np.ndarray, features: np.ndarray) -> None:
     """Give every unlabelled pixel (<= 0: watershed lines, cleared barriers) the label of its
-    labelled 4-neighbour with the closest features (L1), in place; repeated from the outside in
-    until all are labelled, so every superpixel stays connected."""
+    labelled 4-neighbour with the closest features (L1 over the (C, h, w) planes `features`), in
+    place; repeated from the outside in until all are labelled, so every superpixel stays
+    connected."""
     if (markers <= 0).all():
         markers[:] = 1
         return
     h, w = markers.shape
     labels = markers.ravel()  # a view: writes go to markers
-    flat = features.reshape(h * w, -1)
+    planes = features.reshape(features.shape[0], h * w)
     todo = np.flatnonzero(labels <= 0)
     ys, xs = np.divmod(todo, w)
     # Flat index of each 4-neighbour, the pixel itself where the neighbour is off the image.
@@ -152,8 +153,10 @@ def _fill_unlabelled(markers: np.ndarray, features: np.ndarray) -> None:
             np.where(ys < h - 1, todo + w, todo),
         ]
     )
-    own = flat[todo]
-    cost = np.stack([np.abs(flat[nb] - own).sum(axis=1) for nb in neighbours])
+    own = planes[:, todo]
+    cost = np.zeros(neighbours.shape, np.float32)
+    for plane, mine in zip(planes, own, strict=True):
+        cost += np.abs(plane[neighbours] - mine)
     while todo.size:
         candidate = labels[neighbours]
         choice = np.where(candidate > 0, cost, np.inf).argmin(axis=0)
