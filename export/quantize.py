@@ -5,8 +5,11 @@ ONNX Runtime's ``quantize_static`` in QDQ format, per-channel int8 weights and u
 frames through the runtime's own front end (a3d.export.verify.folder_inputs), at most
 ``CALIB_ROIS`` RoIs per frame (the best-ranked proposals) to bound the calibration run's memory.
 Quantised: the convolutions and the fully connected layers (Gemm, and MatMul with a constant
-weight, which the SVD factors become). The RoI pooling products (MatMul of two computed tensors:
-the bilinear weights and the feature maps) stay float.
+weight, which the SVD factors become), and the ReLUs after them: ORT's quantizer then drops each
+ReLU and quantises the product's output with the ReLU's range (zero point 0, so the int8 clamp is
+the ReLU). Without that, every layer's output went int8 -> float -> ReLU -> int8 between two
+int8 convolutions: 57 of 409 ms of the paper's trunks (docs/edge-speed.md). The RoI pooling
+products (MatMul of two computed tensors: the bilinear weights and the feature maps) stay float.
 
 ``quant_pre_process`` runs first (graph optimisation, ONNX shape inference) with ORT's symbolic
 shape inference skipped: it does not complete on the dynamo exporter's graphs. The float model
@@ -30,7 +33,7 @@ from a3d.export.base import ExportError
 from a3d.export.verify import NetworkInputs
 
 CALIB_ROIS = 300  # RoIs per calibration frame (the best-ranked proposals)
-QUANTIZED_OPS = ("Conv", "Gemm", "MatMul")
+QUANTIZED_OPS = ("Conv", "Gemm", "MatMul", "Relu")
 
 
 class _FeedReader(CalibrationDataReader):

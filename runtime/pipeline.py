@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import itertools
 import logging
+import time
 import typing
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor

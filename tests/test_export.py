@@ -195,6 +195,20 @@ def test_svd_int8_export_is_quantized_loads_and_stays_close(run) -> None:
     assert 1e-5 < probs_error < 0.02 and deltas_error < 0.15  # quantised (not float), but close
 
 
+def test_int8_convolutions_write_their_relu_outputs_directly(run) -> None:
+    """A ReLU after a quantised product is folded into its output's quantisation (zero point 0):
+    no float round trip of the activations (DequantizeLinear -> Relu -> QuantizeLinear) is left."""
+    graph = onnx.load(str(run.int8)).graph
+    assert not any(n.op_type == "Relu" for n in graph.node)
+    zero_points = {t.name: onnx.numpy_helper.to_array(t) for t in graph.initializer}
+    convs = [n for n in graph.node if n.op_type == "Conv"]
+    assert convs
+    for conv in convs:
+        (quantize,) = [n for n in graph.node if conv.output[0] in n.input]
+        assert quantize.op_type == "QuantizeLinear"  # straight to the next layer's int8 input
+        assert int(zero_points[quantize.input[2]]) == 0  # its range starts at 0: the ReLU clamps there
+
+
 def test_cli_prints_the_run_command_and_refuses_bad_usage(run, capsys, tmp_path: Path) -> None:
     with pytest.raises(SystemExit) as info:
         cli.main([str(run.checkpoint), "-o", str(tmp_path / "m.onnx"), "--int8"])
