@@ -17,10 +17,11 @@ ones) and is checked against torch's ``roi_align`` before it is timed:
 - ``crops`` the RoIs sorted by the area of their weights' support, in N chunks; each chunk
   gathers every RoI's own window (the chunk's largest) from a channels-last map and applies the
   two products to it; the chunk of the largest RoIs uses the dense form on the whole map;
-- ``exported: windows`` what a3d-export now writes (a3d.export.roi_pool_onnx, exported here
-  through torch.onnx from the same code): the RoIs sorted by a Morton code of their support's
-  corners, in 32 chunks; each chunk slices the union of its RoIs' supports from the map and runs
-  the dense form on that window; the (y, C, x) layout is left for fc6's weights to absorb.
+- ``windows`` what a3d-export now writes for models of 256 channels or more (a3d.export.roi_pool_onnx,
+  exported here through torch.onnx from the same code; below, the dense form without its last
+  transpose): the RoIs sorted by a Morton code of their support's corners, in 32 chunks; each
+  chunk slices the union of its RoIs' supports from the map and runs the dense form on that
+  window; the (y, C, x) layout is left for fc6's weights to absorb.
 
 Sorted forms put the rows back in order with a Gather. RoIs: the paper's frame (427 x 561 pixels
 on a 27 x 36 map), sizes log-uniform from 16 pixels to the whole frame as proposals are (most
@@ -204,7 +205,8 @@ def crops_graph(height: int, width: int, chunks: int) -> ModelProto:
 
 
 def exported_graph(height: int, width: int) -> ModelProto:
-    """a3d-export's RoI pooling (RoiAlignGraph) on inputs "map" (1, C, H, W) and "rois" (R, 5)."""
+    """a3d-export's windowed RoI pooling (RoiAlignGraph, the channel count left dynamic) on inputs
+    "map" (1, C, H, W) and "rois" (R, 5)."""
     with tempfile.TemporaryDirectory(prefix="a3d-roi-pool-") as tmp:
         path = os.path.join(tmp, "pool.onnx")
         rois = torch.tensor([[0.0, 10.0, 10.0, 90.0, 60.0], [0.0, 0.0, 5.0, 40.0, 70.0]])
@@ -259,7 +261,7 @@ def forms(
         f"dense, {4 * chunks} chunks": (dense_graph(height, width, chunks=4 * chunks), same),
         "ONNX RoiAlign": (roi_align_graph(height, width), same),
         f"crops, {chunks} chunks": (crops_graph(height, width, chunks), lambda y: y.transpose(0, 3, 1, 2)),
-        "exported: windows": (exported_graph(height, width), y_c_x),
+        "windows (exported)": (exported_graph(height, width), y_c_x),
     }
 
 

@@ -36,6 +36,11 @@ from a3d.train.model.net import A3DNet
 from a3d.train.model.roi_pool import pooling_rows, roi_weights, separable_pool
 
 CHUNKS = 32
+# Below this many channels (known when the export fixes them) the graph keeps the two dense
+# products: the windows' ~700 small nodes cost more than they save on a small map (the bundled
+# model's 128 channels on 14 x 18: 16.8 ms against 6.7 ms dense; the paper's 512 on 27 x 36:
+# 26 against 40 ms; bench.roi_pool_speed).
+WINDOW_MIN_CHANNELS = 256
 MORTON_BITS = (
     8  # corners up to 256 cells (4096 pixels at stride 16); beyond, the sort is coarser, never wrong
 )
@@ -92,9 +97,28 @@ def _tensor(array: np.ndarray):
     return onnx.numpy_helper.from_array(array)
 
 
+def _dense_products(rows, wy, wx):
+    """Training's two products as they are (``separable_pool``), without the final transpose."""
+    count, size = op.Shape(wy, start=0, end=1), op.Shape(wy, start=1, end=2)
+    stacked, channels = op.Shape(wy, start=2, end=3), op.Shape(rows, start=1, end=2)
+    by_rows = op.MatMul(
+        op.Reshape(wy, op.Concat(op.Mul(count, size), stacked, axis=0)),
+        op.Reshape(rows, op.Concat(stacked, _ints(-1), axis=0)),
+    )
+    by_rows = op.Reshape(
+        by_rows, op.Concat(count, op.Mul(size, channels), op.Shape(wx, start=2, end=3), axis=0)
+    )
+    pooled = op.MatMul(by_rows, op.Transpose(wx, perm=[0, 2, 1]))  # (R, P*C, P)
+    return op.Reshape(pooled, op.Concat(count, size, channels, size, axis=0))
+
+
 def separable_pool_onnx(rows, wy, wx):
     """The ONNX translation of ``a3d::separable_pool`` (module docstring): rows (B*H, C, W),
-    wy (R, P, B*H), wx (R, P, W) -> (R, P, C, P)."""
+    wy (R, P, B*H), wx (R, P, W) -> (R, P, C, P); the dense products where the export fixes
+    fewer than ``WINDOW_MIN_CHANNELS`` channels."""
+    fixed = rows.shape[1] if rows.shape is not None else None
+    if isinstance(fixed, int) and fixed < WINDOW_MIN_CHANNELS:
+        return _dense_products(rows, wy, wx)
     count = op.Shape(wy, start=0, end=1)
     size = op.Shape(wy, start=1, end=2)
     channels = op.Shape(rows, start=1, end=2)
@@ -194,14 +218,14 @@ class RoiAlignGraph(nn.Module):
         return separable_pool_op(pooling_rows(features), *roi_weights(features, rois, *self.arguments))
 
 
-def export_roi_align(path: str, features: torch.Tensor, rois: torch.Tensor, opset: int = 18) -> None:
-    """Export ``RoiAlignGraph`` to ``path`` with the batch, channels, map size and RoI count dynamic."""
-    dims = {
-        0: torch.export.Dim("batch"),
-        1: torch.export.Dim("channels"),
-        2: torch.export.Dim("height"),
-        3: torch.export.Dim("width"),
-    }
+def export_roi_align(
+    path: str, features: torch.Tensor, rois: torch.Tensor, opset: int = 18, fixed_channels: bool = False
+) -> None:
+    """Export ``RoiAlignGraph`` to ``path`` with the batch, map size, RoI count and (unless
+    ``fixed_channels``, as a3d-export fixes them) the channel count dynamic."""
+    dims = {0: torch.export.Dim("batch"), 2: torch.export.Dim("height"), 3: torch.export.Dim("width")}
+    if not fixed_channels:
+        dims[1] = torch.export.Dim("channels")
     registry_log = logging.getLogger("torch.onnx._internal.exporter._registration")
     level = registry_log.level
     registry_log.setLevel(logging.ERROR)

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from a3d.export.base import ExportError
-from a3d.export.roi_pool_onnx import CHUNKS, export_roi_align, fold_pool_layout
+from a3d.export.roi_pool_onnx import CHUNKS, WINDOW_MIN_CHANNELS, export_roi_align, fold_pool_layout
 from a3d.export.svd import svd_compress
 from a3d.train.model.config import NetConfig
 from a3d.train.model.net import A3DNet
@@ -37,6 +37,7 @@ def _rois(count: int, batch: int, height: int, width: int, seed: int) -> torch.T
 
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory) -> ort.InferenceSession:
+    """The windowed graph (the channel count left dynamic, so the export cannot choose the dense one)."""
     path = tmp_path_factory.mktemp("pool") / "pool.onnx"
     export_roi_align(str(path), torch.zeros(2, 4, 6, 7), _rois(5, 2, 6, 7, seed=0))
     return ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
@@ -65,6 +66,25 @@ def test_export_pools_on_windows_without_the_dense_intermediate(tmp_path) -> Non
     ops = [n.op_type for n in onnx.load(str(path)).graph.node]
     assert ops.count("MatMul") == 2 * CHUNKS
     assert "Transpose" not in ops[-3:]  # the (y, C, x) layout is left for fc6 to absorb
+
+
+@pytest.mark.slow
+def test_few_fixed_channels_keep_the_dense_products(tmp_path) -> None:
+    """Where the export fixes a small channel count the graph keeps training's two products,
+    with the same numbers."""
+    path = tmp_path / "pool.onnx"
+    channels = WINDOW_MIN_CHANNELS // 2
+    export_roi_align(
+        str(path), torch.zeros(1, channels, 6, 7), _rois(5, 1, 6, 7, seed=0), fixed_channels=True
+    )
+    assert [n.op_type for n in onnx.load(str(path)).graph.node].count("MatMul") == 2
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    features = torch.randn(2, channels, 9, 11, generator=torch.Generator().manual_seed(3))
+    rois = _rois(60, 2, 9, 11, seed=4)
+    got = session.run(None, {"features": features.numpy(), "rois": rois.numpy()})[0]
+    np.testing.assert_allclose(
+        got.transpose(0, 2, 1, 3), roi_align(features, rois).numpy(), rtol=0, atol=1e-5
+    )
 
 
 def _outputs(net: A3DNet, seed: int = 0) -> tuple[torch.Tensor, ...]:
@@ -104,3 +124,28 @@ def test_max_pool_networks_are_not_folded() -> None:
     net = A3DNet(replace(NetConfig(width=0.125, fc6=32, fc7=32, fuse_channels=16), roi_pool="max"))
     with pytest.raises(ExportError, match="only RoIAlign networks are exported"):
         fold_pool_layout(net)
+
+
+@pytest.mark.slow
+def test_network_exported_on_windows_answers_as_torch(tmp_path, monkeypatch) -> None:
+    """The whole runtime graph with windowed pooling (forced for a small network) and fc6 folded:
+    ONNX Runtime's outputs are torch's."""
+    from a3d.export import roi_pool_onnx
+    from a3d.export.onnx_export import RuntimeGraph, example_inputs, export_graph
+    from a3d.train.dataset import TargetStats
+
+    monkeypatch.setattr(roi_pool_onnx, "WINDOW_MIN_CHANNELS", 1)
+    torch.manual_seed(0)
+    net = A3DNet(NetConfig(width=0.125, fc6=32, fc7=32, fuse_channels=16)).eval()
+    graph = RuntimeGraph(net, TargetStats.identity())
+    model = export_graph(graph, tmp_path / "raw.onnx")
+    assert [n.op_type for n in model.graph.node].count("MatMul") == 2 * 2 * CHUNKS  # two maps
+    session = ort.InferenceSession(str(tmp_path / "raw.onnx"), providers=["CPUExecutionProvider"])
+    inputs = example_inputs(96, 128, 150, seed=5)
+    got = session.run(
+        None, dict(zip(("color", "depth", "rois", "context_rois"), (t.numpy() for t in inputs), strict=True))
+    )
+    with torch.no_grad():
+        want = RuntimeGraph(net, TargetStats.identity())(*inputs)
+    for g, w in zip(got, want, strict=True):
+        np.testing.assert_allclose(g, w.numpy(), rtol=1e-4, atol=1e-5 * float(w.abs().max()) + 1e-7)
