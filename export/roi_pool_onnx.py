@@ -28,6 +28,7 @@ import warnings
 
 import numpy as np
 import torch
+from onnx import TensorProto, numpy_helper
 from onnxscript import opset18 as op
 from torch import nn
 
@@ -39,12 +40,10 @@ CHUNKS = 32
 # Below this many channels (known when the export fixes them) the graph keeps the two dense
 # products: the windows' ~700 small nodes cost more than they save on a small map (the bundled
 # model's 128 channels on 14 x 18: 16.8 ms against 6.7 ms dense; the paper's 512 on 27 x 36:
-# 26 against 40 ms; bench.roi_pool_speed).
+# 33 against 44 ms; docs/edge-speed.md "Where the head loses time").
 WINDOW_MIN_CHANNELS = 256
-MORTON_BITS = (
-    8  # corners up to 256 cells (4096 pixels at stride 16); beyond, the sort is coarser, never wrong
-)
-FLOAT, INT32, INT64 = 1, 6, 7  # onnx.TensorProto data types
+# Corners up to 256 cells (4096 pixels at stride 16); beyond, the sort is coarser, never wrong.
+MORTON_BITS = 8
 
 
 @torch.library.custom_op("a3d::separable_pool", mutates_args=())
@@ -71,11 +70,12 @@ def _support(weights):
     """First row and end (last + 1) of each RoI's nonzero weights along the last axis of (R, P, L)
     as (R,) int64; an all-zero RoI gets [0, 1)."""
     nonzero = op.Cast(
-        op.Greater(op.ReduceL1(weights, _ints(1), keepdims=0), op.Constant(value_float=0.0)), to=INT32
+        op.Greater(op.ReduceL1(weights, _ints(1), keepdims=0), op.Constant(value_float=0.0)),
+        to=TensorProto.INT32,
     )
     first = op.ArgMax(nonzero, axis=1, keepdims=0)
     last = op.ArgMax(nonzero, axis=1, keepdims=0, select_last_index=1)
-    found = op.Cast(op.ReduceMax(nonzero, _ints(1), keepdims=0), to=9)  # bool
+    found = op.Cast(op.ReduceMax(nonzero, _ints(1), keepdims=0), to=TensorProto.BOOL)
     return first, op.Where(
         found, op.Add(last, op.Constant(value_int=1)), op.Add(first, op.Constant(value_int=1))
     )
@@ -86,15 +86,9 @@ def _morton_order(corners, count):
     powers = op.Constant(value_ints=[1 << b for b in range(MORTON_BITS)])
     bits = op.Mod(op.Div(op.Unsqueeze(corners, _ints(2)), powers), op.Constant(value_int=2))  # (R, 4, bits)
     place = (1 << (4 * np.arange(MORTON_BITS)[None, :] + np.arange(4)[:, None])).astype(np.int64)
-    weights = op.Constant(value=_tensor(place))
+    weights = op.Constant(value=numpy_helper.from_array(place))
     code = op.ReduceSum(op.Mul(bits, weights), _ints(1, 2), keepdims=0)
     return op.TopK(op.Neg(code), count, largest=1, sorted=1)[1]
-
-
-def _tensor(array: np.ndarray):
-    import onnx.numpy_helper
-
-    return onnx.numpy_helper.from_array(array)
 
 
 def _dense_products(rows, wy, wx):
