@@ -25,6 +25,7 @@ import torch
 from torch import nn
 
 from a3d.export.base import MAX_IR_VERSION, MIN_OPSET, ExportError
+from a3d.export.roi_pool_onnx import TRANSLATIONS, fold_pool_layout
 from a3d.runtime.io.atomic import atomic_write_bytes
 from a3d.runtime.network.model import INPUT_NAMES, METADATA_KEY, OUTPUT_NAMES, ModelMetadata, content_digest
 from a3d.runtime.structures.boxes import BOX_DIM
@@ -45,7 +46,7 @@ class RuntimeGraph(nn.Module):
 
     def __init__(self, net: A3DNet, stats: TargetStats, regress_3d: bool = True) -> None:
         super().__init__()
-        self.net = fold_target_stats(net, stats, regress_3d)
+        self.net = fold_pool_layout(fold_target_stats(net, stats, regress_3d))
 
     def forward(
         self, color: torch.Tensor, depth: torch.Tensor, rois: torch.Tensor, context_rois: torch.Tensor
@@ -118,6 +119,7 @@ def export_graph(graph: RuntimeGraph, path: str | os.PathLike, opset: int = MIN_
                 input_names=list(INPUT_NAMES),
                 output_names=list(OUTPUT_NAMES),
                 dynamic_shapes={"color": image, "depth": image, "rois": count, "context_rois": count},
+                custom_translation_table=TRANSLATIONS,
                 opset_version=opset,
                 dynamo=True,
                 external_data=False,

@@ -1,7 +1,8 @@
 """a3d-export: a tiny trained checkpoint -> model.onnx that the runtime loads and that matches torch.
 
 Two exports (the dynamo exporter takes ~10 s CPU each): a float32 model verified on real frames,
-and an SVD (rank 8) + int8 model calibrated on the same frames. The reference everywhere is the
+and an SVD (rank 8) + int8 model calibrated on the same frames, its RoI pooling exported on
+windows (a3d.export.roi_pool_onnx, forced for this small network). The reference everywhere is the
 eager checkpoint network with the softmax and the TargetStats de-normalisation applied outside
 it (a3d.train.inference.TorchNetwork), so the folded statistics are checked, not assumed.
 """
@@ -21,7 +22,7 @@ import onnx
 import pytest
 import torch
 
-from a3d.export import build, cli
+from a3d.export import build, cli, roi_pool_onnx
 from a3d.export.svd import svd_compress
 from a3d.export.verify import folder_inputs
 from a3d.runtime.cli import run as run_cli
@@ -90,7 +91,9 @@ def run(tmp_path_factory: pytest.TempPathFactory):
                   "--verify-frames", str(frames)]),
     ):  # fmt: skip
         out = root / f"{name}.onnx"
-        with contextlib.redirect_stdout(io.StringIO()) as printed:
+        with contextlib.redirect_stdout(io.StringIO()) as printed, pytest.MonkeyPatch.context() as patch:
+            if name == "int8":  # this small network's pooling exported on windows (roi_pool_onnx), quantised
+                patch.setattr(roi_pool_onnx, "WINDOW_MIN_CHANNELS", 1)
             assert cli.main([str(root / "run" / "checkpoint.pt"), "-o", str(out), *extra]) == 0
         results[name], stdout[name] = out, printed.getvalue()
     return SimpleNamespace(checkpoint=root / "run" / "checkpoint.pt", frames=frames, stdout=stdout, **results)
@@ -177,6 +180,8 @@ def test_svd_int8_export_is_quantized_loads_and_stays_close(run) -> None:
     ops = {n.op_type for n in model.graph.node}
     assert {"QuantizeLinear", "DequantizeLinear"} <= ops or ops & {"QLinearConv", "QLinearMatMul"}
     assert sum(n.op_type == "Gemm" for n in model.graph.node) >= 5  # fc6 and fc7 are two Gemms each
+    windows = sum(n.op_type == "MatMul" for n in model.graph.node)
+    assert windows == 2 * 2 * roi_pool_onnx.CHUNKS  # both maps' window products, kept float
     loaded = DetectorModel.load(run.int8, threads=1)
     verification = loaded.metadata.provenance["verification"]
     # The float SVD export matched its own torch model; rank 8 changed the network measurably.

@@ -24,6 +24,7 @@ statistics are folded in), the 2D deltas are Fast R-CNN deltas toward the amodal
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import partial
 
 import torch
@@ -32,7 +33,7 @@ from torch import nn
 from a3d.runtime.structures.boxes import BOX_DIM
 from a3d.runtime.structures.classes import NUM_OUTPUTS
 from a3d.train.model.config import NetConfig
-from a3d.train.model.roi_pool import roi_align, roi_max_pool
+from a3d.train.model.roi_pool import pooling_rows, roi_align, roi_max_pool, roi_weights
 from a3d.train.model.vgg import FEATURE_STRIDE, VGG16Trunk
 
 BOX2D_SIZE = 4
@@ -78,6 +79,9 @@ class A3DNet(nn.Module):
         self.dropout = nn.Dropout(config.dropout)
         self.cls_score = nn.Linear(config.fc7, NUM_OUTPUTS)
         self.bbox_pred_3d = nn.Linear(config.fc7, NUM_OUTPUTS * BOX_DIM)
+        # The export's pooling product (a3d.export.roi_pool_onnx.fold_pool_layout): pooled maps
+        # flattened (y, c, x) through it, fc6 permuted to match; None: roi_align, (c, y, x).
+        self.pool_product: Callable | None = None
         self.bbox_pred_2d = nn.Linear(config.fc7, NUM_OUTPUTS * BOX2D_SIZE)
         # torchvision's VGG classifier init for fc6/fc7, Fast R-CNN's for the heads.
         for layer, std in ((self.fc6, 0.01), (self.fc7, 0.01), (self.cls_score, 0.01),
@@ -149,6 +153,8 @@ class A3DNet(nn.Module):
             boxes.append((self.fuse_context, context_rois))
         if config.roi_pool == "max":
             pool = partial(roi_max_pool, output_size=config.pool_size, spatial_scale=1.0 / FEATURE_STRIDE)
+        elif self.pool_product is not None:
+            pool = partial(self._pool_for_export, product=self.pool_product)
         else:
             pool = partial(
                 roi_align,
@@ -161,6 +167,12 @@ class A3DNet(nn.Module):
         x = self.dropout(torch.relu(self.bn6(self.fc6(x))))
         x = self.dropout(torch.relu(self.bn7(self.fc7(x))))
         return self.cls_score(x), self.bbox_pred_3d(x), self.bbox_pred_2d(x)
+
+    def _pool_for_export(self, features: torch.Tensor, rois: torch.Tensor, product: Callable) -> torch.Tensor:
+        """RoIAlign through ``product`` (separable_pool's contract), in its (R, y, C, x) layout."""
+        config = self.config
+        weights = roi_weights(features, rois, config.pool_size, 1.0 / FEATURE_STRIDE, config.sampling_ratio)
+        return product(pooling_rows(features), *weights)
 
     def forward(
         self,

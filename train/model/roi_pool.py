@@ -11,8 +11,10 @@ With a fixed number of samples per bin, bilinear sampling factorises by axis: fo
 map F (C, H, W), ``pooled[c] = Wy @ F[c] @ Wx.T`` where ``Wy`` (P, H) and ``Wx`` (P, W) hold the
 bin-averaged hat-kernel weights of the sample rows and columns (coordinates clamped to the map,
 samples beyond one cell outside the map weigh 0 — torchvision's rules). The batch index is
-folded into the row weights, so all RoIs of all images are one GEMM plus one batched GEMM. The
-operation is linear in F, so it commutes with a 1x1 convolution (see net.py's channel fusion).
+folded into the row weights, so all RoIs of all images are one GEMM plus one batched GEMM
+(``separable_pool``; a3d-export writes a graph of the same sum on each RoI group's window,
+a3d.export.roi_pool_onnx). The operation is linear in F, so it commutes with a 1x1 convolution
+(see net.py's channel fusion).
 
 Coordinates: RoIs are in the README's pixel coordinates (pixel (u, v) is centred at the point
 (u, v); a box is its exact extent; the image spans [-0.5, W - 0.5]). torchvision's continuous
@@ -45,6 +47,46 @@ def _axis_weights(
     return hat.reshape(-1, output_size, sampling_ratio, length).mean(dim=2)
 
 
+def roi_weights(
+    features: torch.Tensor,
+    rois: torch.Tensor,
+    output_size: int = 7,
+    spatial_scale: float = 1.0 / 16.0,
+    sampling_ratio: int = 2,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Row weights (R, P, B*H) with the batch index folded in (RoI r weighs only its image's rows)
+    and column weights (R, P, W), P = output_size, for ``separable_pool`` on ``pooling_rows(features)``."""
+    batch, _, height, width = features.shape
+    rois = rois.to(features.dtype)
+    box = (rois[:, 1:5] + 0.5) * spatial_scale - 0.5
+    wy = _axis_weights(box[:, 1], box[:, 3], height, output_size, sampling_ratio)  # (R, P, H)
+    wx = _axis_weights(box[:, 0], box[:, 2], width, output_size, sampling_ratio)  # (R, P, W)
+    images = torch.arange(batch, dtype=rois.dtype, device=rois.device)
+    one_hot = (rois[:, 0:1] == images).to(features.dtype)  # (R, B)
+    wy = (one_hot[:, None, :, None] * wy[:, :, None, :]).reshape(rois.shape[0], output_size, batch * height)
+    return wy, wx
+
+
+def pooling_rows(features: torch.Tensor) -> torch.Tensor:
+    """The maps (B, C, H, W) as rows (B*H, C, W), the images stacked along y as the row weights index them."""
+    batch, channels, height, width = features.shape
+    return features.permute(0, 2, 1, 3).reshape(batch * height, channels, width)
+
+
+def separable_pool(rows: torch.Tensor, wy: torch.Tensor, wx: torch.Tensor) -> torch.Tensor:
+    """pooled[r, i, c, j] = sum_{h, w} wy[r, i, h] rows[h, c, w] wx[r, j, w]: (R, P, C, P), laid out
+    (y, c, x), the order the two products leave it in (a3d.export folds it into fc6's weights).
+
+    rows (B*H, C, W), wy (R, P, B*H), wx (R, P, W). All RoIs of all images are one GEMM plus one
+    batched GEMM; the export writes a faster graph of the same sum (a3d.export.roi_pool_onnx).
+    """
+    count, size, stacked = wy.shape
+    channels, width = rows.shape[1], rows.shape[2]
+    pooled_rows = wy.reshape(count * size, stacked) @ rows.reshape(stacked, channels * width)  # (R*P, C*W)
+    pooled = pooled_rows.reshape(count, size * channels, width) @ wx.transpose(1, 2)  # (R, P*C, P)
+    return pooled.reshape(count, size, channels, size)
+
+
 def roi_align(
     features: torch.Tensor,
     rois: torch.Tensor,
@@ -60,18 +102,8 @@ def roi_align(
     torchvision's. Equals torchvision.ops.roi_align(features, rois + [0, .5, .5, .5, .5],
     output_size, spatial_scale, sampling_ratio, aligned=True).
     """
-    batch, channels, height, width = features.shape
-    rois = rois.to(features.dtype)
-    box = (rois[:, 1:5] + 0.5) * spatial_scale - 0.5
-    wy = _axis_weights(box[:, 1], box[:, 3], height, output_size, sampling_ratio)  # (R, P, H)
-    wx = _axis_weights(box[:, 0], box[:, 2], width, output_size, sampling_ratio)  # (R, P, W)
-    images = torch.arange(batch, dtype=rois.dtype, device=rois.device)
-    one_hot = (rois[:, 0:1] == images).to(features.dtype)  # (R, B)
-    wy = (one_hot[:, None, :, None] * wy[:, :, None, :]).reshape(-1, batch * height)  # (R*P, B*H)
-    rows = features.permute(0, 2, 1, 3).reshape(batch * height, channels * width)  # (B*H, C*W)
-    pooled_rows = (wy @ rows).reshape(-1, output_size * channels, width)  # (R, P*C, W)
-    pooled = pooled_rows @ wx.transpose(1, 2)  # (R, P*C, P)
-    return pooled.reshape(-1, output_size, channels, output_size).permute(0, 2, 1, 3)
+    wy, wx = roi_weights(features, rois, output_size, spatial_scale, sampling_ratio)
+    return separable_pool(pooling_rows(features), wy, wx).permute(0, 2, 1, 3)
 
 
 def roi_max_pool(
