@@ -84,7 +84,7 @@ def test_a_slow_warm_up_frame_stays_out_of_the_period(tiny: Tiny, monkeypatch: p
 
     monkeypatch.setattr(os, "fsync", first_fsync_stalls)
     run = edge_speed.measure_run(tiny.model, tiny.frames, max_proposals=40, threads=1)
-    assert len(calls) == 3
+    assert len(calls) >= 2  # the first line, then at most once a second, and the end
     assert run.frame_seconds <= run.stage_sum * 1.25 + 0.02
 
 

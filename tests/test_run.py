@@ -18,6 +18,7 @@ import pytest
 
 from a3d.runtime import pipeline
 from a3d.runtime.cli import eval as eval_cli
+from a3d.runtime.cli import run as run_cli
 from a3d.runtime.evaluation.metric import FrameTruth, evaluate
 from a3d.runtime.frontend.proposals import ProposalConfig, proposal_config_from_dict
 from a3d.runtime.io.detections_io import read_detections, write_detections
@@ -365,3 +366,24 @@ def test_precomputed_proposals_are_used_and_capped(tmp_path: Path) -> None:
                               proposal_source="precomputed"))  # fmt: skip
     assert outcome.detections is None
     assert outcome.problem.startswith(str(ref_b.color_path)) and "no precomputed proposals" in outcome.problem
+
+
+def test_the_detections_file_is_fsynced_after_its_first_line_then_at_most_once_a_second(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    synced: list[int] = []
+    now = [100.0]
+    monkeypatch.setattr(run_cli.os, "fsync", synced.append)
+    monkeypatch.setattr(run_cli.time, "monotonic", lambda: now[0])
+    sink = run_cli._open_output(str(tmp_path / "d.jsonl"), append=False)
+    sink.write("a")
+    assert len(synced) == 1  # the first line at once
+    now[0] += 0.5
+    sink.write("b")
+    assert len(synced) == 1  # not every frame waits on the disk
+    now[0] += 0.6
+    sink.write("c")
+    assert len(synced) == 2
+    sink.close()
+    assert len(synced) == 3  # and at the end
+    assert (tmp_path / "d.jsonl").read_text() == "a\nb\nc\n"

@@ -15,8 +15,10 @@ format", and the other kinds registered there; --source-format forces one); for 
 model defaults to FOLDER/model.onnx. The
 model is loaded and checked before any frame is read. Each frame goes through
 a3d.runtime.pipeline and its line (README "Detections format") is appended to the output as one
-write, then flushed and fsynced, so an interrupted run leaves only complete lines (at most a
-partial last one, which ``--resume`` cuts off before it skips the frames already written). Without
+write straight to the file (no buffer in the process), so a killed run leaves only complete lines
+(at most a partial last one, which ``--resume`` cuts off before it skips the frames already
+written); the file is fsynced after the first line, then at most once a second and at the end, so
+a power cut loses at most the last second's lines rather than every frame waiting on the disk. Without
 ``--resume`` the output starts empty. ``--output -`` writes the lines to stdout; the progress bar
 and all messages go to stderr.
 
@@ -46,6 +48,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import logging
+import math
 import os
 import signal
 import sys
@@ -96,6 +99,7 @@ if TYPE_CHECKING:
 
 PROG = "a3d-run"
 OVERLAP_MODES = ("auto", "on", "off")
+SYNC_SECONDS = 1.0  # the detections file is fsynced at most this often (also after line 1 and at the end)
 OVERLAP_NOTE = (
     "the front end is the longer part: next frames prepared in the background, the network on {n} - 1 threads"
 )
@@ -590,10 +594,12 @@ def _frames(todo: Iterator[FrameLoader], job: _Job, args: argparse.Namespace) ->
 
 
 class _LineSink:
-    """Appends lines to a file (one write per line, then flush and fsync) or to stdout."""
+    """Appends lines to a file (one write per line; fsynced after the first line, then at most
+    every SYNC_SECONDS and on close) or to stdout (flushed per line)."""
 
     def __init__(self, fd: int | None) -> None:
         self.fd = fd
+        self.synced = -math.inf  # when the file was last fsynced (time.monotonic)
 
     def write(self, line: str) -> None:
         data = (line + "\n").encode("utf-8")
@@ -604,10 +610,13 @@ class _LineSink:
         view = memoryview(data)
         while view:  # a regular file takes the whole line in one call; the loop only guards EINTR-like cases
             view = view[os.write(self.fd, view) :]
-        os.fsync(self.fd)
+        if time.monotonic() - self.synced >= SYNC_SECONDS:
+            os.fsync(self.fd)
+            self.synced = time.monotonic()
 
     def close(self) -> None:
         if self.fd is not None:
+            os.fsync(self.fd)
             os.close(self.fd)
 
 
