@@ -421,10 +421,9 @@ def detect_frames_auto(
         rest = itertools.chain([following], items)
         if overlap_pays(outcome.detections.timing, threads):
             opencv_threads = cv2.getNumThreads()  # narrow() may leave OpenCV fewer for the background
-            narrowed = narrow(threads - 1)
             yield from _overlap_while_faster(
-                rest, config, model=model, narrowed=narrowed, sequential=sequential, probe=probe,
-                opencv_threads=opencv_threads,
+                rest, config, model=model, narrow=lambda: narrow(threads - 1), sequential=sequential,
+                probe=probe, opencv_threads=opencv_threads,
             )  # fmt: skip
         else:
             yield from detect_frames(rest, model, config)
@@ -436,28 +435,34 @@ def _overlap_while_faster(
     config: PipelineConfig,
     *,
     model: NetworkRunner,
-    narrowed: NetworkRunner,
+    narrow: Callable[[], NetworkRunner],
     sequential: float,
     probe: int,
     opencv_threads: int,
 ) -> Iterator[FrameOutcome]:
-    """Overlapped frames on ``narrowed``, as ``detect_frames(overlap=True)``; after the first
-    overlapped frame the next ``probe`` are timed and, where their mean period exceeds the
-    ``sequential`` one by more than OVERLAP_NOISE, the frame already prepared runs on ``model``
-    and the rest sequentially, with OpenCV's ``opencv_threads`` back."""
+    """Overlapped frames, as ``detect_frames(overlap=True)`` with the network on ``narrow()``.
+
+    The narrowed session is built on the background thread while the first frame is prepared in
+    the foreground (that frame's network runs on ``model``), so the switch costs no frame a
+    session's load. After that frame the next ``probe`` are timed and, where their mean period
+    exceeds the ``sequential`` one by more than OVERLAP_NOISE, the frame already prepared runs on
+    ``model`` and the rest sequentially, with OpenCV's ``opencv_threads`` back."""
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="a3d-prepare") as pool:
+        narrowing = pool.submit(narrow)
         current = next(items, None)
-        pending = None if current is None else pool.submit(load_and_prepare, current, config)
-        done, since = 0, 0.0
+        if current is None:
+            return
+        following = next(items, None)
+        pending = None if following is None else pool.submit(load_and_prepare, following, config)
+        yield _run_one(current, lambda: load_and_prepare(current, config), model, config)
+        narrowed, current, done, since = narrowing.result(), following, 0, time.perf_counter()
         while current is not None and pending is not None:
             following = next(items, None)
             ready = pending
             pending = None if following is None else pool.submit(load_and_prepare, following, config)
-            yield replace(_run_one(current, ready.result, narrowed, config), overlapped=done > 0)
+            yield replace(_run_one(current, ready.result, narrowed, config), overlapped=True)
             current, done = following, done + 1
-            if done == 1:
-                since = time.perf_counter()  # the first overlapped frame was prepared in the foreground
-            elif done == probe + 1 and current is not None and pending is not None:
+            if done == probe and current is not None and pending is not None:
                 period = (time.perf_counter() - since) / probe
                 if period > OVERLAP_NOISE * sequential:
                     logger.warning("--overlap auto: overlapped frames took %.0f ms against %.0f ms "
