@@ -45,6 +45,7 @@ GEMM_B = {"MatMul": 1, "FusedMatMul": 1, "Gemm": 1, "FusedGemm": 1, "MatMulInteg
 INT8_OPS = {"ConvInteger", "QLinearConv", "MatMulInteger", "MatMulIntegerToFloat", "DynamicQuantizeMatMul",
             "QLinearMatMul", "QGemm"}  # fmt: skip
 PARTS = ("trunks", "head")
+FULLY_CONNECTED = {"Gemm", "FusedGemm", "QGemm", "Softmax", "Relu"}  # the head's layers after pooling
 
 
 @dataclass
@@ -86,6 +87,11 @@ class NetworkProfile:
 
     def macs(self, part: str) -> int:
         return sum(o.macs for o in self.ops if o.part == part)
+
+    def pooling_seconds(self) -> float:
+        """The RoI pooling: the head less its fully connected layers (FULLY_CONNECTED), i.e. the
+        pooling's products, the RoIs' weights and the reshaping between them."""
+        return sum(o.seconds for o in self.ops if o.part == "head" and o.op not in FULLY_CONNECTED)
 
     def seconds_at_ceiling(self, part: str, ceilings: Ceilings) -> float:
         """The part's MACs at the ceiling of each op's kind and precision (0 s for the other ops)."""

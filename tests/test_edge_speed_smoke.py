@@ -217,5 +217,7 @@ def test_targets_judge_what_was_measured(
     assert "[PASS] --overlap auto never slower than sequential, full model" in out  # 1.52 <= 1.05 x 1.5
     assert "[FAIL] --overlap auto never slower than sequential, small model" in out  # 0.6 > 1.05 x 0.5
     assert "[PASS] peak resident memory" in out
+    pooling = "[FAIL] RoI pooling <= 25 ms at 100 RoIs (int8 + SVD head less its fully connected layers)"
+    assert f"{pooling}: 100.0 ms" in out  # the Transpose; the QGemm is a fully connected layer
     trunks = next(line for line in out.splitlines() if line.strip().startswith("trunks"))
     assert trunks.split()[1:] == ["30.0", "1000.0", "600.0", "60%"]

@@ -40,7 +40,7 @@ def test_overrides_are_typed():
 @pytest.mark.parametrize(
     ("override", "message"),
     [
-        ("solver.lrr=1", r"--set solver.lrr=1: unknown setting\(s\) solver.lrr \(known: color_lr_mult, freeze_color, "),
+        ("solver.lrr=1", r"--set solver.lrr=1: unknown setting\(s\) solver.lrr \(known: color_lr_mult, "),
         ("solver.iterations=1.5", "solver.iterations must be an integer, got 1.5"),
         ("data.flip=maybe", "data.flip must be true or false, got 'maybe'"),
         ("solver=3", "solver must be an object, got 3"),
