@@ -15,9 +15,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import logging
 import os
-import warnings
 from pathlib import Path
 
 import onnx
@@ -25,7 +23,7 @@ import torch
 from torch import nn
 
 from a3d.export.base import MAX_IR_VERSION, MIN_OPSET, ExportError
-from a3d.export.roi_pool_onnx import TRANSLATIONS, fold_pool_layout
+from a3d.export.roi_pool_onnx import dynamo_export, fold_pool_layout
 from a3d.runtime.io.atomic import atomic_write_bytes
 from a3d.runtime.network.model import INPUT_NAMES, METADATA_KEY, OUTPUT_NAMES, ModelMetadata, content_digest
 from a3d.runtime.structures.boxes import BOX_DIM
@@ -106,27 +104,15 @@ def export_graph(graph: RuntimeGraph, path: str | os.PathLike, opset: int = MIN_
         raise ExportError(f"--opset {opset}: the exporter supports opset {MIN_OPSET} or newer")
     graph = graph.eval()
     image, count = {2: "height", 3: "width"}, {0: "rois"}
-    registry_log = logging.getLogger("torch.onnx._internal.exporter._registration")
-    level = registry_log.level
-    registry_log.setLevel(logging.ERROR)  # "torchvision is not installed" for every torchvision op
-    try:
-        with warnings.catch_warnings(), torch.no_grad():
-            warnings.simplefilter("ignore")  # the exporter's deprecation and dynamic-shape chatter
-            torch.onnx.export(
-                graph,
-                example_inputs(*EXAMPLE_SIZE, count=5),
-                str(path),
-                input_names=list(INPUT_NAMES),
-                output_names=list(OUTPUT_NAMES),
-                dynamic_shapes={"color": image, "depth": image, "rois": count, "context_rois": count},
-                custom_translation_table=TRANSLATIONS,
-                opset_version=opset,
-                dynamo=True,
-                external_data=False,
-                verbose=False,
-            )
-    finally:
-        registry_log.setLevel(level)
+    dynamo_export(
+        graph,
+        example_inputs(*EXAMPLE_SIZE, count=5),
+        str(path),
+        input_names=list(INPUT_NAMES),
+        output_names=list(OUTPUT_NAMES),
+        opset=opset,
+        dynamic_shapes={"color": image, "depth": image, "rois": count, "context_rois": count},
+    )
     model = onnx.load(str(path))
     got = next((o.version for o in model.opset_import if o.domain in ("", "ai.onnx")), None)
     if got != opset:

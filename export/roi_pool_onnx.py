@@ -220,6 +220,30 @@ def export_roi_align(
     dims = {0: torch.export.Dim("batch"), 2: torch.export.Dim("height"), 3: torch.export.Dim("width")}
     if not fixed_channels:
         dims[1] = torch.export.Dim("channels")
+    dynamo_export(
+        RoiAlignGraph(),
+        (features, rois),
+        path,
+        input_names=["features", "rois"],
+        output_names=["pooled"],
+        opset=opset,
+        dynamic_shapes={"features": dims, "rois": {0: torch.export.Dim("rois")}},
+    )
+
+
+def dynamo_export(
+    module: nn.Module,
+    args: tuple,
+    path: str,
+    *,
+    input_names: list[str],
+    output_names: list[str],
+    dynamic_shapes: dict,
+    opset: int,
+) -> None:
+    """torch.onnx.export (dynamo) of ``module`` with a3d's translations (TRANSLATIONS), the weights
+    inline, and the exporter's chatter silenced: its registry's "torchvision is not installed" for
+    every torchvision op, its deprecation and dynamic-shape warnings."""
     registry_log = logging.getLogger("torch.onnx._internal.exporter._registration")
     level = registry_log.level
     registry_log.setLevel(logging.ERROR)
@@ -227,17 +251,17 @@ def export_roi_align(
         with warnings.catch_warnings(), torch.no_grad():
             warnings.simplefilter("ignore")
             torch.onnx.export(
-                RoiAlignGraph(),
-                (features, rois),
+                module,
+                args,
                 path,
-                input_names=["features", "rois"],
-                output_names=["pooled"],
-                dynamic_shapes={"features": dims, "rois": {0: torch.export.Dim("rois")}},
+                input_names=input_names,
+                output_names=output_names,
+                dynamic_shapes=dynamic_shapes,
+                custom_translation_table=TRANSLATIONS,
                 opset_version=opset,
                 dynamo=True,
                 external_data=False,
                 verbose=False,
-                custom_translation_table=TRANSLATIONS,
             )
     finally:
         registry_log.setLevel(level)
