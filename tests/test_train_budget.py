@@ -111,3 +111,11 @@ def test_a_bad_budget_is_one_line(frames, tmp_path, capsys, args, message):
     error = capsys.readouterr().err.strip()
     assert message in error and len(error.splitlines()) == 1, error
     assert not (run / "checkpoint.pt").exists()
+
+
+def test_scaled_lr_steps_are_exact_not_float_rounded() -> None:
+    """30000 of 100000 scaled to 395 iterations is exactly 118.5, which rounds to 118 (half to even);
+    scaling by the float 395 / 100000 first gave 118.50000000000001 and so 119."""
+    budget = SolverConfig(iterations=100000, lr_steps=(30000,))
+    fitted = fit_schedule(budget, done=0, rate=39.5, seconds_left=10.0)
+    assert fitted.iterations == 395 and fitted.lr_steps == (118,)

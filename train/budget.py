@@ -34,10 +34,9 @@ def fit_schedule(
     if rate <= 0:
         raise ValueError(f"solver.minutes: measured rate {rate} iterations/s is not positive")
     fitted = min(budget.iterations, done + max(0, int(rate * seconds_left)))
-    scale = fitted / budget.iterations
     earlier = current.lr_steps if current is not None else (None,) * len(budget.lr_steps)
     steps = tuple(
-        old if old is not None and old <= done else max(done, round(step * scale))
+        old if old is not None and old <= done else max(done, round(step * fitted / budget.iterations))
         for step, old in zip(budget.lr_steps, earlier, strict=True)
     )
     return replace(budget, iterations=fitted, lr_steps=steps, minutes=0.0)
