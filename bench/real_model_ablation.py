@@ -32,6 +32,7 @@ import subprocess
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
+from importlib.metadata import entry_points
 from pathlib import Path
 
 import cv2
@@ -48,15 +49,10 @@ SCORING_RESERVE_S = 240.0  # export with score calibration, held-out and real fr
 
 
 def _bin(name: str) -> list[str]:
-    """A console script of this environment, run by its module so no PATH is needed."""
-    modules = {
-        "a3d-synth": "a3d.synth.cli",
-        "a3d-train": "a3d.train.cli",
-        "a3d-export": "a3d.export.cli",
-        "a3d-run": "a3d.runtime.cli.run",
-        "a3d-eval": "a3d.runtime.cli.eval",
-    }
-    return [sys.executable, "-m", modules[name]]
+    """A console script of the installed package (pyproject's [project.scripts]), run by its
+    module so no PATH is needed (a --target install on a lent machine has no scripts on PATH)."""
+    (script,) = entry_points(group="console_scripts", name=name)
+    return [sys.executable, "-m", script.module]
 
 
 def _run(cmd: list[str], log: Path) -> str:
