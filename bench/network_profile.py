@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 import onnxruntime as ort
 
+from a3d.runtime.network.roi_order import pooling_order
 from bench.ceilings import Ceilings
 
 # op name -> index of the weight input (convolutions) or of the B input (matrix products)
@@ -135,6 +136,8 @@ def profile_network(
         raise ValueError(
             "profiling needs a frame with at least 2 RoIs (head = the nodes that change with them)"
         )
+    order = pooling_order(feeds["rois"])  # as DetectorModel.run hands them over
+    feeds = {k: v[order] if k.endswith("rois") else v for k, v in feeds.items()}
     half = {k: v[: rois // 2] if k.endswith("rois") else v for k, v in feeds.items()}
     with tempfile.TemporaryDirectory(prefix="a3d-profile-") as tmp:
         full_shapes, half_shapes = _node_runs(

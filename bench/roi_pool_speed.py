@@ -45,6 +45,7 @@ import torch
 from onnx import ModelProto, TensorProto, helper, numpy_helper
 
 from a3d.export.roi_pool_onnx import export_roi_align
+from a3d.runtime.network.roi_order import pooling_order
 from a3d.train.model.roi_pool import _axis_weights, roi_align
 
 POOL, SAMPLING, STRIDE = 7, 2, 16
@@ -261,7 +262,7 @@ def forms(
         f"dense, {4 * chunks} chunks": (dense_graph(height, width, chunks=4 * chunks), same),
         "ONNX RoiAlign": (roi_align_graph(height, width), same),
         f"crops, {chunks} chunks": (crops_graph(height, width, chunks), lambda y: y.transpose(0, 3, 1, 2)),
-        "windows (exported)": (exported_graph(height, width), y_c_x),
+        "windows (exported)": (exported_graph(height, width), lambda y: y.transpose(0, 3, 1, 2)),
     }
 
 
@@ -307,7 +308,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     height, width = (int(v) for v in args.map.split("x"))
     feature_map = np.random.default_rng(1).standard_normal((1, args.channels, height, width), np.float32)
-    feeds, want = pooling_inputs(random_rois(args.rois, height, width), feature_map)
+    boxes = random_rois(args.rois, height, width)
+    feeds, want = pooling_inputs(boxes[pooling_order(boxes)], feature_map)  # in a3d-run's order
     runs = {}
     for name, (model, layout) in forms(height, width, args.chunks).items():
         session = _session(model, args.threads)

@@ -5,20 +5,26 @@ Training pools with ``a3d.train.model.roi_pool.separable_pool``: the row weights
 (500 RoIs, 512 channels, a 27 x 36 map) the first product writes a 258 MB intermediate and costs
 1.7 G multiply-adds per map, though each RoI's weights are zero outside its own few rows and
 columns. The export swaps that product for the custom op ``a3d::separable_pool`` (same inputs,
-same eager result), whose ONNX translation here computes the sum on windows:
+the eager result in (y, x, c) order), whose ONNX translation here computes the sum on windows:
 
-1. each RoI's support: the first and last row and column where its weights are nonzero;
-2. the RoIs sorted by a Morton code of their support's corners (RoIs of similar position and
-   size end up next to each other) and cut into ``CHUNKS`` equal chunks;
-3. per chunk, the union of its RoIs' supports is sliced from the map and the training products
-   run on that window only (the weights outside it are zero, so the sum is the same);
-4. the chunks concatenated and the rows put back in the input order.
+1. the RoIs are cut into ``POOL_CHUNKS`` chunks of consecutive rows (a3d.runtime.network.roi_order
+   hands them over so that each chunk holds neighbours); below ``WINDOW_MIN_CHANNELS`` channels
+   one chunk, i.e. the union of all;
+2. each RoI's support (the first and last row and column where its weights are nonzero), and
+   per chunk the union of its RoIs' supports, every chunk's bounds computed at once and handed
+   out by ``Split``;
+3. per chunk, the union window is sliced from the map in channels-last order and the training
+   products run on it: the row weights (K x 7, h) times the window (h, w x C), then the column
+   weights (K, 1, 7, w) times that (K, 7, w, C): (K, 7, 7, C), channels innermost, so the second
+   product's columns are the channels (the weights outside the window are zero: the same sum);
+4. the chunks concatenated in row order.
 
-Measured against the dense form and the other candidates in ``python -m bench.roi_pool_speed``
-(docs/edge-speed.md "Where the head loses time"). The output keeps separable_pool's (y, c, x)
-layout; the export folds that order into fc6's weights (``fold_pool_layout``) instead of
-transposing 50 MB per map. A dummy all-zero RoI is appended so that a call with no RoIs keeps
-every shape non-empty; its row is dropped at the end.
+A chunk may be empty (fewer RoIs than chunks, or none): it slices a window of one RoI it does
+not use and contributes no rows. Measured against
+the dense form and the other candidates in ``python -m bench.roi_pool_speed`` (docs/edge-speed.md
+"Where the head loses time"). The export folds the (y, x, c) order into fc6's weights
+(``fold_pool_layout``) instead of transposing 50 MB per map, and the int8 export quantises each
+chunk's product where it is made (a3d.export.quantize), so the concatenations move bytes, not floats.
 """
 
 from __future__ import annotations
@@ -26,35 +32,32 @@ from __future__ import annotations
 import logging
 import warnings
 
-import numpy as np
 import torch
-from onnx import TensorProto, numpy_helper
+from onnx import TensorProto
 from onnxscript import opset18 as op
 from torch import nn
 
 from a3d.export.base import ExportError
+from a3d.runtime.network.roi_order import POOL_CHUNKS
 from a3d.train.model.net import A3DNet
 from a3d.train.model.roi_pool import pooling_rows, roi_weights, separable_pool
 
-CHUNKS = 32
-# Below this many channels (known when the export fixes them) the graph keeps the two dense
-# products: the windows' ~700 small nodes cost more than they save on a small map (the bundled
-# model's 128 channels on 14 x 18: 16.8 ms against 6.7 ms dense; the paper's 512 on 27 x 36:
-# 33 against 44 ms; docs/edge-speed.md "Where the head loses time").
+# Below this many channels (known when the export fixes them) the graph pools all RoIs as one
+# chunk: the windows' nodes cost more than they save on a small map (the bundled model's 128
+# channels on 14 x 18; docs/edge-speed.md "Where the head loses time").
 WINDOW_MIN_CHANNELS = 256
-# Corners up to 256 cells (4096 pixels at stride 16); beyond, the sort is coarser, never wrong.
-MORTON_BITS = 8
 
 
 @torch.library.custom_op("a3d::separable_pool", mutates_args=())
 def separable_pool_op(rows: torch.Tensor, wy: torch.Tensor, wx: torch.Tensor) -> torch.Tensor:
-    """``separable_pool`` as one op of the exported program, so that the export can translate it."""
-    return separable_pool(rows, wy, wx).clone()
+    """``separable_pool`` as one op of the exported program, in (R, y, x, C) order, so that the
+    export can translate it."""
+    return separable_pool(rows, wy, wx).permute(0, 1, 3, 2).contiguous()
 
 
 @separable_pool_op.register_fake
 def _(rows: torch.Tensor, wy: torch.Tensor, wx: torch.Tensor) -> torch.Tensor:
-    return rows.new_empty((wy.shape[0], wy.shape[1], rows.shape[1], wx.shape[1]))
+    return rows.new_empty((wy.shape[0], wy.shape[1], wx.shape[1], rows.shape[1]))
 
 
 def _ints(*values: int):
@@ -81,91 +84,52 @@ def _support(weights):
     )
 
 
-def _morton_order(corners, count):
-    """Indices sorting (R, 4) int64 corners by their interleaved bits (a Z-order curve in 4-D)."""
-    powers = op.Constant(value_ints=[1 << b for b in range(MORTON_BITS)])
-    bits = op.Mod(op.Div(op.Unsqueeze(corners, _ints(2)), powers), op.Constant(value_int=2))  # (R, 4, bits)
-    place = (1 << (4 * np.arange(MORTON_BITS)[None, :] + np.arange(4)[:, None])).astype(np.int64)
-    weights = op.Constant(value=numpy_helper.from_array(place))
-    code = op.ReduceSum(op.Mul(bits, weights), _ints(1, 2), keepdims=0)
-    return op.TopK(op.Neg(code), count, largest=1, sorted=1)[1]
-
-
-def _dense_products(rows, wy, wx):
-    """Training's two products as they are (``separable_pool``), without the final transpose."""
-    count, size = op.Shape(wy, start=0, end=1), op.Shape(wy, start=1, end=2)
-    stacked, channels = op.Shape(wy, start=2, end=3), op.Shape(rows, start=1, end=2)
-    by_rows = op.MatMul(
-        op.Reshape(wy, op.Concat(op.Mul(count, size), stacked, axis=0)),
-        op.Reshape(rows, op.Concat(stacked, _ints(-1), axis=0)),
-    )
-    by_rows = op.Reshape(
-        by_rows, op.Concat(count, op.Mul(size, channels), op.Shape(wx, start=2, end=3), axis=0)
-    )
-    pooled = op.MatMul(by_rows, op.Transpose(wx, perm=[0, 2, 1]))  # (R, P*C, P)
-    return op.Reshape(pooled, op.Concat(count, size, channels, size, axis=0))
+def _per_chunk(columns: list, chunks: int) -> list:
+    """Row i of the (chunks, k) table whose columns are ``columns`` ((chunks,) each), as (k,) tensors."""
+    flat = op.Reshape(op.Concat(*(_column(c) for c in columns), axis=1), _ints(-1))
+    if chunks == 1:
+        return [flat]
+    return list(op.Split(flat, axis=0, num_outputs=chunks))
 
 
 def separable_pool_onnx(rows, wy, wx):
     """The ONNX translation of ``a3d::separable_pool`` (module docstring): rows (B*H, C, W),
-    wy (R, P, B*H), wx (R, P, W) -> (R, P, C, P); the dense products where the export fixes
-    fewer than ``WINDOW_MIN_CHANNELS`` channels."""
+    wy (R, P, B*H), wx (R, P, W) -> (R, P, P, C)."""
     fixed = rows.shape[1] if rows.shape is not None else None
-    if isinstance(fixed, int) and fixed < WINDOW_MIN_CHANNELS:
-        return _dense_products(rows, wy, wx)
-    count = op.Shape(wy, start=0, end=1)
-    size = op.Shape(wy, start=1, end=2)
+    chunks = 1 if isinstance(fixed, int) and fixed < WINDOW_MIN_CHANNELS else POOL_CHUNKS
+    count, size = op.Shape(wy, start=0, end=1), op.Shape(wy, start=1, end=2)
     channels = op.Shape(rows, start=1, end=2)
-    one = _ints(1)
-    wy = op.Concat(wy, op.ConstantOfShape(op.Concat(one, op.Shape(wy, start=1), axis=0)), axis=0)
-    wx = op.Concat(wx, op.ConstantOfShape(op.Concat(one, op.Shape(wx, start=1), axis=0)), axis=0)
-    total = op.Add(count, one)  # with the dummy RoI
-    first_y, end_y = _support(wy)
-    first_x, end_x = _support(wx)
-    corners = op.Concat(*(_column(c) for c in (first_x, first_y, end_x, end_y)), axis=1)
-    order = _morton_order(corners, total)
-    per_chunk = op.Div(op.Add(total, _ints(CHUNKS - 1)), _ints(CHUNKS))  # (1,)
-    padding = op.Sub(op.Mul(per_chunk, _ints(CHUNKS)), total)
-    padded = op.Concat(order, op.Expand(op.Slice(order, _ints(-1), _ints(1 << 62)), padding), axis=0)
-    grid = op.Reshape(padded, op.Concat(_ints(CHUNKS), per_chunk, axis=0))  # (n, K): chunk i's RoIs
-    low_y = op.ReduceMin(op.Gather(first_y, grid), one, keepdims=0)  # (n,)
-    high_y = op.ReduceMax(op.Gather(end_y, grid), one, keepdims=0)
-    low_x = op.ReduceMin(op.Gather(first_x, grid), one, keepdims=0)
-    high_x = op.ReduceMax(op.Gather(end_x, grid), one, keepdims=0)
-    span_y, span_x = op.Sub(high_y, low_y), op.Sub(high_x, low_x)
-    starts = op.Concat(_column(low_y), _column(low_x), axis=1)  # (n, 2)
-    ends = op.Concat(_column(high_y), _column(high_x), axis=1)
-    chunk_column = _ints(CHUNKS, 1)
-    weight_shapes = op.Concat(op.Expand(op.Mul(per_chunk, size), chunk_column), _column(span_y), axis=1)
-    window_shapes = op.Concat(_column(span_y), op.Expand(_ints(-1), chunk_column), axis=1)
-    product_shapes = op.Concat(
-        op.Expand(per_chunk, chunk_column),
-        op.Expand(op.Mul(size, channels), chunk_column),
-        _column(span_x),
-        axis=1,
+    cells = op.Transpose(rows, perm=[0, 2, 1])  # (B*H, W, C)
+    bounds = op.Div(op.Mul(count, _ints(*range(chunks + 1))), _ints(chunks))
+    starts, ends = op.Slice(bounds, _ints(0), _ints(chunks)), op.Slice(bounds, _ints(1), _ints(chunks + 1))
+    longest = op.Max(op.Div(op.Add(count, _ints(chunks - 1)), _ints(chunks)), _ints(1))
+    steps = op.Range(op.Constant(value_int=0), op.Squeeze(longest, _ints(0)), op.Constant(value_int=1))
+    # Each chunk's RoIs (repeating its last); an empty chunk's, its predecessor's last RoI, or
+    # for the first chunk (index -1) a dummy support of one cell appended after the RoIs'.
+    members = op.Min(op.Add(_column(starts), op.Unsqueeze(steps, _ints(0))), _column(op.Sub(ends, _ints(1))))
+    union = []  # low y, high y, low x, high x per chunk, (chunks,) each
+    for weights in (wy, wx):
+        first, end = _support(weights)
+        first, end = op.Concat(first, _ints(0), axis=0), op.Concat(end, _ints(1), axis=0)
+        union.append(op.ReduceMin(op.Gather(first, members), _ints(1), keepdims=0))
+        union.append(op.ReduceMax(op.Gather(end, members), _ints(1), keepdims=0))
+    low_y, high_y, low_x, high_x = union
+    window_low, window_high = _per_chunk([low_y, low_x], chunks), _per_chunk([high_y, high_x], chunks)
+    row_low, row_high = _per_chunk([starts, low_y], chunks), _per_chunk([ends, high_y], chunks)
+    column_low, column_high = _per_chunk([starts, low_x], chunks), _per_chunk([ends, high_x], chunks)
+    fill = op.Expand(_ints(1), _ints(chunks))
+    shapes = _per_chunk(  # (K, P, w, C) with no -1, so that an empty chunk reshapes too
+        [op.Sub(ends, starts), op.Mul(fill, size), op.Sub(high_x, low_x), op.Mul(fill, channels)], chunks
     )
-    columns = op.Transpose(wx, perm=[0, 2, 1])  # (R + 1, W, P)
+    columns = op.Unsqueeze(wx, _ints(1))  # (T, 1, P, W)
     pieces = []
-    for i in range(CHUNKS):
-        at = op.Constant(value_int=i)
-        rois = op.Gather(grid, at)
-        start, end = op.Gather(starts, at), op.Gather(ends, at)
-        window = op.Slice(rows, start, end, _ints(0, 2))  # (h, C, w): the chunk's union window
-        row_weights = op.Slice(
-            op.Gather(wy, rois), op.Gather(_column(low_y), at), op.Gather(_column(high_y), at), _ints(2)
-        )
-        by_rows = op.MatMul(
-            op.Reshape(row_weights, op.Gather(weight_shapes, at)),
-            op.Reshape(window, op.Gather(window_shapes, at)),
-        )
-        by_rows = op.Reshape(by_rows, op.Gather(product_shapes, at))  # (K, P*C, w)
-        column_weights = op.Slice(
-            op.Gather(columns, rois), op.Gather(_column(low_x), at), op.Gather(_column(high_x), at), one
-        )
-        pieces.append(op.MatMul(by_rows, column_weights))  # (K, P*C, P)
-    inverse = op.Slice(op.TopK(op.Neg(order), total, largest=1, sorted=1)[1], _ints(0), count)
-    pooled = op.Gather(op.Concat(*pieces, axis=0), inverse)
-    return op.Reshape(pooled, op.Concat(count, size, channels, size, axis=0))
+    for i in range(chunks):
+        window = op.Slice(cells, window_low[i], window_high[i], _ints(0, 1))  # (h, w, C)
+        row_weights = op.Slice(wy, row_low[i], row_high[i], _ints(0, 2))  # (K, P, h)
+        by_rows = op.MatMul(op.Flatten(row_weights, axis=2), op.Flatten(window, axis=1))  # (K * P, w * C)
+        column_weights = op.Slice(columns, column_low[i], column_high[i], _ints(0, 3))  # (K, 1, P, w)
+        pieces.append(op.MatMul(column_weights, op.Reshape(by_rows, shapes[i])))  # (K, P, P, C)
+    return op.Concat(*pieces, axis=0) if chunks > 1 else pieces[0]
 
 
 TRANSLATIONS = {torch.ops.a3d.separable_pool.default: separable_pool_onnx}
@@ -182,7 +146,7 @@ def _first_linear(layer: nn.Module) -> nn.Linear:
 
 def fold_pool_layout(folded: A3DNet) -> A3DNet:
     """``folded`` itself (changed in place), its RoI pooling now ``a3d::separable_pool`` flattened in
-    that op's (y, c, x) order and fc6's input columns permuted from (c, y, x) to match: the same
+    that op's (y, x, c) order and fc6's input columns permuted from (c, y, x) to match: the same
     outputs without a 50 MB transpose per map. Max RoI pooling (the training-only ablation) is refused."""
     if folded.config.roi_pool != "align":
         raise ExportError(f"net.roi_pool={folded.config.roi_pool!r}: only RoIAlign networks are exported")
@@ -191,14 +155,14 @@ def fold_pool_layout(folded: A3DNet) -> A3DNet:
     size = folded.config.pool_size
     boxes = 2 if folded.config.use_context else 1
     channels = fc6.in_features // (boxes * size * size)  # of one pooled map (both trunks' without fusion)
-    index = torch.arange(fc6.in_features).reshape(-1, channels, size, size).permute(0, 2, 1, 3).reshape(-1)
+    index = torch.arange(fc6.in_features).reshape(-1, channels, size, size).permute(0, 2, 3, 1).reshape(-1)
     with torch.no_grad():
         fc6.weight.copy_(fc6.weight[:, index])
     return folded
 
 
 class RoiAlignGraph(nn.Module):
-    """forward(features (B, C, H, W), rois (R, 5)) -> (R, P, C, P): roi_align as the export writes
+    """forward(features (B, C, H, W), rois (R, 5)) -> (R, P, P, C): roi_align as the export writes
     it (the weights from training's code, the products through ``a3d::separable_pool``), for
     bench.roi_pool_speed and the parity tests."""
 

@@ -27,6 +27,7 @@ from a3d.export.svd import svd_compress
 from a3d.export.verify import folder_inputs
 from a3d.runtime.cli import run as run_cli
 from a3d.runtime.network.model import DetectorModel
+from a3d.runtime.network.roi_order import POOL_CHUNKS
 from a3d.runtime.pipeline import PipelineConfig
 from a3d.runtime.structures.classes import CLASSES
 from a3d.runtime.viewer.options import viewer_requested
@@ -180,8 +181,13 @@ def test_svd_int8_export_is_quantized_loads_and_stays_close(run) -> None:
     ops = {n.op_type for n in model.graph.node}
     assert {"QuantizeLinear", "DequantizeLinear"} <= ops or ops & {"QLinearConv", "QLinearMatMul"}
     assert sum(n.op_type == "Gemm" for n in model.graph.node) >= 5  # fc6 and fc7 are two Gemms each
-    windows = sum(n.op_type == "MatMul" for n in model.graph.node)
-    assert windows == 2 * 2 * roi_pool_onnx.CHUNKS  # both maps' window products, kept float
+    windows = [n for n in model.graph.node if n.op_type == "MatMul"]
+    assert len(windows) == 2 * 2 * POOL_CHUNKS  # both maps' window products, kept float
+    # fc6's input quantisation moved up to each chunk's product: the chunks are joined as bytes
+    joined = [n for n in model.graph.node if n.op_type == "Concat" and len(n.input) == POOL_CHUNKS]
+    makers = {out: n for n in model.graph.node for out in n.output}
+    assert len(joined) == 2 and all(makers[i].op_type == "QuantizeLinear" for n in joined for i in n.input)
+    assert all(makers[makers[i].input[0]].op_type == "MatMul" for n in joined for i in n.input)
     loaded = DetectorModel.load(run.int8, threads=1)
     verification = loaded.metadata.provenance["verification"]
     # The float SVD export matched its own torch model; rank 8 changed the network measurably.

@@ -12,7 +12,8 @@ import pytest
 import torch
 
 from a3d.export.base import ExportError
-from a3d.export.roi_pool_onnx import CHUNKS, WINDOW_MIN_CHANNELS, export_roi_align, fold_pool_layout
+from a3d.export.roi_pool_onnx import WINDOW_MIN_CHANNELS, export_roi_align, fold_pool_layout
+from a3d.runtime.network.roi_order import POOL_CHUNKS
 from a3d.export.svd import svd_compress
 from a3d.train.model.config import NetConfig
 from a3d.train.model.net import A3DNet
@@ -54,8 +55,8 @@ def test_exported_pooling_equals_torch(exported, batch, channels, height, width,
     rois = _rois(count, batch, height, width, seed=count + 1)
     got = exported.run(None, {"features": features.numpy(), "rois": rois.numpy()})[0]
     want = roi_align(features, rois).numpy()
-    assert got.shape == (count, 7, channels, 7)
-    np.testing.assert_allclose(got.transpose(0, 2, 1, 3), want, rtol=0, atol=1e-5)
+    assert got.shape == (count, 7, 7, channels)
+    np.testing.assert_allclose(got.transpose(0, 3, 1, 2), want, rtol=0, atol=1e-5)
 
 
 @pytest.mark.slow
@@ -64,14 +65,14 @@ def test_export_pools_on_windows_without_the_dense_intermediate(tmp_path) -> Non
     path = tmp_path / "pool.onnx"
     export_roi_align(str(path), torch.zeros(1, 4, 6, 7), _rois(5, 1, 6, 7, seed=0))
     ops = [n.op_type for n in onnx.load(str(path)).graph.node]
-    assert ops.count("MatMul") == 2 * CHUNKS
-    assert "Transpose" not in ops[-3:]  # the (y, C, x) layout is left for fc6 to absorb
+    assert ops.count("MatMul") == 2 * POOL_CHUNKS
+    assert "Transpose" not in ops[-3:]  # the (y, x, C) layout is left for fc6 to absorb
 
 
 @pytest.mark.slow
-def test_few_fixed_channels_keep_the_dense_products(tmp_path) -> None:
-    """Where the export fixes a small channel count the graph keeps training's two products,
-    with the same numbers."""
+def test_few_fixed_channels_pool_as_one_chunk(tmp_path) -> None:
+    """Where the export fixes a small channel count the graph pools all RoIs as one chunk (two
+    products), with the same numbers."""
     path = tmp_path / "pool.onnx"
     channels = WINDOW_MIN_CHANNELS // 2
     export_roi_align(
@@ -83,7 +84,7 @@ def test_few_fixed_channels_keep_the_dense_products(tmp_path) -> None:
     rois = _rois(60, 2, 9, 11, seed=4)
     got = session.run(None, {"features": features.numpy(), "rois": rois.numpy()})[0]
     np.testing.assert_allclose(
-        got.transpose(0, 2, 1, 3), roi_align(features, rois).numpy(), rtol=0, atol=1e-5
+        got.transpose(0, 3, 1, 2), roi_align(features, rois).numpy(), rtol=0, atol=1e-5
     )
 
 
@@ -107,7 +108,7 @@ def _outputs(net: A3DNet, seed: int = 0) -> tuple[torch.Tensor, ...]:
 )
 @pytest.mark.parametrize("svd", [None, 8])
 def test_fold_pool_layout_keeps_the_outputs(config, svd) -> None:
-    """The (y, c, x) pooling with fc6's columns permuted answers what the network answers."""
+    """The (y, x, c) pooling with fc6's columns permuted answers what the network answers."""
     net = A3DNet(config).eval()
     if svd is not None:
         net, _ = svd_compress(net, svd)
@@ -139,7 +140,7 @@ def test_network_exported_on_windows_answers_as_torch(tmp_path, monkeypatch) -> 
     net = A3DNet(NetConfig(width=0.125, fc6=32, fc7=32, fuse_channels=16)).eval()
     graph = RuntimeGraph(net, TargetStats.identity())
     model = export_graph(graph, tmp_path / "raw.onnx")
-    assert [n.op_type for n in model.graph.node].count("MatMul") == 2 * 2 * CHUNKS  # two maps
+    assert [n.op_type for n in model.graph.node].count("MatMul") == 2 * 2 * POOL_CHUNKS  # two maps
     session = ort.InferenceSession(str(tmp_path / "raw.onnx"), providers=["CPUExecutionProvider"])
     inputs = example_inputs(96, 128, 150, seed=5)
     got = session.run(

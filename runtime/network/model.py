@@ -43,6 +43,7 @@ from a3d.runtime.frontend.proposals import ProposalConfig, proposal_config_from_
 from a3d.runtime.io.json_input import is_finite_number, parse_json
 from a3d.runtime.io.plain_config import plain_from_dataclass
 from a3d.runtime.network.preprocess import COLOR_MEAN_BGR, DEPTH_MEAN
+from a3d.runtime.network.roi_order import pooling_order
 from a3d.runtime.postprocess.score_calibration import ScoreCalibration
 from a3d.runtime.structures.boxes import BOX_DIM
 from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES, NUM_OUTPUTS
@@ -230,8 +231,12 @@ class DetectorModel:
         if len(rois) == 0:
             return (np.zeros((0, NUM_OUTPUTS), np.float32), np.zeros((0, NUM_OUTPUTS, BOX_DIM), np.float32),
                     np.zeros((0, NUM_OUTPUTS, 4), np.float32))  # fmt: skip
-        feeds = dict(zip(INPUT_NAMES, (color, depth, rois, context_rois), strict=True))
-        probs, deltas3d, deltas2d = self.session.run(list(OUTPUT_NAMES), feeds)
+        order = pooling_order(rois)  # the same answers in any order; this one pools fastest
+        feeds = dict(zip(INPUT_NAMES, (color, depth, rois[order], context_rois[order]), strict=True))
+        outputs = self.session.run(list(OUTPUT_NAMES), feeds)
+        back = np.empty_like(order)
+        back[order] = np.arange(len(order))
+        probs, deltas3d, deltas2d = (out[back] for out in outputs)
         return probs, deltas3d, deltas2d
 
 

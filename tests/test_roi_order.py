@@ -1,0 +1,60 @@
+"""The runtime's RoI order (a3d.runtime.network.roi_order): a permutation whose chunks hold
+neighbours, and a model that answers the same in any order."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from a3d.runtime.network.roi_order import POOL_CHUNKS, chunk_bounds, pooling_order
+
+
+def _union_area(boxes: np.ndarray, order: np.ndarray, chunks: int) -> float:
+    """Sum over chunks of (RoIs in the chunk) x (area of the chunk's bounding box)."""
+    bounds = chunk_bounds(len(order), chunks)
+    total = 0.0
+    for start, end in zip(bounds[:-1], bounds[1:], strict=True):
+        part = boxes[order[start:end]]
+        extent = part[:, 2:].max(0) - part[:, :2].min(0)
+        total += (end - start) * float(extent[0] * extent[1])
+    return total
+
+
+def test_chunk_bounds_cut_as_the_graph_does() -> None:
+    assert chunk_bounds(10, 4).tolist() == [0, 2, 5, 7, 10]
+    assert chunk_bounds(0, 3).tolist() == [0, 0, 0, 0]
+
+
+@pytest.mark.parametrize("count", [0, 1, POOL_CHUNKS, POOL_CHUNKS + 1, 500])
+def test_order_is_a_permutation_and_groups_neighbours(count: int) -> None:
+    rng = np.random.default_rng(count)
+    # small boxes scattered over a 640 x 480 frame, in the proposals' arbitrary order
+    corner = rng.uniform(0, 600, (count, 2)) * [1.0, 0.75]
+    boxes = np.hstack([corner, corner + rng.uniform(8, 40, (count, 2))])
+    order = pooling_order(boxes)
+    assert sorted(order.tolist()) == list(range(count))
+    if count <= POOL_CHUNKS:
+        assert order.tolist() == list(range(count))  # one RoI per chunk at most: nothing to gain
+    else:
+        identity = np.arange(count)
+        assert _union_area(boxes, order, POOL_CHUNKS) < 0.5 * _union_area(boxes, identity, POOL_CHUNKS)
+
+
+def test_detector_model_answers_in_the_callers_order() -> None:
+    """DetectorModel.run hands the network its own order and gives the rows back in the caller's."""
+    from a3d.runtime.models import model_path
+    from a3d.runtime.network.model import DetectorModel
+
+    model = DetectorModel.load(model_path("live"), threads=1)
+    rng = np.random.default_rng(0)
+    color = rng.uniform(-100, 100, (3, 96, 128)).astype(np.float32)
+    depth = rng.uniform(-50, 50, (3, 96, 128)).astype(np.float32)
+    corner = rng.uniform(0, 80, (60, 2))
+    rois = np.hstack([corner, corner + rng.uniform(8, 40, (60, 2))]).astype(np.float32)
+    context = rois * np.float32(1.1)
+    assert not np.array_equal(pooling_order(rois), np.arange(60))  # the runtime does reorder these
+    got = model.run(color, depth, rois, context)
+    reversed_ = model.run(color, depth, rois[::-1].copy(), context[::-1].copy())
+    for a, b in zip(got, reversed_, strict=True):
+        np.testing.assert_allclose(a, b[::-1], rtol=1e-5, atol=1e-6)
+    assert not np.allclose(got[0][0], got[0][1])  # rows differ, so a mix-up would show
