@@ -18,15 +18,16 @@ ones) and is checked against torch's ``roi_align`` before it is timed:
   gathers every RoI's own window (the chunk's largest) from a channels-last map and applies the
   two products to it; the chunk of the largest RoIs uses the dense form on the whole map;
 - ``windows`` what a3d-export now writes for models of 256 channels or more (a3d.export.roi_pool_onnx,
-  exported here through torch.onnx from the same code; below, the dense form without its last
-  transpose): the RoIs sorted by a Morton code of their support's corners, in 32 chunks; each
-  chunk slices the union of its RoIs' supports from the map and runs the dense form on that
-  window; the (y, C, x) layout is left for fc6's weights to absorb.
+  exported here through torch.onnx from the same code, the bilinear weights computed in the
+  graph as in the model): ``POOL_CHUNKS`` chunks of consecutive RoIs, each on the union of its
+  RoIs' supports sliced channels-last from the map, output (R, 7, 7, C) for fc6's weights to absorb.
 
-Sorted forms put the rows back in order with a Gather. RoIs: the paper's frame (427 x 561 pixels
-on a 27 x 36 map), sizes log-uniform from 16 pixels to the whole frame as proposals are (most
-small, a few large). Each form is timed in two blocks of ``--repeats`` calls after a warm-up call, the
-blocks interleaved; the median.
+The RoIs are handed over in a3d-run's order (a3d.runtime.network.roi_order) for every form; the
+crops form sorts them again and puts the rows back with a Gather. RoIs: the paper's frame
+(427 x 561 pixels on a 27 x 36 map), sizes log-uniform from 16 pixels to the whole frame as
+proposals are (most small, a few large). Each form is timed in two blocks of ``--repeats`` calls
+after a warm-up call, the blocks interleaved; the median. Last, the window products'
+multiply-adds with the RoIs as given, in a3d-run's order, and with every RoI on its own window.
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ import torch
 from onnx import ModelProto, TensorProto, helper, numpy_helper
 
 from a3d.export.roi_pool_onnx import export_roi_align
-from a3d.runtime.network.roi_order import pooling_order
+from a3d.runtime.network.roi_order import POOL_CHUNKS, chunk_bounds, pooling_order
 from a3d.train.model.roi_pool import _axis_weights, roi_align
 
 POOL, SAMPLING, STRIDE = 7, 2, 16
@@ -295,6 +296,25 @@ def _bound_run(
     return run
 
 
+def window_macs(wy: np.ndarray, wx: np.ndarray, order: np.ndarray, chunks: int, channels: int) -> int:
+    """Multiply-adds of the exported window products when the rows of the weights wy (R, 7, H),
+    wx (R, 7, W) come in ``order``: per chunk of K RoIs on an h x w union window, K x 7 x h x w x C
+    (rows) + K x 49 x w x C (columns)."""
+    (first_y, end_y), (first_x, end_x) = (
+        (nonzero.argmax(1), nonzero.shape[1] - nonzero[:, ::-1].argmax(1))
+        for nonzero in (np.abs(w).sum(1) > 0 for w in (wy, wx))
+    )
+    bounds = chunk_bounds(len(order), chunks)
+    total = 0
+    for start, end in itertools.pairwise(bounds):
+        rows = order[start:end]
+        if len(rows):
+            h = int(end_y[rows].max() - first_y[rows].min())
+            w = int(end_x[rows].max() - first_x[rows].min())
+            total += len(rows) * POOL * w * channels * (h + POOL)
+    return total
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="python -m bench.roi_pool_speed", description=__doc__.split("\n\n")[0]
@@ -309,7 +329,13 @@ def main(argv: list[str] | None = None) -> int:
     height, width = (int(v) for v in args.map.split("x"))
     feature_map = np.random.default_rng(1).standard_normal((1, args.channels, height, width), np.float32)
     boxes = random_rois(args.rois, height, width)
-    feeds, want = pooling_inputs(boxes[pooling_order(boxes)], feature_map)  # in a3d-run's order
+    order = pooling_order(boxes)
+    feeds, want = pooling_inputs(boxes[order], feature_map)  # in a3d-run's order
+    given, _ = pooling_inputs(boxes, feature_map)
+    layouts = (("as given", np.arange(len(boxes)), POOL_CHUNKS), ("in a3d-run's order", order, POOL_CHUNKS),
+               ("each RoI on its own window", np.arange(len(boxes)), max(len(boxes), 1)))  # fmt: skip
+    macs = {name: window_macs(given["wy"], given["wx"], rows, chunks, args.channels) / 1e9
+            for name, rows, chunks in layouts}  # fmt: skip
     runs = {}
     for name, (model, layout) in forms(height, width, args.chunks).items():
         session = _session(model, args.threads)
@@ -335,6 +361,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"  {'form':28s}{'ms':>9s}  max |diff| vs torch roi_align")
     for name, values in seconds.items():
         print(f"  {name:28s}{1e3 * float(np.median(values)):9.1f}  {runs[name][1]:.1e}")
+    print(f"the window products' multiply-adds in {POOL_CHUNKS} chunks: "
+          + ", ".join(f"{name} {value:.3f} GMAC" for name, value in macs.items()))  # fmt: skip
     return 0
 
 

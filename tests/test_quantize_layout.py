@@ -27,7 +27,8 @@ def _model(scale: np.ndarray, extra_user: bool = False) -> onnx.ModelProto:
         numpy_helper.from_array(scale.astype(np.float32), "scale"),
         numpy_helper.from_array(np.full(scale.shape, 128, np.uint8), "zero"),
     ]
-    inputs = [helper.make_tensor_value_info(n, TensorProto.FLOAT, s) for n, s in (("a", [2, 3]), ("b", [4, 3]))]
+    value = helper.make_tensor_value_info
+    inputs = [value(name, TensorProto.FLOAT, [rows, 3]) for name, rows in (("a", 2), ("b", 4))]
     graph = helper.make_graph(nodes, "g", inputs, outputs, initializer=initializers)
     return helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
 
@@ -39,7 +40,7 @@ def _run(model: onnx.ModelProto, feeds: dict) -> np.ndarray:
 
 def test_quantisation_moves_above_layout_ops_with_the_same_bytes() -> None:
     rng = np.random.default_rng(0)
-    feeds = {"a": rng.normal(0, 3, (2, 3)).astype(np.float32), "b": rng.normal(0, 3, (4, 3)).astype(np.float32)}
+    feeds = {name: rng.normal(0, 3, (rows, 3)).astype(np.float32) for name, rows in (("a", 2), ("b", 4))}
     before = _model(np.array(0.05))
     want = _run(before, feeds)
     after = quantize_before_layout(_model(np.array(0.05)))
@@ -55,4 +56,4 @@ def test_per_axis_or_shared_inputs_stay_in_place() -> None:
     assert [n.op_type for n in per_axis.graph.node][-1] == "QuantizeLinear"
     shared = quantize_before_layout(_model(np.array(0.05), extra_user=True))
     assert [n.op_type for n in shared.graph.node].count("QuantizeLinear") == 1
-    assert [n for n in shared.graph.node if n.op_type == "Concat"][0].input[:] == ["a", "b"]
+    assert next(n for n in shared.graph.node if n.op_type == "Concat").input[:] == ["a", "b"]

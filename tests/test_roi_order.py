@@ -3,6 +3,8 @@ neighbours, and a model that answers the same in any order."""
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 
@@ -13,7 +15,7 @@ def _union_area(boxes: np.ndarray, order: np.ndarray, chunks: int) -> float:
     """Sum over chunks of (RoIs in the chunk) x (area of the chunk's bounding box)."""
     bounds = chunk_bounds(len(order), chunks)
     total = 0.0
-    for start, end in zip(bounds[:-1], bounds[1:], strict=True):
+    for start, end in itertools.pairwise(bounds):
         part = boxes[order[start:end]]
         extent = part[:, 2:].max(0) - part[:, :2].min(0)
         total += (end - start) * float(extent[0] * extent[1])

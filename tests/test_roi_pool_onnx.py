@@ -13,8 +13,8 @@ import torch
 
 from a3d.export.base import ExportError
 from a3d.export.roi_pool_onnx import WINDOW_MIN_CHANNELS, export_roi_align, fold_pool_layout
-from a3d.runtime.network.roi_order import POOL_CHUNKS
 from a3d.export.svd import svd_compress
+from a3d.runtime.network.roi_order import POOL_CHUNKS
 from a3d.train.model.config import NetConfig
 from a3d.train.model.net import A3DNet
 from a3d.train.model.roi_pool import roi_align
