@@ -329,7 +329,9 @@ def main(argv: list[str] | None = None) -> int:
     height, width = (int(v) for v in args.map.split("x"))
     feature_map = np.random.default_rng(1).standard_normal((1, args.channels, height, width), np.float32)
     boxes = random_rois(args.rois, height, width)
+    start = time.perf_counter()
     order = pooling_order(boxes)
+    ordering = time.perf_counter() - start
     feeds, want = pooling_inputs(boxes[order], feature_map)  # in a3d-run's order
     given, _ = pooling_inputs(boxes, feature_map)
     layouts = (("as given", np.arange(len(boxes)), POOL_CHUNKS), ("in a3d-run's order", order, POOL_CHUNKS),
@@ -361,6 +363,7 @@ def main(argv: list[str] | None = None) -> int:
     print(f"  {'form':28s}{'ms':>9s}  max |diff| vs torch roi_align")
     for name, values in seconds.items():
         print(f"  {name:28s}{1e3 * float(np.median(values)):9.1f}  {runs[name][1]:.1e}")
+    print(f"a3d-run's order of these RoIs (runtime.network.roi_order): {1e3 * ordering:.2f} ms")
     print(f"the window products' multiply-adds in {POOL_CHUNKS} chunks: "
           + ", ".join(f"{name} {value:.3f} GMAC" for name, value in macs.items()))  # fmt: skip
     return 0
