@@ -20,11 +20,11 @@ the eager result in (y, x, c) order), whose ONNX translation here computes the s
 4. the chunks concatenated in row order.
 
 A chunk may be empty (fewer RoIs than chunks, or none): it slices a window of one RoI it does
-not use and contributes no rows. Measured against
-the dense form and the other candidates in ``python -m bench.roi_pool_speed`` (docs/edge-speed.md
-"Where the head loses time"). The export folds the (y, x, c) order into fc6's weights
-(``fold_pool_layout``) instead of transposing 50 MB per map, and the int8 export quantises each
-chunk's product where it is made (a3d.export.quantize), so the concatenations move bytes, not floats.
+not use and contributes no rows. Measured against the dense form and the other candidates in
+``python -m bench.roi_pool_speed`` (docs/edge-speed.md "Where the head loses time"). The export
+folds the (y, x, c) order into fc6's weights (``fold_pool_layout``) instead of transposing 50 MB
+per map, and the int8 export quantises each chunk's product where it is made
+(a3d.export.quantize), so the concatenations move bytes, not floats.
 """
 
 from __future__ import annotations
@@ -121,7 +121,7 @@ def separable_pool_onnx(rows, wy, wx):
     shapes = _per_chunk(  # (K, P, w, C) with no -1, so that an empty chunk reshapes too
         [op.Sub(ends, starts), op.Mul(fill, size), op.Sub(high_x, low_x), op.Mul(fill, channels)], chunks
     )
-    columns = op.Unsqueeze(wx, _ints(1))  # (T, 1, P, W)
+    columns = op.Unsqueeze(wx, _ints(1))  # (R, 1, P, W)
     pieces = []
     for i in range(chunks):
         window = op.Slice(cells, window_low[i], window_high[i], _ints(0, 1))  # (h, w, C)
