@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 import onnx
-import onnxruntime as ort
 from onnx import TensorProto, helper, numpy_helper
 
 from a3d.export.quantize import quantize_before_layout
+from tests.helpers.onnx_graphs import run_graph
 
 
 def _model(scale: np.ndarray, extra_user: bool = False) -> onnx.ModelProto:
@@ -33,21 +33,16 @@ def _model(scale: np.ndarray, extra_user: bool = False) -> onnx.ModelProto:
     return helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
 
 
-def _run(model: onnx.ModelProto, feeds: dict) -> np.ndarray:
-    session = ort.InferenceSession(model.SerializeToString(), providers=["CPUExecutionProvider"])
-    return session.run(["out"], feeds)[0]
-
-
 def test_quantisation_moves_above_layout_ops_with_the_same_bytes() -> None:
     rng = np.random.default_rng(0)
     feeds = {name: rng.normal(0, 3, (rows, 3)).astype(np.float32) for name, rows in (("a", 2), ("b", 4))}
     before = _model(np.array(0.05))
-    want = _run(before, feeds)
+    want = run_graph(before, feeds)
     after = quantize_before_layout(_model(np.array(0.05)))
     onnx.checker.check_model(after)
     ops = [n.op_type for n in after.graph.node]
     assert ops == ["QuantizeLinear", "QuantizeLinear", "Concat", "Reshape"]  # bytes joined and reshaped
-    np.testing.assert_array_equal(_run(after, feeds), want)
+    np.testing.assert_array_equal(run_graph(after, feeds), want)
     assert len(np.unique(want)) > 5  # the inputs span many quantisation steps
 
 

@@ -5,13 +5,13 @@ from __future__ import annotations
 
 import numpy as np
 import onnx
-import onnxruntime as ort
 import pytest
 from onnx import TensorProto, helper, numpy_helper
 
 from a3d.export.base import ExportError
 from a3d.export.refold import main, refold_graph
 from a3d.runtime.models import model_path
+from tests.helpers.onnx_graphs import run_graph
 
 P, C, N = 3, 4, 5  # pool size, channels, fc6 outputs
 
@@ -49,22 +49,17 @@ def _old_head(rng: np.random.Generator) -> onnx.ModelProto:
     return helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
 
 
-def _run(model: onnx.ModelProto, feeds: dict) -> np.ndarray:
-    session = ort.InferenceSession(model.SerializeToString(), providers=["CPUExecutionProvider"])
-    return session.run(["out"], feeds)[0]
-
-
 def test_refold_drops_the_transposes_with_the_same_answers() -> None:
     rng = np.random.default_rng(1)
     feeds = {n: rng.normal(0, 3, (6, P * C * P)).astype(np.float32) for n in ("a", "b")}
     old = _old_head(np.random.default_rng(0))
-    want = _run(old, feeds)
+    want = run_graph(old, feeds)
     new = refold_graph(_old_head(np.random.default_rng(0)))
     ops = [n.op_type for n in new.graph.node]
     assert "Transpose" not in ops
     quantized = sorted(n.input[0] for n in new.graph.node if n.op_type == "QuantizeLinear")
     assert quantized == ["a", "b"]  # moved above the reshapes and the join: they move bytes
-    np.testing.assert_allclose(_run(new, feeds), want, rtol=1e-5, atol=1e-5)  # the same sums, reordered
+    np.testing.assert_allclose(run_graph(new, feeds), want, rtol=1e-5, atol=1e-5)  # the same sums, reordered
     assert np.abs(want).max() > 1.0  # the answers are not trivially zero
     with pytest.raises(ExportError, match="already folded"):
         refold_graph(new)
