@@ -116,10 +116,11 @@ def _pool_size(graph, producers, transpose) -> int:
 
     reshape = producers.get(transpose.input[0])
     shape_name = reshape.input[1] if reshape is not None and reshape.op_type == "Reshape" else None
-    constants = {i.name: numpy_helper.to_array(i) for i in graph.initializer}
-    nodes = (n for n in graph.node if n.op_type == "Constant")
-    constants |= {n.output[0]: numpy_helper.to_array(n.attribute[0].t) for n in nodes}
-    shape = constants.get(shape_name)
+    constant = producers.get(shape_name)
+    if constant is not None and constant.op_type == "Constant":
+        shape = numpy_helper.to_array(constant.attribute[0].t)
+    else:  # only the shape's own initializer is read, not every weight of the model
+        shape = next((numpy_helper.to_array(i) for i in graph.initializer if i.name == shape_name), None)
     if shape is None or len(shape) != 4 or shape[1] != shape[3]:
         raise ExportError("the pooled maps' shape (R, P, C, P) is not a constant of the graph")
     return int(shape[1])
