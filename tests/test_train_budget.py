@@ -71,7 +71,10 @@ def test_a_run_fits_its_minutes(frames, tmp_path, monkeypatch):
     assert [r["iter"] for r in plans] == list(range(6, plans[-1]["iter"] + 1, 25)) and len(plans) > 1
     plan = plans[-1]  # the last fit is the run's schedule
     fitted = plan["iterations"]
-    assert plan["ceiling"] == 100000 and plan["iter"] < fitted < 100000
+    # a refit may find the budget spent and end the run where it stands, so the last plan can end at
+    # its own iteration; the first one, made with most of the budget left, plans ahead
+    assert plan["ceiling"] == 100000 and plan["iter"] <= fitted < 100000
+    assert plans[0]["iter"] < plans[0]["iterations"]
     train = [r for r in records if r["kind"] == "train"]
     assert train[-1]["iter"] == fitted  # it stopped there
     assert plans[0]["lr_steps"] == [round(30000 * plans[0]["iterations"] / 100000)]
