@@ -136,7 +136,7 @@ def profile_network(
         raise ValueError(
             "profiling needs a frame with at least 2 RoIs (head = the nodes that change with them)"
         )
-    order = pooling_order(feeds["rois"])  # as DetectorModel.run hands them over
+    order = pooling_order(feeds["rois"], feeds["context_rois"])  # as DetectorModel.run hands them over
     feeds = {k: v[order] if k.endswith("rois") else v for k, v in feeds.items()}
     half = {k: v[: rois // 2] if k.endswith("rois") else v for k, v in feeds.items()}
     with tempfile.TemporaryDirectory(prefix="a3d-profile-") as tmp:

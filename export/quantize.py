@@ -100,13 +100,51 @@ def quantize_int8(
         )
     finally:
         prepared.unlink(missing_ok=True)
-    model = quantize_before_layout(onnx.load(str(out)))
+    model = quantize_pool_weights(quantize_before_layout(onnx.load(str(out))))
     used = {"", *(n.domain for n in model.graph.node)}
     kept = [o for o in model.opset_import if o.domain in used]  # the pre-processing declares ORT's domains
     del model.opset_import[:]
     model.opset_import.extend(kept)
     onnx.save(model, str(out))
     return len(inputs)
+
+
+def quantize_pool_weights(model: onnx.ModelProto) -> onnx.ModelProto:
+    """``model`` (changed in place) with the bilinear weights of each RoI pooling product whose
+    map is dequantised (through layout ops only: the first of each chunk's two window products)
+    quantised to uint8 with the fixed scale 1/255 (the weights lie in [0, 1]) where the product
+    reads them. ONNX Runtime then runs the product as MatMulIntegerToFloat on the window's bytes:
+    no dequantised copy of each window, and integer products (docs/edge-speed.md "Integer row
+    products"). Applied after ``quantize_before_layout`` so that each quantisation stays next to
+    its product: quantised once, before the weights are sliced into chunks, they left ONNX
+    Runtime with float products."""
+    graph = model.graph
+    producer = {out: n for n in graph.node for out in n.output}
+
+    def source(name: str) -> onnx.NodeProto | None:
+        """The node that makes ``name`` through layout ops (Concat aside) only."""
+        node = producer.get(name)
+        while node is not None and node.op_type in LAYOUT_OPS and node.op_type != "Concat":
+            node = producer.get(node.input[0])
+        return node
+
+    scale, zero = "pool_weights_scale", "pool_weights_zero_point"
+    computed = set(computed_matmuls(model))
+    on_bytes = lambda n: getattr(source(n.input[1]), "op_type", None) == "DequantizeLinear"  # noqa: E731
+    products = [n for n in graph.node if n.name in computed and on_bytes(n)]
+    for product in products:
+        at, name = list(graph.node).index(product), product.name
+        graph.node.insert(at, onnx.helper.make_node(
+            "DequantizeLinear", [f"{name}/weights_quantized", scale, zero], [f"{name}/weights_dequantized"],
+            name=f"{name}/weights_dequantize"))  # fmt: skip
+        graph.node.insert(at, onnx.helper.make_node(
+            "QuantizeLinear", [product.input[0], scale, zero], [f"{name}/weights_quantized"],
+            name=f"{name}/weights_quantize"))  # fmt: skip
+        product.input[0] = f"{name}/weights_dequantized"
+    if products:
+        graph.initializer.extend([onnx.numpy_helper.from_array(np.array(1 / 255, np.float32), scale),
+                                  onnx.numpy_helper.from_array(np.array(0, np.uint8), zero)])  # fmt: skip
+    return model
 
 
 def quantize_before_layout(model: onnx.ModelProto) -> onnx.ModelProto:

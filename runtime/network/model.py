@@ -231,7 +231,7 @@ class DetectorModel:
         if len(rois) == 0:
             return (np.zeros((0, NUM_OUTPUTS), np.float32), np.zeros((0, NUM_OUTPUTS, BOX_DIM), np.float32),
                     np.zeros((0, NUM_OUTPUTS, 4), np.float32))  # fmt: skip
-        order = pooling_order(rois)  # the same answers in any order; this one pools fastest
+        order = pooling_order(rois, context_rois)  # the same answers in any order; this one pools fastest
         feeds = dict(zip(INPUT_NAMES, (color, depth, rois[order], context_rois[order]), strict=True))
         outputs = self.session.run(list(OUTPUT_NAMES), feeds)
         back = np.empty_like(order)

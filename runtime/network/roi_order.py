@@ -3,11 +3,12 @@
 An exported model pools its RoIs in ``POOL_CHUNKS`` chunks of consecutive rows (rows
 ``[i * R // n, (i + 1) * R // n)``), each chunk on the union of its RoIs' windows of the feature
 map (a3d.export.roi_pool_onnx). Any order gives the same numbers; the order decides how much
-arithmetic the unions cost. ``pooling_order`` makes each chunk a leaf of a k-d tree on the boxes'
-corners (x1, y1, x2, y2): RoIs of one chunk are close in position and in size, so their union is
-not much more than each window. On 500 proposal-like RoIs of the paper's frame it cuts the window
-products' multiply-adds from 2.08 to 0.85 GMAC per map (``python -m bench.roi_pool_speed``,
-docs/edge-speed.md "Where the head loses time").
+arithmetic the unions cost: a chunk of K RoIs on an h x w window costs K x 7 x w x (h + 7)
+multiply-adds per channel. ``pooling_order`` makes each chunk a leaf of a k-d tree on the RoIs'
+corners (x1, y1, x2, y2) that cuts at the chunk boundaries; each cut sorts along the corner
+whose halves' windows, of the RoIs and of their context boxes together, cost the least. On the
+500 proposals of a paper-sized frame it cuts the window products' multiply-adds to 0.68 of the
+given order's (``python -m bench.roi_pool_speed``, docs/edge-speed.md "Where the head loses time").
 """
 
 from __future__ import annotations
@@ -15,6 +16,8 @@ from __future__ import annotations
 import numpy as np
 
 POOL_CHUNKS = 32
+_CELL = 16  # image pixels per feature-map cell of the VGG16 trunks (the cost model's unit)
+_POOL_SIZE = 7  # bins per side of the pooled RoI
 
 
 def chunk_bounds(count: int, chunks: int = POOL_CHUNKS) -> np.ndarray:
@@ -22,14 +25,27 @@ def chunk_bounds(count: int, chunks: int = POOL_CHUNKS) -> np.ndarray:
     return (np.arange(chunks + 1, dtype=np.int64) * count) // chunks
 
 
-def pooling_order(rois: np.ndarray, chunks: int = POOL_CHUNKS) -> np.ndarray:
-    """(R,) permutation of the rows of ``rois`` (R, 4): after it, each chunk of ``chunk_bounds`` is
-    one leaf of a k-d tree that splits the corners at a chunk boundary along their widest axis."""
-    corners = np.asarray(rois, np.float64).reshape(-1, 4)
-    order = np.arange(len(corners))
-    if len(corners) <= chunks:  # at most one RoI per chunk: nothing to group
+def _window_cost(boxes: np.ndarray) -> np.ndarray:
+    """Per candidate axis, the pooling cost of one chunk: ``boxes`` (K, axes, 4 x maps) in cells,
+    the chunk's RoIs as each axis sorts them; their union window per map, K x w x (h + 7)."""
+    low, high = boxes.min(0), boxes.max(0)  # (axes, 4 x maps)
+    width = high[:, 2::4] - low[:, 0::4] + 2  # + 2: the cells that the edge samples touch
+    height = high[:, 3::4] - low[:, 1::4] + 2
+    return len(boxes) * (width * (height + _POOL_SIZE)).sum(1)
+
+
+def pooling_order(
+    rois: np.ndarray, context_rois: np.ndarray | None = None, chunks: int = POOL_CHUNKS
+) -> np.ndarray:
+    """(R,) permutation of the rows of ``rois`` (R, 4) (and of ``context_rois``, pooled from their
+    own map in the same chunks): after it, each chunk of ``chunk_bounds`` is one leaf of the k-d
+    tree of the module docstring."""
+    maps = [rois] if context_rois is None else [rois, context_rois]
+    boxes = np.hstack([np.asarray(b, np.float64).reshape(-1, 4) for b in maps]) / _CELL
+    order = np.arange(len(boxes))
+    if len(boxes) <= chunks:  # at most one RoI per chunk: nothing to group
         return order
-    bounds = chunk_bounds(len(corners), chunks)
+    bounds = chunk_bounds(len(boxes), chunks)
     pending = [(0, chunks)]
     while pending:
         low, high = pending.pop()
@@ -37,9 +53,11 @@ def pooling_order(rois: np.ndarray, chunks: int = POOL_CHUNKS) -> np.ndarray:
             continue
         middle = (low + high) // 2
         rows = order[bounds[low] : bounds[high]]
-        points = corners[rows]
-        axis = int(np.argmax(np.ptp(points, axis=0)))
         split = bounds[middle] - bounds[low]
-        order[bounds[low] : bounds[high]] = rows[np.argpartition(points[:, axis], split - 1)]
+        by_axis = rows[np.argsort(boxes[rows, :4], axis=0, kind="stable")]  # (K, 4): sorted per corner
+        sorted_boxes = boxes[by_axis]  # (K, 4 axes, 4 x maps)
+        first, second = sorted_boxes[:split], sorted_boxes[split:]
+        cost = _window_cost(first) + _window_cost(second)
+        order[bounds[low] : bounds[high]] = by_axis[:, int(np.argmin(cost))]
         pending += [(low, middle), (middle, high)]
     return order

@@ -43,8 +43,13 @@ def _axis_weights(
     position = position.clamp(0.0, length - 1.0)
     cells = torch.arange(length, dtype=start.dtype, device=start.device)
     hat = (1.0 - (position[:, :, None] - cells).abs()).clamp(min=0.0)  # (R, samples, length)
-    hat = hat * valid[:, :, None].to(hat.dtype)
-    return hat.reshape(-1, output_size, sampling_ratio, length).mean(dim=2)
+    hat = (hat * valid[:, :, None].to(hat.dtype)).reshape(-1, output_size, sampling_ratio, length)
+    # the mean over each bin's samples as a sum of slices: exported, a mean over the middle axis
+    # is ONNX Runtime's slow strided ReduceMean (1.1 ms of the paper's pooling at 500 RoIs)
+    total = hat[:, :, 0]
+    for sample in range(1, sampling_ratio):
+        total = total + hat[:, :, sample]
+    return total * (1.0 / sampling_ratio)
 
 
 def roi_weights(

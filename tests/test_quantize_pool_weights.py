@@ -1,0 +1,88 @@
+"""a3d.export.quantize.quantize_pool_weights: the bilinear weights of a pooling product on a
+dequantised map are quantised (uint8, 1/255) where the product reads them, so that ONNX Runtime
+runs it as an integer product; a product on float data stays as it is."""
+
+from __future__ import annotations
+
+import numpy as np
+import onnx
+import onnxruntime as ort
+from onnx import TensorProto, helper, numpy_helper
+
+from a3d.export.quantize import quantize_pool_weights
+from tests.helpers.onnx_graphs import run_graph
+
+MAP_SCALE, MAP_ZERO = 0.05, 7
+
+
+def _model() -> onnx.ModelProto:
+    """map (6, 20) uint8 -> DequantizeLinear -> Slice rows 1..4 -> "rows" = wy (14, 4) x window;
+    "columns" = wx (3, 14) x that: the row product reads a dequantised map, the column one not."""
+    nodes = [
+        helper.make_node("DequantizeLinear", ["map", "map_scale", "map_zero"], ["cells"], name="dequantize"),
+        helper.make_node("Slice", ["cells", "starts", "ends", "axes"], ["window"], name="window"),
+        helper.make_node("MatMul", ["wy", "window"], ["by_rows"], name="rows"),
+        helper.make_node("MatMul", ["wx", "by_rows"], ["out"], name="columns"),
+    ]
+    initializers = [
+        numpy_helper.from_array(np.array(MAP_SCALE, np.float32), "map_scale"),
+        numpy_helper.from_array(np.array(MAP_ZERO, np.uint8), "map_zero"),
+        *(
+            numpy_helper.from_array(np.array([v], np.int64), n)
+            for n, v in (("starts", 1), ("ends", 5), ("axes", 0))
+        ),
+    ]
+    value = helper.make_tensor_value_info
+    inputs = [value("map", TensorProto.UINT8, [6, 20]), value("wy", TensorProto.FLOAT, [14, 4]),
+              value("wx", TensorProto.FLOAT, [3, 14])]  # fmt: skip
+    graph = helper.make_graph(
+        nodes, "g", inputs, [value("out", TensorProto.FLOAT, [3, 20])], initializer=initializers
+    )
+    return helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
+
+
+def _feeds() -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(0)
+    return {"map": rng.integers(0, 256, (6, 20)).astype(np.uint8),
+            "wy": rng.uniform(0.0, 1.0, (14, 4)).astype(np.float32),
+            "wx": rng.uniform(0.0, 1.0, (3, 14)).astype(np.float32)}  # fmt: skip
+
+
+def test_the_row_product_reads_its_weights_as_bytes() -> None:
+    model = quantize_pool_weights(_model())
+    onnx.checker.check_model(model)
+    nodes = {n.name: n for n in model.graph.node}
+    quantize = next(n for n in model.graph.node if n.op_type == "QuantizeLinear")
+    assert quantize.input[0] == "wy" and nodes["rows"].input[0] != "wy"  # the row product's weights
+    assert nodes["columns"].input[0] == "wx"  # the column product reads float rows: untouched
+    scales = {t.name: numpy_helper.to_array(t) for t in model.graph.initializer}
+    assert scales[quantize.input[1]] == np.float32(1 / 255) and scales[quantize.input[2]].dtype == np.uint8
+    feeds = _feeds()
+    cells = (feeds["map"][1:5].astype(np.float64) - MAP_ZERO) * MAP_SCALE
+    wy_bytes = np.round(feeds["wy"].astype(np.float64) * 255) / 255
+    np.testing.assert_allclose(
+        run_graph(model, feeds), feeds["wx"] @ (wy_bytes @ cells), rtol=1e-5, atol=1e-5
+    )
+    exact = feeds["wx"] @ (feeds["wy"].astype(np.float64) @ cells)
+    assert (
+        np.abs(run_graph(_model(), feeds) - exact).max()
+        < 1e-4
+        < np.abs(wy_bytes @ cells - feeds["wy"] @ cells).max()
+    )
+
+
+def test_onnx_runtime_runs_it_as_an_integer_product(tmp_path) -> None:
+    options = ort.SessionOptions()
+    options.optimized_model_filepath = str(tmp_path / "optimized.onnx")
+    ort.InferenceSession(quantize_pool_weights(_model()).SerializeToString(), options,
+                         providers=["CPUExecutionProvider"])  # fmt: skip
+    ops = [n.op_type for n in onnx.load(str(tmp_path / "optimized.onnx")).graph.node]
+    assert "MatMulIntegerToFloat" in ops and ops.count("MatMul") == 1  # the column product stays float
+
+
+def test_a_graph_without_such_a_product_is_unchanged() -> None:
+    model = _model()
+    model.graph.node[2].input[1] = "wy_again"  # the row product now reads a graph input, not the map
+    model.graph.input.append(helper.make_tensor_value_info("wy_again", TensorProto.FLOAT, [4, 20]))
+    before = model.SerializeToString()
+    assert quantize_pool_weights(model).SerializeToString() == before
