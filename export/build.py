@@ -29,6 +29,7 @@ from a3d.export.base import MAX_IR_VERSION, PROG, VERIFY_FRAMES, ExportError
 from a3d.export.metadata import build_metadata
 from a3d.export.onnx_export import RuntimeGraph, export_graph, save_model
 from a3d.export.quantize import CALIB_ROIS, quantize_int8
+from a3d.export.roi_pool_onnx import network_pool_chunks
 from a3d.export.score_calibration import REPORT_THRESHOLD, calibrate
 from a3d.export.svd import svd_compress
 from a3d.export.verify import (
@@ -63,7 +64,8 @@ def export(args: argparse.Namespace) -> Path:
             kept = 100 * info["energy_kept"]
             _log(f"svd {name} {info['shape']} rank {info['rank']}: {info['parameters']} -> "
                  f"{info['parameters_svd']} weights, {kept:.2f}% of the energy kept")  # fmt: skip
-    metadata = build_metadata(trained.state, trained.config, args.checkpoint, min_score=args.score_threshold)
+    metadata = build_metadata(trained.state, trained.config, args.checkpoint, min_score=args.score_threshold,
+                              pool_chunks=network_pool_chunks(trained.net))  # fmt: skip
     pipeline = PipelineConfig.from_metadata(metadata)  # the front end a3d-run will use with this model
     regress_3d = trained.config.inference.regress_3d
     torch_net = TorchNetwork(reference, trained.stats, regress_3d)

@@ -35,10 +35,12 @@ def build_metadata(
     checkpoint: str | os.PathLike,
     *,
     min_score: float | None = None,
+    pool_chunks: int | None = None,
     export_options: dict[str, Any] | None = None,
 ) -> ModelMetadata:
     """Metadata for the model exported from checkpoint ``state`` (as load_checkpoint returns it).
 
+    ``pool_chunks``: the chunks the exported graph pools RoIs in (a3d.export.roi_pool_onnx).
     ``export_options`` (opset, int8, svd rank, ...) go into the provenance as they are.
     """
     path = Path(checkpoint)
@@ -62,6 +64,7 @@ def build_metadata(
         nms_iou=float(pipeline.nms_iou),
         top_k=int(pipeline.top_k),
         proposals=pipeline.proposals,
+        pool_chunks=pool_chunks,
         provenance=provenance(state, config, path, export_options or {}),
     )
 

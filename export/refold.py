@@ -10,7 +10,8 @@ permutes fc6's weight columns to the (y, c, x) order instead (the int8 weights t
 per-row scales are untouched), and moves fc6's input quantisation above the joins
 (a3d.export.quantize.quantize_before_layout). fc6 then sums the same products in another order:
 the answers are the same, which the tool checks on random inputs before it writes the file with
-its metadata (content digest renewed, the change recorded under ``provenance["refold"]``).
+its metadata (content digest renewed, ``pool_chunks`` 1, the change recorded under
+``provenance["refold"]``).
 """
 
 from __future__ import annotations
@@ -154,7 +155,9 @@ def main(argv: list[str] | None = None) -> int:
     record = {"date": datetime.now(UTC).isoformat(timespec="seconds"), "a3d": a3d_version(),
               "change": "pooled-map Transposes folded into fc6's weight columns; fc6's input "
                         "quantised before the joins"}  # fmt: skip
-    metadata = dataclasses.replace(metadata, provenance={**metadata.provenance, "refold": record})
+    # these graphs pool all RoIs at once or sort them themselves: the caller's order does not matter
+    provenance = {**metadata.provenance, "refold": record}
+    metadata = dataclasses.replace(metadata, pool_chunks=1, provenance=provenance)
     with tempfile.TemporaryDirectory(prefix="a3d-refold-") as tmp:
         candidate = Path(tmp) / "model.onnx"
         save_model(model, metadata, candidate)

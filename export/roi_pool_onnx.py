@@ -60,6 +60,17 @@ def _(rows: torch.Tensor, wy: torch.Tensor, wx: torch.Tensor) -> torch.Tensor:
     return rows.new_empty((wy.shape[0], wy.shape[1], wx.shape[1], rows.shape[1]))
 
 
+def pool_chunks(channels: int | None) -> int:
+    """The chunks the translation pools a map of ``channels`` channels in (None or symbolic: not
+    fixed at export); a3d-export records it in the model's metadata for the runtime's order."""
+    return 1 if isinstance(channels, int) and channels < WINDOW_MIN_CHANNELS else POOL_CHUNKS
+
+
+def network_pool_chunks(net: A3DNet) -> int:
+    """``pool_chunks`` of ``net``'s pooled maps: the fused channels, or the trunks' concatenated."""
+    return pool_chunks(net.config.fuse_channels or sum(net.trunk_channels))
+
+
 def _ints(*values: int):
     return op.Constant(value_ints=list(values))
 
@@ -95,8 +106,7 @@ def _per_chunk(columns: list, chunks: int) -> list:
 def separable_pool_onnx(rows, wy, wx):
     """The ONNX translation of ``a3d::separable_pool`` (module docstring): rows (B*H, C, W),
     wy (R, P, B*H), wx (R, P, W) -> (R, P, P, C)."""
-    fixed = rows.shape[1] if rows.shape is not None else None
-    chunks = 1 if isinstance(fixed, int) and fixed < WINDOW_MIN_CHANNELS else POOL_CHUNKS
+    chunks = pool_chunks(rows.shape[1] if rows.shape is not None else None)
     count, size = op.Shape(wy, start=0, end=1), op.Shape(wy, start=1, end=2)
     channels = op.Shape(rows, start=1, end=2)
     cells = op.Transpose(rows, perm=[0, 2, 1])  # (B*H, W, C)

@@ -276,12 +276,25 @@ def test_a_score_calibration_round_trips_and_schema_2_files_have_none(tmp_path: 
     np.testing.assert_array_equal(got.intercept, CALIBRATION.intercept)
     assert got.iou == 0.25
     schema_2 = json.loads(_metadata(content_sha256="0" * 64).to_json())
-    del schema_2["score_calibration"]
+    del schema_2["score_calibration"], schema_2["pool_chunks"]
     schema_2["schema_version"] = 2
     assert ModelMetadata.from_json(json.dumps(schema_2), "v2").score_calibration is None
     schema_2["score_calibration"] = None  # a key schema 2 did not have
     with pytest.raises(ModelError, match=r"unknown \['score_calibration'\]"):
         ModelMetadata.from_json(json.dumps(schema_2), "v2")
+
+
+def test_pool_chunks_round_trip_and_older_files_do_not_say() -> None:
+    saved = json.loads(_metadata(content_sha256="0" * 64, pool_chunks=32).to_json())
+    assert ModelMetadata.from_json(json.dumps(saved), "v4").pool_chunks == 32
+    saved["pool_chunks"] = 0
+    with pytest.raises(ModelError, match="pool_chunks"):
+        ModelMetadata.from_json(json.dumps(saved), "v4")
+    del saved["pool_chunks"]
+    with pytest.raises(ModelError, match=r"missing \['pool_chunks'\]"):
+        ModelMetadata.from_json(json.dumps(saved), "v4")
+    saved["schema_version"] = 3
+    assert ModelMetadata.from_json(json.dumps(saved), "v3").pool_chunks is None
 
 
 @pytest.mark.parametrize(

@@ -3,6 +3,7 @@ neighbours, and a model that answers the same in any order."""
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 
 import numpy as np
@@ -48,6 +49,9 @@ def test_detector_model_answers_in_the_callers_order() -> None:
     from a3d.runtime.network.model import DetectorModel
 
     model = DetectorModel.load(model_path("live"), threads=1)
+    # the bundled graph pools all RoIs at once (pool_chunks 1: no order); said to pool in chunks,
+    # the runtime orders its RoIs, which must not change the answers either
+    model.metadata = dataclasses.replace(model.metadata, pool_chunks=POOL_CHUNKS)
     rng = np.random.default_rng(0)
     color = rng.uniform(-100, 100, (3, 96, 128)).astype(np.float32)
     depth = rng.uniform(-50, 50, (3, 96, 128)).astype(np.float32)
@@ -85,3 +89,24 @@ def test_the_context_boxes_steer_the_cuts() -> None:
     both, alone = pooling_order(rois, context), pooling_order(rois)
     assert sorted(both.tolist()) == list(range(500))
     assert _joint_window_cost([rois, context], both) < 0.97 * _joint_window_cost([rois, context], alone)
+
+
+def test_a_one_chunk_model_is_fed_as_given(monkeypatch) -> None:
+    """pool_chunks 1 (the bundled model): no order to compute, the RoIs go in as they are."""
+    from a3d.runtime.models import model_path
+    from a3d.runtime.network import model as model_module
+
+    model = model_module.DetectorModel.load(model_path("live"), threads=1)
+    assert model.metadata.pool_chunks == 1
+    fed = []
+    monkeypatch.setattr(model_module, "pooling_order", lambda *a: pytest.fail("ordered a one-chunk model"))
+    run = model.session.run
+    monkeypatch.setattr(
+        model.session, "run", lambda names, feeds: fed.append(feeds["rois"]) or run(names, feeds)
+    )
+    rois = np.array([[50, 40, 90, 80], [0, 0, 30, 20], [60, 0, 100, 30]], np.float32)
+    probs, _, _ = model.run(
+        np.zeros((3, 96, 128), np.float32), np.zeros((3, 96, 128), np.float32), rois, rois
+    )
+    np.testing.assert_array_equal(fed[0], rois)
+    assert probs.shape == (3, 20)

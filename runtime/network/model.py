@@ -43,13 +43,14 @@ from a3d.runtime.frontend.proposals import ProposalConfig, proposal_config_from_
 from a3d.runtime.io.json_input import is_finite_number, parse_json
 from a3d.runtime.io.plain_config import plain_from_dataclass
 from a3d.runtime.network.preprocess import COLOR_MEAN_BGR, DEPTH_MEAN
-from a3d.runtime.network.roi_order import pooling_order
+from a3d.runtime.network.roi_order import POOL_CHUNKS, pooling_order
 from a3d.runtime.postprocess.score_calibration import ScoreCalibration
 from a3d.runtime.structures.boxes import BOX_DIM
 from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES, NUM_OUTPUTS
 
-# 2: min_score (was score_threshold), max_proposals only inside proposals; 3: score_calibration
-SCHEMA_VERSION = 3
+# 2: min_score (was score_threshold), max_proposals only inside proposals; 3: score_calibration;
+# 4: pool_chunks
+SCHEMA_VERSION = 4
 METADATA_KEY = "a3d"
 INPUT_NAMES = ("color", "depth", "rois", "context_rois")
 OUTPUT_NAMES = ("class_probs", "deltas3d", "deltas2d")
@@ -72,13 +73,16 @@ class ModelMetadata:
     was trained with, ``max_proposals`` (proposals per frame) among them, stored through the
     settings codec (a3d.runtime.io.plain_config). score_calibration: the per-class map from the
     network's score to the chance a detection is right (a3d.runtime.postprocess.score_calibration),
-    None for a model that reports the softmax score as it is. content_sha256: the integrity digest
+    None for a model that reports the softmax score as it is. pool_chunks: how many chunks of
+    consecutive RoIs the graph pools apart, each on the union of its RoIs' windows, so that their
+    order sets the speed (a3d.runtime.network.roi_order); 1 where the order does not matter, None
+    where the file does not say (schema 1 to 3). content_sha256: the integrity digest
     (module docstring). provenance: free-form (package version, training config, checkpoint hash,
     export options, verification numbers).
 
     Schema 1 files (``score_threshold``, ``max_proposals`` beside ``proposal_config``) are read
     into the same fields: ``min_score`` and ``proposals`` with its ``max_proposals``; schema 1
-    and 2 files have no score calibration.
+    and 2 files have no score calibration, schema 1 to 3 files no pool_chunks.
     """
 
     schema_version: int
@@ -94,6 +98,7 @@ class ModelMetadata:
     top_k: int
     proposals: ProposalConfig = field(default_factory=ProposalConfig)
     score_calibration: ScoreCalibration | None = None
+    pool_chunks: int | None = None
     content_sha256: str = ""
     provenance: dict[str, Any] = field(default_factory=dict)
 
@@ -127,6 +132,8 @@ class ModelMetadata:
             names = [n for n in names if n not in ("min_score", "proposals")] + list(_SCHEMA_1_KEYS)
         if version < 3:
             names.remove("score_calibration")
+        if version < 4:
+            names.remove("pool_chunks")
         missing = [n for n in names if n not in data]
         unknown = sorted(set(data) - set(names))
         if missing or unknown:
@@ -153,6 +160,7 @@ class ModelMetadata:
             top_k=check.count(data["top_k"], "top_k"),
             proposals=check.proposals(data["proposals"], "proposals"),
             score_calibration=check.calibration(data.get("score_calibration"), "score_calibration"),
+            pool_chunks=check.optional_count(data.get("pool_chunks"), "pool_chunks"),
             content_sha256=check.digest(data["content_sha256"], "content_sha256"),
             provenance=check.mapping(data["provenance"], "provenance"),
         )
@@ -231,9 +239,14 @@ class DetectorModel:
         if len(rois) == 0:
             return (np.zeros((0, NUM_OUTPUTS), np.float32), np.zeros((0, NUM_OUTPUTS, BOX_DIM), np.float32),
                     np.zeros((0, NUM_OUTPUTS, 4), np.float32))  # fmt: skip
-        order = pooling_order(rois, context_rois)  # the same answers in any order; this one pools fastest
+        chunks = self.metadata.pool_chunks or POOL_CHUNKS  # a file that does not say: the export's default
+        # the same answers in any order; this one pools fastest (one chunk: any order is as fast)
+        order = pooling_order(rois, context_rois, chunks) if chunks > 1 else slice(None)
         feeds = dict(zip(INPUT_NAMES, (color, depth, rois[order], context_rois[order]), strict=True))
         outputs = self.session.run(list(OUTPUT_NAMES), feeds)
+        if chunks == 1:
+            probs, deltas3d, deltas2d = outputs
+            return probs, deltas3d, deltas2d
         back = np.empty_like(order)
         back[order] = np.arange(len(order))
         probs, deltas3d, deltas2d = (out[back] for out in outputs)
@@ -391,6 +404,9 @@ class _Checker:
         if not isinstance(value, int) or isinstance(value, bool) or value < 1:
             raise self.fail(key, "a positive integer", value)
         return value
+
+    def optional_count(self, value: Any, key: str) -> int | None:
+        return None if value is None else self.count(value, key)
 
     def strings(self, value: Any, key: str) -> list[str]:
         if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
