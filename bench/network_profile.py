@@ -111,8 +111,9 @@ def node_macs(op: str, inputs: list[list[int]], output: list[int]) -> int:
     """Multiply-adds of one convolution or matrix product from its profiled shapes (0 otherwise).
 
     Convolution: output elements x weight elements per output channel (C_in / groups x kh x kw).
-    Matrix product: output elements x K, K from A when A has the output's rank (A's elements per
-    output row, right whether A is transposed or not), else from a 2-D or batched B.
+    Matrix product: output elements x K, K from A when A has the output's rank (one matrix of A's
+    elements per output row, right whether A is transposed or not, and whether A's batch is
+    broadcast or not), else from a 2-D or batched B.
     """
     if op in CONV_WEIGHT:
         weight = inputs[CONV_WEIGHT[op]]
@@ -120,7 +121,7 @@ def node_macs(op: str, inputs: list[list[int]], output: list[int]) -> int:
     if op in GEMM_B:
         a, b = inputs[0], inputs[GEMM_B[op]]
         if len(a) == len(output):
-            k = math.prod(a) // math.prod(output[:-1])
+            k = math.prod(a[-2:]) // output[-2]
         else:
             k = math.prod(b) // (output[-1] * math.prod(b[:-2]))
         return math.prod(output) * k

@@ -221,3 +221,13 @@ def test_targets_judge_what_was_measured(
     assert f"{pooling}: 100.0 ms" in out  # the Transpose; the QGemm is a fully connected layer
     trunks = next(line for line in out.splitlines() if line.strip().startswith("trunks"))
     assert trunks.split()[1:] == ["30.0", "1000.0", "600.0", "60%"]
+
+
+def test_matrix_product_macs_count_a_broadcast_batch() -> None:
+    """The pooling's column products, (K, 1, 7, w) x (K, 7, w, C): every one of the K x 7 batches
+    multiplies 7 x w by w x C, although A holds only K of them."""
+    from bench.network_profile import node_macs
+
+    assert node_macs("MatMul", [[16, 1, 7, 12], [16, 7, 12, 512]], [16, 7, 7, 512]) == 16 * 7 * 7 * 12 * 512
+    assert node_macs("MatMul", [[112, 9], [9, 6144]], [112, 6144]) == 112 * 9 * 6144
+    assert node_macs("FusedMatMul", [[9, 112], [9, 6144]], [112, 6144]) == 112 * 9 * 6144  # A transposed
