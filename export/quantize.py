@@ -9,10 +9,12 @@ weight, which the SVD factors become), and the ReLUs after them: ORT's quantizer
 ReLU and quantises the product's output with the ReLU's range (zero point 0, so the int8 clamp is
 the ReLU). Without that, every layer's output went int8 -> float -> ReLU -> int8 between two
 int8 convolutions: 57 of 409 ms of the paper's trunks (docs/edge-speed.md). The RoI pooling
-products (MatMul of two computed tensors: the bilinear weights and the feature maps) stay float;
-fc6's input quantisation is then moved up through the concatenations and reshapes that join
-the pooling's chunks (``quantize_before_layout``): each chunk's product is quantised where it is
-made, while it is in cache, and 100 MB of float copies become 25 MB of bytes.
+products (MatMul of two computed tensors: the bilinear weights and the feature maps) are left out
+of ``quantize_static``; fc6's input quantisation is then moved up through the concatenations and
+reshapes that join the pooling's chunks (``quantize_before_layout``): each chunk's product is
+quantised where it is made, while it is in cache, and 100 MB of float copies become 25 MB of
+bytes. Last, each chunk's first product, whose other operand is the quantised map, gets its
+bilinear weights as bytes too (``quantize_pool_weights``): an integer product on the map's bytes.
 
 ``quant_pre_process`` runs first (graph optimisation, ONNX shape inference) with ORT's symbolic
 shape inference skipped: it does not complete on the dynamo exporter's graphs. The float model
@@ -115,7 +117,7 @@ def quantize_pool_weights(model: onnx.ModelProto) -> onnx.ModelProto:
     quantised to uint8 with the fixed scale 1/255 (the weights lie in [0, 1]) where the product
     reads them. ONNX Runtime then runs the product as MatMulIntegerToFloat on the window's bytes:
     no dequantised copy of each window, and integer products (docs/edge-speed.md "Integer row
-    products"). Applied after ``quantize_before_layout`` so that each quantisation stays next to
+    products, a costed order"). Applied after ``quantize_before_layout`` so that each quantisation stays next to
     its product: quantised once, before the weights are sliced into chunks, they left ONNX
     Runtime with float products."""
     graph = model.graph
