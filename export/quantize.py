@@ -117,9 +117,9 @@ def quantize_pool_weights(model: onnx.ModelProto) -> onnx.ModelProto:
     quantised to uint8 with the fixed scale 1/255 (the weights lie in [0, 1]) where the product
     reads them. ONNX Runtime then runs the product as MatMulIntegerToFloat on the window's bytes:
     no dequantised copy of each window, and integer products (docs/edge-speed.md "Integer row
-    products, a costed order"). Applied after ``quantize_before_layout`` so that each quantisation stays next to
-    its product: quantised once, before the weights are sliced into chunks, they left ONNX
-    Runtime with float products."""
+    products, a costed order"). Applied after ``quantize_before_layout`` so that each
+    quantisation stays next to its product: quantised once, before the weights are sliced into
+    chunks, they left ONNX Runtime with float products."""
     graph = model.graph
     producer = {out: n for n in graph.node for out in n.output}
 
