@@ -188,7 +188,12 @@ def test_svd_int8_export_is_quantized_loads_and_stays_close(run) -> None:
     makers = {out: n for n in model.graph.node for out in n.output}
     assert len(joined) == 2 and all(makers[i].op_type == "QuantizeLinear" for n in joined for i in n.input)
     assert all(makers[makers[i].input[0]].op_type == "MatMul" for n in joined for i in n.input)
+    # each chunk's row product reads its bilinear weights as bytes (an integer product on the map's
+    # bytes in ONNX Runtime), its column product float rows
+    as_bytes = [n for n in windows if makers[n.input[0]].op_type == "DequantizeLinear"]
+    assert len(as_bytes) == 2 * POOL_CHUNKS
     loaded = DetectorModel.load(run.int8, threads=1)
+    assert loaded.metadata.pool_chunks == POOL_CHUNKS  # the runtime orders the RoIs for the chunks
     verification = loaded.metadata.provenance["verification"]
     # The float SVD export matched its own torch model; rank 8 changed the network measurably.
     assert verification["float32_vs_torch"]["deltas3d"]["rel"] <= 1e-4

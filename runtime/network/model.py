@@ -241,12 +241,9 @@ class DetectorModel:
                     np.zeros((0, NUM_OUTPUTS, 4), np.float32))  # fmt: skip
         chunks = self.metadata.pool_chunks or POOL_CHUNKS  # a file that does not say: the export's default
         # the same answers in any order; this one pools fastest (one chunk: any order is as fast)
-        order = pooling_order(rois, context_rois, chunks) if chunks > 1 else slice(None)
+        order = pooling_order(rois, context_rois, chunks) if chunks > 1 else np.arange(len(rois))
         feeds = dict(zip(INPUT_NAMES, (color, depth, rois[order], context_rois[order]), strict=True))
         outputs = self.session.run(list(OUTPUT_NAMES), feeds)
-        if chunks == 1:
-            probs, deltas3d, deltas2d = outputs
-            return probs, deltas3d, deltas2d
         back = np.empty_like(order)
         back[order] = np.arange(len(order))
         probs, deltas3d, deltas2d = (out[back] for out in outputs)
