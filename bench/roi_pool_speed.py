@@ -257,13 +257,14 @@ def forms(
     """name -> (graph, the map from its output to (R, C, 7, 7))."""
     same = lambda y: y  # noqa: E731
     y_c_x = lambda y: y.reshape(len(y), POOL, -1, POOL).transpose(0, 2, 1, 3)  # noqa: E731
+    channels_last = lambda y: y.transpose(0, 3, 1, 2)  # noqa: E731
     return {
         "dense (exported before)": (dense_graph(height, width), same),
         "dense, no transpose": (dense_graph(height, width, transpose=False), y_c_x),
         f"dense, {4 * chunks} chunks": (dense_graph(height, width, chunks=4 * chunks), same),
         "ONNX RoiAlign": (roi_align_graph(height, width), same),
-        f"crops, {chunks} chunks": (crops_graph(height, width, chunks), lambda y: y.transpose(0, 3, 1, 2)),
-        "windows (exported)": (exported_graph(height, width), lambda y: y.transpose(0, 3, 1, 2)),
+        f"crops, {chunks} chunks": (crops_graph(height, width, chunks), channels_last),
+        "windows (exported)": (exported_graph(height, width), channels_last),
     }
 
 

@@ -111,6 +111,15 @@ def quantize_int8(
     return len(inputs)
 
 
+def producer_through(producers: dict[str, onnx.NodeProto], name: str, skipped: tuple[str, ...]):
+    """The node that makes ``name`` (``producers``: output name -> node), looking through the ops
+    in ``skipped`` (their first input); None for a graph input or initializer."""
+    node = producers.get(name)
+    while node is not None and node.op_type in skipped:
+        node = producers.get(node.input[0])
+    return node
+
+
 def quantize_pool_weights(model: onnx.ModelProto) -> onnx.ModelProto:
     """``model`` (changed in place) with the bilinear weights of each RoI pooling product whose
     map is dequantised (through layout ops only: the first of each chunk's two window products)
@@ -121,19 +130,16 @@ def quantize_pool_weights(model: onnx.ModelProto) -> onnx.ModelProto:
     quantisation stays next to its product: quantised once, before the weights are sliced into
     chunks, they left ONNX Runtime with float products."""
     graph = model.graph
-    producer = {out: n for n in graph.node for out in n.output}
-
-    def source(name: str) -> onnx.NodeProto | None:
-        """The node that makes ``name`` through layout ops (Concat aside) only."""
-        node = producer.get(name)
-        while node is not None and node.op_type in LAYOUT_OPS and node.op_type != "Concat":
-            node = producer.get(node.input[0])
-        return node
-
+    producers = {out: n for n in graph.node for out in n.output}
+    moves = tuple(op for op in LAYOUT_OPS if op != "Concat")  # one data input: a single source
     scale, zero = "pool_weights_scale", "pool_weights_zero_point"
     computed = set(computed_matmuls(model))
-    on_bytes = lambda n: getattr(source(n.input[1]), "op_type", None) == "DequantizeLinear"  # noqa: E731
-    products = [n for n in graph.node if n.name in computed and on_bytes(n)]
+
+    def reads_the_map(product: onnx.NodeProto) -> bool:
+        source = producer_through(producers, product.input[1], moves)
+        return source is not None and source.op_type == "DequantizeLinear"
+
+    products = [n for n in graph.node if n.name in computed and reads_the_map(n)]
     for product in products:
         at, name = list(graph.node).index(product), product.name
         graph.node.insert(at, onnx.helper.make_node(

@@ -47,13 +47,13 @@ def refold_graph(model):
     ExportError where it has none (already folded, or not an a3d graph)."""
     from onnx import numpy_helper
 
-    from a3d.export.quantize import quantize_before_layout
+    from a3d.export.quantize import producer_through, quantize_before_layout
 
     graph = model.graph
     producers = {out: n for n in graph.node for out in n.output}
     initializers = {i.name: i for i in graph.initializer}
     fc6 = _fc6(graph, producers)
-    join = _through(producers, fc6.input[0], ("DequantizeLinear", "QuantizeLinear"))
+    join = producer_through(producers, fc6.input[0], ("DequantizeLinear", "QuantizeLinear"))
     if join is None or join.op_type != "Concat":
         raise ExportError("no joined pooled maps before fc6 (not an a3d graph)")
     transposes = []
@@ -82,14 +82,6 @@ def _fc6(graph, producers):
     if gemm is None or not any(a.name == "transB" and a.i == 1 for a in gemm.attribute):
         raise ExportError("no fc6 Gemm with transposed weights (not an a3d graph)")
     return gemm
-
-
-def _through(producers, name: str, skipped: tuple[str, ...]):
-    """The producer of ``name``, looking through the ops in ``skipped`` (their first input)."""
-    node = producers.get(name)
-    while node is not None and node.op_type in skipped:
-        node = producers.get(node.input[0])
-    return node
 
 
 def _is_pool_transpose(node) -> bool:
