@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 import onnxruntime as ort
 
+from a3d.runtime.network.model import session_options
 from a3d.runtime.network.roi_order import pooling_order
 from bench.ceilings import Ceilings
 
@@ -159,9 +160,7 @@ def _node_runs(model: Path, feeds: list[dict[str, np.ndarray]], threads: int, pr
                prepack: bool) -> list[dict[str, tuple]]:  # fmt: skip
     """One profiled session, one call per item of ``feeds``: per call, node name -> (op, input
     shapes, first output's shape, kernel seconds)."""
-    options = ort.SessionOptions()
-    options.intra_op_num_threads = threads
-    options.inter_op_num_threads = 1
+    options = session_options(threads)  # as a3d-run opens the model
     options.enable_profiling = True
     options.profile_file_prefix = str(prefix)
     if not prepack:

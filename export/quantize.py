@@ -43,6 +43,7 @@ QUANTIZED_OPS = ("Conv", "Gemm", "MatMul", "Relu")
 # before them as after. Their data inputs: all of Concat's, the first of the others.
 LAYOUT_OPS = {"Concat": None, "Reshape": 1, "Flatten": 1, "Slice": 1, "Squeeze": 1, "Unsqueeze": 1,
               "Transpose": 1}  # fmt: skip
+MOVES = tuple(op for op in LAYOUT_OPS if op != "Concat")  # the layout ops of one data input
 
 
 class _FeedReader(CalibrationDataReader):
@@ -102,7 +103,7 @@ def quantize_int8(
         )
     finally:
         prepared.unlink(missing_ok=True)
-    model = quantize_pool_weights(quantize_before_layout(onnx.load(str(out))))
+    model = signed_pool_maps(quantize_pool_weights(quantize_before_layout(onnx.load(str(out)))))
     used = {"", *(n.domain for n in model.graph.node)}
     kept = [o for o in model.opset_import if o.domain in used]  # the pre-processing declares ORT's domains
     del model.opset_import[:]
@@ -120,26 +121,31 @@ def producer_through(producers: dict[str, onnx.NodeProto], name: str, skipped: t
     return node
 
 
-def quantize_pool_weights(model: onnx.ModelProto) -> onnx.ModelProto:
-    """``model`` (changed in place) with the bilinear weights of each RoI pooling product whose
-    map is dequantised (through layout ops only: the first of each chunk's two window products)
-    quantised to uint8 with the fixed scale 1/255 (the weights lie in [0, 1]) where the product
-    reads them. ONNX Runtime then runs the product as MatMulIntegerToFloat on the window's bytes:
-    no dequantised copy of each window, and integer products (docs/edge-speed.md "Integer row
-    products, a costed order"). Applied after ``quantize_before_layout`` so that each
-    quantisation stays next to its product: quantised once, before the weights are sliced into
-    chunks, they left ONNX Runtime with float products."""
-    graph = model.graph
-    producers = {out: n for n in graph.node for out in n.output}
-    moves = tuple(op for op in LAYOUT_OPS if op != "Concat")  # one data input: a single source
-    scale, zero = "pool_weights_scale", "pool_weights_zero_point"
+def _map_products(model: onnx.ModelProto) -> list[tuple[onnx.NodeProto, onnx.NodeProto]]:
+    """The RoI pooling products on a dequantised map (the first of each chunk's two window
+    products): (the computed MatMul, the map's DequantizeLinear that its second input comes from
+    through single-input layout ops)."""
+    producers = {out: n for n in model.graph.node for out in n.output}
     computed = set(computed_matmuls(model))
+    found = []
+    for product in model.graph.node:
+        source = producer_through(producers, product.input[1], MOVES) if product.name in computed else None
+        if source is not None and source.op_type == "DequantizeLinear":
+            found.append((product, source))
+    return found
 
-    def reads_the_map(product: onnx.NodeProto) -> bool:
-        source = producer_through(producers, product.input[1], moves)
-        return source is not None and source.op_type == "DequantizeLinear"
 
-    products = [n for n in graph.node if n.name in computed and reads_the_map(n)]
+def quantize_pool_weights(model: onnx.ModelProto) -> onnx.ModelProto:
+    """``model`` (changed in place) with the bilinear weights of each RoI pooling product on a
+    dequantised map (``_map_products``) quantised to uint8 with the fixed scale 1/255 (the weights
+    lie in [0, 1]) where the product reads them. ONNX Runtime then runs the product as
+    MatMulIntegerToFloat on the window's bytes: no dequantised copy of each window, and integer
+    products (docs/edge-speed.md "Integer row products, a costed order"). Applied after
+    ``quantize_before_layout`` so that each quantisation stays next to its product: quantised
+    once, before the weights are sliced into chunks, they left ONNX Runtime with float products."""
+    graph = model.graph
+    scale, zero = "pool_weights_scale", "pool_weights_zero_point"
+    products = [product for product, _ in _map_products(model)]
     for product in products:
         at, name = list(graph.node).index(product), product.name
         graph.node.insert(at, onnx.helper.make_node(
@@ -152,6 +158,38 @@ def quantize_pool_weights(model: onnx.ModelProto) -> onnx.ModelProto:
     if products:
         graph.initializer.extend([onnx.numpy_helper.from_array(np.array(1 / 255, np.float32), scale),
                                   onnx.numpy_helper.from_array(np.array(0, np.uint8), zero)])  # fmt: skip
+    return model
+
+
+def signed_pool_maps(model: onnx.ModelProto) -> onnx.ModelProto:
+    """``model`` (changed in place) with each uint8 map that the RoI pooling's integer products
+    read (``_map_products``) quantised again as int8 right after its dequantisation: the same
+    scale and the zero point less 128, so the same values exactly. Where a3d's session allows int8
+    activations (``a3d.runtime.network.model.session_options``: CPUs whose int8 dot product adds
+    uint8 x int8 exactly) ONNX Runtime runs the products on that kernel, the windows as the int8
+    operand (docs/edge-speed.md "Signed windows"); elsewhere it turns the windows back to uint8."""
+    graph = model.graph
+    initializers = {i.name: i for i in graph.initializer}
+    maps = {dequantize.output[0]: dequantize for _, dequantize in _map_products(model)}
+    for cells, dequantize in maps.items():
+        scale, zero = (list(dequantize.input[1:]) + [""])[:2]
+        if scale not in initializers or (zero and zero not in initializers):
+            continue
+        zero_point = onnx.numpy_helper.to_array(initializers[zero]) if zero else np.array(0, np.uint8)
+        if zero_point.dtype != np.uint8 or zero_point.ndim or initializers[scale].dims:
+            continue  # per-tensor uint8 maps only
+        signed_zero = f"{cells}/int8_zero_point"
+        graph.initializer.append(
+            onnx.numpy_helper.from_array(np.array(int(zero_point) - 128, np.int8), signed_zero)
+        )
+        for node in graph.node:
+            node.input[:] = [f"{cells}/int8_dequantized" if name == cells else name for name in node.input]
+        at = list(graph.node).index(dequantize) + 1
+        graph.node.insert(at, onnx.helper.make_node(
+            "DequantizeLinear", [f"{cells}/int8", scale, signed_zero], [f"{cells}/int8_dequantized"],
+            name=f"{cells}/int8_dequantize"))  # fmt: skip
+        graph.node.insert(at, onnx.helper.make_node(
+            "QuantizeLinear", [cells, scale, signed_zero], [f"{cells}/int8"], name=f"{cells}/int8_quantize"))  # fmt: skip
     return model
 
 

@@ -23,6 +23,7 @@ import pytest
 import torch
 
 from a3d.export import build, cli, roi_pool_onnx
+from a3d.export.quantize import MOVES, producer_through
 from a3d.export.svd import svd_compress
 from a3d.export.verify import folder_inputs
 from a3d.runtime.cli import run as run_cli
@@ -192,6 +193,10 @@ def test_svd_int8_export_is_quantized_loads_and_stays_close(run) -> None:
     # bytes in ONNX Runtime), its column product float rows
     as_bytes = [n for n in windows if makers[n.input[0]].op_type == "DequantizeLinear"]
     assert len(as_bytes) == 2 * POOL_CHUNKS
+    # ... and each map through an exact int8 copy (int8 windows where the CPU adds them exactly)
+    maps = {(m := producer_through(makers, n.input[1], MOVES)).name: m for n in as_bytes}.values()
+    int8_zero = {t.name for t in model.graph.initializer if t.data_type == onnx.TensorProto.INT8 and not t.dims}
+    assert len(maps) == 2 and all(m.input[2] in int8_zero for m in maps)
     loaded = DetectorModel.load(run.int8, threads=1)
     assert loaded.metadata.pool_chunks == POOL_CHUNKS  # the runtime orders the RoIs for the chunks
     verification = loaded.metadata.provenance["verification"]

@@ -1,15 +1,19 @@
 """a3d.export.quantize.quantize_pool_weights: the bilinear weights of a pooling product on a
 dequantised map are quantised (uint8, 1/255) where the product reads them, so that ONNX Runtime
-runs it as an integer product; a product on float data stays as it is."""
+runs it as an integer product; a product on float data stays as it is. signed_pool_maps: that map
+is read through an exact int8 copy, which ONNX Runtime keeps int8 where a3d's session options
+allow it (CPUs with an int8 dot product)."""
 
 from __future__ import annotations
 
 import numpy as np
 import onnx
 import onnxruntime as ort
+import pytest
 from onnx import TensorProto, helper, numpy_helper
 
-from a3d.export.quantize import quantize_pool_weights
+from a3d.export.quantize import quantize_pool_weights, signed_pool_maps
+from a3d.runtime.network.model import session_options
 from tests.helpers.onnx_graphs import run_graph
 
 MAP_SCALE, MAP_ZERO = 0.05, 7
@@ -80,9 +84,37 @@ def test_onnx_runtime_runs_it_as_an_integer_product(tmp_path) -> None:
     assert "MatMulIntegerToFloat" in ops and ops.count("MatMul") == 1  # the column product stays float
 
 
+def test_the_row_product_reads_an_exact_int8_copy_of_the_map() -> None:
+    model = signed_pool_maps(quantize_pool_weights(_model()))
+    onnx.checker.check_model(model)
+    makers = {out: n for n in model.graph.node for out in n.output}
+    constants = {t.name: numpy_helper.to_array(t) for t in model.graph.initializer}
+    dequantize = makers[makers["window"].input[0]]  # the window's slice reads the copy
+    quantize = makers[dequantize.input[0]]
+    assert (dequantize.op_type, quantize.op_type, quantize.input[0]) == ("DequantizeLinear", "QuantizeLinear", "cells")
+    zero = constants[quantize.input[2]]
+    assert zero.dtype == np.int8 and int(zero) == MAP_ZERO - 128 and quantize.input[1] == "map_scale"
+    feeds = _feeds()
+    np.testing.assert_array_equal(run_graph(model, feeds), run_graph(quantize_pool_weights(_model()), feeds))
+
+
+@pytest.mark.parametrize(("flags", "window_type"), [({"avx512_vnni", "avx2"}, np.int8), ({"avx2"}, np.uint8)])
+def test_onnx_runtime_multiplies_int8_windows_where_the_cpu_adds_them_exactly(tmp_path, flags, window_type) -> None:
+    options = session_options(1, frozenset(flags))
+    options.optimized_model_filepath = str(tmp_path / "optimized.onnx")
+    model = signed_pool_maps(quantize_pool_weights(_model()))
+    session = ort.InferenceSession(model.SerializeToString(), options, providers=["CPUExecutionProvider"])
+    optimized = onnx.load(str(tmp_path / "optimized.onnx")).graph
+    constants = {t.name: numpy_helper.to_array(t) for t in optimized.initializer}
+    (product,) = [n for n in optimized.node if n.op_type == "MatMulIntegerToFloat"]
+    assert constants[product.input[5]].dtype == window_type  # the window's zero point: its type
+    feeds = _feeds()  # the same answers either way: both kernels add exactly
+    np.testing.assert_array_equal(session.run(None, feeds)[0], run_graph(quantize_pool_weights(_model()), feeds))
+
+
 def test_a_graph_without_such_a_product_is_unchanged() -> None:
     model = _model()
     model.graph.node[2].input[1] = "wy_again"  # the row product now reads a graph input, not the map
     model.graph.input.append(helper.make_tensor_value_info("wy_again", TensorProto.FLOAT, [4, 20]))
     before = model.SerializeToString()
-    assert quantize_pool_weights(model).SerializeToString() == before
+    assert signed_pool_maps(quantize_pool_weights(model)).SerializeToString() == before

@@ -42,6 +42,7 @@ from a3d.runtime.errors import ModelError
 from a3d.runtime.frontend.proposals import ProposalConfig, proposal_config_from_dict
 from a3d.runtime.io.json_input import is_finite_number, parse_json
 from a3d.runtime.io.plain_config import plain_from_dataclass
+from a3d.runtime.network.cpu_support import int8_dot_products
 from a3d.runtime.network.preprocess import COLOR_MEAN_BGR, DEPTH_MEAN
 from a3d.runtime.network.roi_order import POOL_CHUNKS, pooling_order
 from a3d.runtime.postprocess.score_calibration import ScoreCalibration
@@ -205,9 +206,7 @@ class DetectorModel:
         if _digest(view, records) != metadata.content_sha256:
             raise ModelError(f"{where}: corrupted model file (graph and weights fail the metadata checksum)")
         metadata.check_runtime(where)
-        options = ort.SessionOptions()
-        options.intra_op_num_threads = int(threads)
-        options.inter_op_num_threads = 1
+        options = session_options(threads)
         try:
             session = ort.InferenceSession(data, options, providers=["CPUExecutionProvider"])
         except Exception as e:  # ORT's pybind errors (Fail, InvalidGraph, ...) share no narrower base
@@ -248,6 +247,21 @@ class DetectorModel:
         back[order] = np.arange(len(order))
         probs, deltas3d, deltas2d = (out[back] for out in outputs)
         return probs, deltas3d, deltas2d
+
+
+def session_options(threads: int, flags: frozenset[str] | None = None) -> ort.SessionOptions:
+    """ONNX Runtime's options for an a3d model: ``threads`` intra-op threads and one inter-op.
+    Where the CPU (``flags``, default this machine's) has an int8 dot product, int8 activations
+    stay int8: ONNX Runtime then runs the int8 export's pooling products (windows of a map that
+    a3d-export re-quantises as int8, a3d.export.quantize.signed_pool_maps) on its uint8 x int8
+    kernel, which adds exactly there. Elsewhere x86 ONNX Runtime turns int8 activations into
+    uint8 (AVX2's uint8 x int8 kernel saturates 16-bit pair sums); the answers are the same."""
+    options = ort.SessionOptions()
+    options.intra_op_num_threads = int(threads)
+    options.inter_op_num_threads = 1
+    if int8_dot_products(flags):
+        options.add_session_config_entry("session.qdqisint8allowed", "1")
+    return options
 
 
 def content_digest(data: bytes | memoryview, where: str = "model") -> str:
