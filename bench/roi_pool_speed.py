@@ -27,7 +27,8 @@ crops form sorts them again and puts the rows back with a Gather. RoIs: the pape
 (427 x 561 pixels on a 27 x 36 map), sizes log-uniform from 16 pixels to the whole frame as
 proposals are (most small, a few large). Each form is timed in two blocks of ``--repeats`` calls
 after a warm-up call, the blocks interleaved; the median. Last, the window products'
-multiply-adds with the RoIs as given, in a3d-run's order, and with every RoI on its own window.
+multiply-adds and float intermediate with the RoIs as given, in a3d-run's order, and with every
+RoI on its own window.
 """
 
 from __future__ import annotations
@@ -297,23 +298,25 @@ def _bound_run(
     return run
 
 
-def window_macs(wy: np.ndarray, wx: np.ndarray, order: np.ndarray, chunks: int, channels: int) -> int:
-    """Multiply-adds of the exported window products when the rows of the weights wy (R, 7, H),
-    wx (R, 7, W) come in ``order``: per chunk of K RoIs on an h x w union window, K x 7 x h x w x C
-    (rows) + K x 49 x w x C (columns)."""
+def window_cost(wy: np.ndarray, wx: np.ndarray, order: np.ndarray, chunks: int, channels: int) -> tuple[int, int]:
+    """(multiply-adds, intermediate floats) of the exported window products when the rows of the
+    weights wy (R, 7, H), wx (R, 7, W) come in ``order``: per chunk of K RoIs on an h x w union
+    window, K x 7 x h x w x C (rows) + K x 49 x w x C (columns), and the rows' K x 7 x w x C
+    output that the columns read back."""
     (first_y, end_y), (first_x, end_x) = (
         (nonzero.argmax(1), nonzero.shape[1] - nonzero[:, ::-1].argmax(1))
         for nonzero in (np.abs(w).sum(1) > 0 for w in (wy, wx))
     )
     bounds = chunk_bounds(len(order), chunks)
-    total = 0
+    macs = floats = 0
     for start, end in itertools.pairwise(bounds):
         rows = order[start:end]
         if len(rows):
             h = int(end_y[rows].max() - first_y[rows].min())
             w = int(end_x[rows].max() - first_x[rows].min())
-            total += len(rows) * POOL * w * channels * (h + POOL)
-    return total
+            floats += len(rows) * POOL * w * channels
+            macs += len(rows) * POOL * w * channels * (h + POOL)
+    return macs, floats
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -337,8 +340,8 @@ def main(argv: list[str] | None = None) -> int:
     given, _ = pooling_inputs(boxes, feature_map)
     layouts = (("as given", np.arange(len(boxes)), POOL_CHUNKS), ("in a3d-run's order", order, POOL_CHUNKS),
                ("each RoI on its own window", np.arange(len(boxes)), max(len(boxes), 1)))  # fmt: skip
-    macs = {name: window_macs(given["wy"], given["wx"], rows, chunks, args.channels) / 1e9
-            for name, rows, chunks in layouts}  # fmt: skip
+    costs = {name: window_cost(given["wy"], given["wx"], rows, chunks, args.channels)
+             for name, rows, chunks in layouts}  # fmt: skip
     runs = {}
     for name, (model, layout) in forms(height, width, args.chunks).items():
         session = _session(model, args.threads)
@@ -365,8 +368,9 @@ def main(argv: list[str] | None = None) -> int:
     for name, values in seconds.items():
         print(f"  {name:28s}{1e3 * float(np.median(values)):9.1f}  {runs[name][1]:.1e}")
     print(f"a3d-run's order of these RoIs (runtime.network.roi_order): {1e3 * ordering:.2f} ms")
-    print(f"the window products' multiply-adds in {POOL_CHUNKS} chunks: "
-          + ", ".join(f"{name} {value:.3f} GMAC" for name, value in macs.items()))  # fmt: skip
+    print(f"the window products in {POOL_CHUNKS} chunks, multiply-adds and intermediate: "
+          + ", ".join(f"{name} {macs / 1e9:.3f} GMAC, {floats / 1e6:.1f} M floats"
+                      for name, (macs, floats) in costs.items()))  # fmt: skip
     return 0
 
 

@@ -2,14 +2,17 @@
 
 An exported model pools its RoIs in ``POOL_CHUNKS`` chunks of consecutive rows (rows
 ``[i * R // n, (i + 1) * R // n)``), each chunk on the union of its RoIs' windows of the feature
-map (a3d.export.roi_pool_onnx). Any order gives the same numbers; the order decides how much
-arithmetic the unions cost: a chunk of K RoIs on an h x w window costs K x 7 x w x (h + 7)
-multiply-adds per channel. ``pooling_order`` makes each chunk a leaf of a k-d tree on the RoIs'
-corners (x1, y1, x2, y2) that cuts at the chunk boundaries; each cut sorts along the corner
-whose halves' windows, of the RoIs and of their context boxes together, cost the least. On 500
-proposal-like RoIs of a paper-sized frame it cuts one map's window products from 2.08 to 0.82
-GMAC (``python -m bench.roi_pool_speed``, docs/edge-speed.md "Integer row products, a costed
-order"). A model whose metadata says it pools in one chunk (``pool_chunks`` 1) needs no order.
+map (a3d.export.roi_pool_onnx). Any order gives the same numbers; the order decides what the
+unions cost. A chunk of K RoIs on an h x w window runs, per channel, K x 7 x w x h integer
+multiply-adds into a K x 7 x w float intermediate that the column product reads back (K x 49 x
+w multiply-adds); on a CPU with an int8 dot product the intermediate, not the arithmetic, sets
+the time, so the cost counts it as ``INTERMEDIATE_COST`` multiply-adds per element:
+K x w x (h + INTERMEDIATE_COST). ``pooling_order`` makes each chunk a leaf of a k-d tree on the
+RoIs' corners (x1, y1, x2, y2) that cuts at the chunk boundaries; each cut sorts along the corner
+whose halves' windows, of the RoIs and of their context boxes together, cost the least
+(``python -m bench.roi_pool_speed`` prints the multiply-adds and the intermediate of its
+order, docs/edge-speed.md "Signed windows, an order for the intermediate"). A model whose
+metadata says it pools in one chunk (``pool_chunks`` 1) needs no order.
 """
 
 from __future__ import annotations
@@ -18,7 +21,10 @@ import numpy as np
 
 POOL_CHUNKS = 32
 _CELL = 16  # image pixels per feature-map cell of the VGG16 trunks (the cost model's unit)
-_POOL_SIZE = 7  # bins per side of the pooled RoI
+# Integer multiply-adds that take as long as one element of a chunk's float intermediate (written,
+# read back, its 7 column multiply-adds): the pooling's time is flat for 50 to 1000 and 1 ms longer
+# at 7 (docs/edge-speed.md "Signed windows, an order for the intermediate").
+INTERMEDIATE_COST = 100
 
 
 def chunk_bounds(count: int, chunks: int = POOL_CHUNKS) -> np.ndarray:
@@ -28,11 +34,11 @@ def chunk_bounds(count: int, chunks: int = POOL_CHUNKS) -> np.ndarray:
 
 def _window_cost(boxes: np.ndarray) -> np.ndarray:
     """Per candidate axis, the pooling cost of one chunk: ``boxes`` (K, axes, 4 x maps) in cells,
-    the chunk's RoIs as each axis sorts them; their union window per map, K x w x (h + 7)."""
+    the chunk's RoIs as each axis sorts them; their union window per map, K x w x (h + INTERMEDIATE_COST)."""
     low, high = boxes.min(0), boxes.max(0)  # (axes, 4 x maps)
     width = high[:, 2::4] - low[:, 0::4] + 2  # + 2: the cells that the edge samples touch
     height = high[:, 3::4] - low[:, 1::4] + 2
-    return len(boxes) * (width * (height + _POOL_SIZE)).sum(1)
+    return len(boxes) * (width * (height + INTERMEDIATE_COST)).sum(1)
 
 
 def pooling_order(
