@@ -26,6 +26,7 @@ is not used (MinMax keeps two numbers per tensor and frame anyway).
 from __future__ import annotations
 
 import os
+from collections import Counter
 from collections.abc import Iterable
 from pathlib import Path
 
@@ -138,26 +139,42 @@ def _map_products(model: onnx.ModelProto) -> list[tuple[onnx.NodeProto, onnx.Nod
 def quantize_pool_weights(model: onnx.ModelProto) -> onnx.ModelProto:
     """``model`` (changed in place) with the bilinear weights of each RoI pooling product on a
     dequantised map (``_map_products``) quantised to uint8 with the fixed scale 1/255 (the weights
-    lie in [0, 1]) where the product reads them. ONNX Runtime then runs the product as
-    MatMulIntegerToFloat on the window's bytes: no dequantised copy of each window, and integer
-    products (docs/edge-speed.md "Integer row products, a costed order"). Applied after
-    ``quantize_before_layout`` so that each quantisation stays next to its product: quantised
-    once, before the weights are sliced into chunks, they left ONNX Runtime with float products."""
+    lie in [0, 1]) once, where they are made, and dequantised where each product reads them: the
+    chunks' slices of the weights move bytes, and ONNX Runtime runs each product as
+    MatMulIntegerToFloat on the window's bytes, with no dequantised copy of the window
+    (docs/edge-speed.md "Integer row products, a costed order")."""
     graph = model.graph
     scale, zero = "pool_weights_scale", "pool_weights_zero_point"
+    producers = {out: n for n in graph.node for out in n.output}
+    readers = Counter(name for n in graph.node for name in n.input)
+    quantized: dict[str, str] = {}  # weights -> their bytes
+    retyped: set[str] = set()
     products = [product for product, _ in _map_products(model)]
     for product in products:
-        at, name = list(graph.node).index(product), product.name
-        graph.node.insert(at, onnx.helper.make_node(
-            "DequantizeLinear", [f"{name}/weights_quantized", scale, zero], [f"{name}/weights_dequantized"],
-            name=f"{name}/weights_dequantize"))  # fmt: skip
-        graph.node.insert(at, onnx.helper.make_node(
-            "QuantizeLinear", [product.input[0], scale, zero], [f"{name}/weights_quantized"],
-            name=f"{name}/weights_quantize"))  # fmt: skip
+        # the layout ops that this product's weights alone pass through, and the tensor before them
+        first, weights = product, product.input[0]
+        while (node := producers.get(weights)) is not None and node.op_type in MOVES and readers[weights] == 1:
+            first, weights = node, node.input[0]
+            retyped.add(node.output[0])
+        if weights not in quantized:
+            quantized[weights] = f"{weights}/pool_weights_quantized"
+            maker = producers.get(weights)
+            graph.node.insert(list(graph.node).index(maker) + 1 if maker is not None else 0, onnx.helper.make_node(
+                "QuantizeLinear", [weights, scale, zero], [quantized[weights]],
+                name=f"{weights}/pool_weights_quantize"))  # fmt: skip
+        name = product.name
+        graph.node.insert(list(graph.node).index(product), onnx.helper.make_node(
+            "DequantizeLinear", [product.input[0] if first is not product else quantized[weights], scale, zero],
+            [f"{name}/weights_dequantized"], name=f"{name}/weights_dequantize"))  # fmt: skip
+        if first is not product:
+            first.input[0] = quantized[weights]
         product.input[0] = f"{name}/weights_dequantized"
     if products:
         graph.initializer.extend([onnx.numpy_helper.from_array(np.array(1 / 255, np.float32), scale),
                                   onnx.numpy_helper.from_array(np.array(0, np.uint8), zero)])  # fmt: skip
+    kept = [v for v in graph.value_info if v.name not in retyped]
+    del graph.value_info[:]
+    graph.value_info.extend(kept)
     return model
 
 

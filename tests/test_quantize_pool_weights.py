@@ -20,24 +20,38 @@ MAP_SCALE, MAP_ZERO = 0.05, 7
 
 
 def _model() -> onnx.ModelProto:
-    """map (6, 20) uint8 -> DequantizeLinear -> Slice rows 1..4 -> "rows" = wy (14, 4) x window;
-    "columns" = wx (3, 14) x that: the row product reads a dequantised map, the column one not."""
+    """map (6, 20) uint8 -> DequantizeLinear: cells. Two chunks' row products, "rows" and
+    "rows_b": each a slice of wy (2, 7, 4), flattened to (7, 4), x its window (cells' rows 1..4,
+    0..3); joined, and "columns" = wx (3, 14) x that: the row products read a dequantised map,
+    the column one not."""
+    make = helper.make_node
     nodes = [
-        helper.make_node("DequantizeLinear", ["map", "map_scale", "map_zero"], ["cells"], name="dequantize"),
-        helper.make_node("Slice", ["cells", "starts", "ends", "axes"], ["window"], name="window"),
-        helper.make_node("MatMul", ["wy", "window"], ["by_rows"], name="rows"),
-        helper.make_node("MatMul", ["wx", "by_rows"], ["out"], name="columns"),
+        make("DequantizeLinear", ["map", "map_scale", "map_zero"], ["cells"], name="dequantize"),
+        *(
+            node
+            for chunk, (start, end), (low, high) in (("a", ("zero", "one"), ("one", "five")),
+                                                     ("b", ("one", "two"), ("zero", "four")))  # fmt: skip
+            for node in (
+                make("Slice", ["cells", low, high, "zero"], [f"window_{chunk}"], name=f"window_{chunk}"),
+                make("Slice", ["wy", start, end, "zero"], [f"wy_{chunk}"], name=f"slice_{chunk}"),
+                make("Flatten", [f"wy_{chunk}"], [f"flat_{chunk}"], axis=2, name=f"flatten_{chunk}"),
+            )
+        ),
+        make("MatMul", ["flat_a", "window_a"], ["rows_a"], name="rows"),
+        make("MatMul", ["flat_b", "window_b"], ["rows_b"], name="rows_b"),
+        make("Concat", ["rows_a", "rows_b"], ["by_rows"], axis=0, name="join"),
+        make("MatMul", ["wx", "by_rows"], ["out"], name="columns"),
     ]
     initializers = [
         numpy_helper.from_array(np.array(MAP_SCALE, np.float32), "map_scale"),
         numpy_helper.from_array(np.array(MAP_ZERO, np.uint8), "map_zero"),
         *(
             numpy_helper.from_array(np.array([v], np.int64), n)
-            for n, v in (("starts", 1), ("ends", 5), ("axes", 0))
+            for n, v in (("zero", 0), ("one", 1), ("two", 2), ("four", 4), ("five", 5))
         ),
     ]
     value = helper.make_tensor_value_info
-    inputs = [value("map", TensorProto.UINT8, [6, 20]), value("wy", TensorProto.FLOAT, [14, 4]),
+    inputs = [value("map", TensorProto.UINT8, [6, 20]), value("wy", TensorProto.FLOAT, [2, 7, 4]),
               value("wx", TensorProto.FLOAT, [3, 14])]  # fmt: skip
     graph = helper.make_graph(
         nodes, "g", inputs, [value("out", TensorProto.FLOAT, [3, 20])], initializer=initializers
@@ -48,40 +62,41 @@ def _model() -> onnx.ModelProto:
 def _feeds() -> dict[str, np.ndarray]:
     rng = np.random.default_rng(0)
     return {"map": rng.integers(0, 256, (6, 20)).astype(np.uint8),
-            "wy": rng.uniform(0.0, 1.0, (14, 4)).astype(np.float32),
+            "wy": rng.uniform(0.0, 1.0, (2, 7, 4)).astype(np.float32),
             "wx": rng.uniform(0.0, 1.0, (3, 14)).astype(np.float32)}  # fmt: skip
 
 
-def test_the_row_product_reads_its_weights_as_bytes() -> None:
+def test_the_row_products_read_their_weights_as_bytes_quantised_once() -> None:
     model = quantize_pool_weights(_model())
     onnx.checker.check_model(model)
     nodes = {n.name: n for n in model.graph.node}
-    quantize = next(n for n in model.graph.node if n.op_type == "QuantizeLinear")
-    assert quantize.input[0] == "wy" and nodes["rows"].input[0] != "wy"  # the row product's weights
+    makers = {out: n for n in model.graph.node for out in n.output}
+    (quantize,) = [n for n in model.graph.node if n.op_type == "QuantizeLinear"]
+    assert quantize.input[0] == "wy"  # once, where the weights are made: the chunks slice bytes
+    assert {nodes[f"slice_{c}"].input[0] for c in "ab"} == {quantize.output[0]}
+    assert all(makers[nodes[p].input[0]].op_type == "DequantizeLinear" for p in ("rows", "rows_b"))
     assert nodes["columns"].input[0] == "wx"  # the column product reads float rows: untouched
     scales = {t.name: numpy_helper.to_array(t) for t in model.graph.initializer}
     assert scales[quantize.input[1]] == np.float32(1 / 255) and scales[quantize.input[2]].dtype == np.uint8
     feeds = _feeds()
-    cells = (feeds["map"][1:5].astype(np.float64) - MAP_ZERO) * MAP_SCALE
-    wy_bytes = np.round(feeds["wy"].astype(np.float64) * 255) / 255
-    np.testing.assert_allclose(
-        run_graph(model, feeds), feeds["wx"] @ (wy_bytes @ cells), rtol=1e-5, atol=1e-5
-    )
-    exact = feeds["wx"] @ (feeds["wy"].astype(np.float64) @ cells)
-    assert (
-        np.abs(run_graph(_model(), feeds) - exact).max()
-        < 1e-4
-        < np.abs(wy_bytes @ cells - feeds["wy"] @ cells).max()
-    )
+    cells = (feeds["map"].astype(np.float64) - MAP_ZERO) * MAP_SCALE
+    wy = feeds["wy"].astype(np.float64)
+
+    def pooled(weights: np.ndarray) -> np.ndarray:  # the two chunks' products on their windows, joined
+        return feeds["wx"] @ np.vstack([weights[0] @ cells[1:5], weights[1] @ cells[0:4]])
+
+    np.testing.assert_allclose(run_graph(model, feeds), pooled(np.round(wy * 255) / 255), rtol=1e-5, atol=1e-5)
+    assert np.abs(run_graph(_model(), feeds) - pooled(wy)).max() < 1e-4  # rounding: well above that
+    assert np.abs(pooled(np.round(wy * 255) / 255) - pooled(wy)).max() > 1e-3
 
 
-def test_onnx_runtime_runs_it_as_an_integer_product(tmp_path) -> None:
+def test_onnx_runtime_runs_them_as_integer_products(tmp_path) -> None:
     options = ort.SessionOptions()
     options.optimized_model_filepath = str(tmp_path / "optimized.onnx")
     ort.InferenceSession(quantize_pool_weights(_model()).SerializeToString(), options,
                          providers=["CPUExecutionProvider"])  # fmt: skip
     ops = [n.op_type for n in onnx.load(str(tmp_path / "optimized.onnx")).graph.node]
-    assert "MatMulIntegerToFloat" in ops and ops.count("MatMul") == 1  # the column product stays float
+    assert ops.count("MatMulIntegerToFloat") == 2 and ops.count("MatMul") == 1  # the column product stays float
 
 
 def test_the_row_product_reads_an_exact_int8_copy_of_the_map() -> None:
@@ -89,7 +104,8 @@ def test_the_row_product_reads_an_exact_int8_copy_of_the_map() -> None:
     onnx.checker.check_model(model)
     makers = {out: n for n in model.graph.node for out in n.output}
     constants = {t.name: numpy_helper.to_array(t) for t in model.graph.initializer}
-    dequantize = makers[makers["window"].input[0]]  # the window's slice reads the copy
+    dequantize = makers[makers["window_a"].input[0]]  # the windows' slices read the copy
+    assert makers["window_b"].input[0] == dequantize.output[0]
     quantize = makers[dequantize.input[0]]
     assert (dequantize.op_type, quantize.op_type, quantize.input[0]) == ("DequantizeLinear", "QuantizeLinear", "cells")
     zero = constants[quantize.input[2]]
@@ -106,15 +122,17 @@ def test_onnx_runtime_multiplies_int8_windows_where_the_cpu_adds_them_exactly(tm
     session = ort.InferenceSession(model.SerializeToString(), options, providers=["CPUExecutionProvider"])
     optimized = onnx.load(str(tmp_path / "optimized.onnx")).graph
     constants = {t.name: numpy_helper.to_array(t) for t in optimized.initializer}
-    (product,) = [n for n in optimized.node if n.op_type == "MatMulIntegerToFloat"]
-    assert constants[product.input[5]].dtype == window_type  # the window's zero point: its type
+    products = [n for n in optimized.node if n.op_type == "MatMulIntegerToFloat"]
+    assert len(products) == 2  # the window's zero point: its type
+    assert all(constants[product.input[5]].dtype == window_type for product in products)
     feeds = _feeds()  # the same answers either way: both kernels add exactly
     np.testing.assert_array_equal(session.run(None, feeds)[0], run_graph(quantize_pool_weights(_model()), feeds))
 
 
 def test_a_graph_without_such_a_product_is_unchanged() -> None:
     model = _model()
-    model.graph.node[2].input[1] = "wy_again"  # the row product now reads a graph input, not the map
-    model.graph.input.append(helper.make_tensor_value_info("wy_again", TensorProto.FLOAT, [4, 20]))
+    for product in (n for n in model.graph.node if n.name in ("rows", "rows_b")):
+        product.input[1] = "window_again"  # the row products now read a graph input, not the map
+    model.graph.input.append(helper.make_tensor_value_info("window_again", TensorProto.FLOAT, [4, 20]))
     before = model.SerializeToString()
     assert signed_pool_maps(quantize_pool_weights(model)).SerializeToString() == before
