@@ -298,7 +298,9 @@ def _bound_run(
     return run
 
 
-def window_cost(wy: np.ndarray, wx: np.ndarray, order: np.ndarray, chunks: int, channels: int) -> tuple[int, int]:
+def window_cost(
+    wy: np.ndarray, wx: np.ndarray, order: np.ndarray, chunks: int, channels: int
+) -> tuple[int, int]:
     """(multiply-adds, intermediate floats) of the exported window products when the rows of the
     weights wy (R, 7, H), wx (R, 7, W) come in ``order``: per chunk of K RoIs on an h x w union
     window, K x 7 x h x w x C (rows) + K x 49 x w x C (columns), and the rows' K x 7 x w x C

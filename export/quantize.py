@@ -153,22 +153,25 @@ def quantize_pool_weights(model: onnx.ModelProto) -> onnx.ModelProto:
     for product in products:
         # the layout ops that this product's weights alone pass through, and the tensor before them
         first, weights = product, product.input[0]
-        while (node := producers.get(weights)) is not None and node.op_type in MOVES and readers[weights] == 1:
+        while (
+            (node := producers.get(weights)) is not None and node.op_type in MOVES and readers[weights] == 1
+        ):
             first, weights = node, node.input[0]
             retyped.add(node.output[0])
         if weights not in quantized:
             quantized[weights] = f"{weights}/pool_weights_quantized"
             maker = producers.get(weights)
-            graph.node.insert(list(graph.node).index(maker) + 1 if maker is not None else 0, onnx.helper.make_node(
+            at = list(graph.node).index(maker) + 1 if maker is not None else 0
+            graph.node.insert(at, onnx.helper.make_node(
                 "QuantizeLinear", [weights, scale, zero], [quantized[weights]],
                 name=f"{weights}/pool_weights_quantize"))  # fmt: skip
-        name = product.name
-        graph.node.insert(list(graph.node).index(product), onnx.helper.make_node(
-            "DequantizeLinear", [product.input[0] if first is not product else quantized[weights], scale, zero],
-            [f"{name}/weights_dequantized"], name=f"{name}/weights_dequantize"))  # fmt: skip
+        read = quantized[weights] if first is product else product.input[0]
         if first is not product:
             first.input[0] = quantized[weights]
-        product.input[0] = f"{name}/weights_dequantized"
+        graph.node.insert(list(graph.node).index(product), onnx.helper.make_node(
+            "DequantizeLinear", [read, scale, zero], [f"{product.name}/weights_dequantized"],
+            name=f"{product.name}/weights_dequantize"))  # fmt: skip
+        product.input[0] = f"{product.name}/weights_dequantized"
     if products:
         graph.initializer.extend([onnx.numpy_helper.from_array(np.array(1 / 255, np.float32), scale),
                                   onnx.numpy_helper.from_array(np.array(0, np.uint8), zero)])  # fmt: skip
@@ -189,7 +192,7 @@ def signed_pool_maps(model: onnx.ModelProto) -> onnx.ModelProto:
     initializers = {i.name: i for i in graph.initializer}
     maps = {dequantize.output[0]: dequantize for _, dequantize in _map_products(model)}
     for cells, dequantize in maps.items():
-        scale, zero = (list(dequantize.input[1:]) + [""])[:2]
+        scale, zero = [*dequantize.input[1:], ""][:2]
         if scale not in initializers or (zero and zero not in initializers):
             continue
         zero_point = onnx.numpy_helper.to_array(initializers[zero]) if zero else np.array(0, np.uint8)
@@ -206,7 +209,8 @@ def signed_pool_maps(model: onnx.ModelProto) -> onnx.ModelProto:
             "DequantizeLinear", [f"{cells}/int8", scale, signed_zero], [f"{cells}/int8_dequantized"],
             name=f"{cells}/int8_dequantize"))  # fmt: skip
         graph.node.insert(at, onnx.helper.make_node(
-            "QuantizeLinear", [cells, scale, signed_zero], [f"{cells}/int8"], name=f"{cells}/int8_quantize"))  # fmt: skip
+            "QuantizeLinear", [cells, scale, signed_zero], [f"{cells}/int8"],
+            name=f"{cells}/int8_quantize"))  # fmt: skip
     return model
 
 

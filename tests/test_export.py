@@ -195,7 +195,9 @@ def test_svd_int8_export_is_quantized_loads_and_stays_close(run) -> None:
     assert len(as_bytes) == 2 * POOL_CHUNKS
     # ... and each map through an exact int8 copy (int8 windows where the CPU adds them exactly)
     maps = {(m := producer_through(makers, n.input[1], MOVES)).name: m for n in as_bytes}.values()
-    int8_zero = {t.name for t in model.graph.initializer if t.data_type == onnx.TensorProto.INT8 and not t.dims}
+    int8_zero = {
+        t.name for t in model.graph.initializer if t.data_type == onnx.TensorProto.INT8 and not t.dims
+    }
     assert len(maps) == 2 and all(m.input[2] in int8_zero for m in maps)
     loaded = DetectorModel.load(run.int8, threads=1)
     assert loaded.metadata.pool_chunks == POOL_CHUNKS  # the runtime orders the RoIs for the chunks

@@ -17,6 +17,8 @@ from a3d.runtime.network.model import session_options
 from tests.helpers.onnx_graphs import run_graph
 
 MAP_SCALE, MAP_ZERO = 0.05, 7
+# per chunk: its rows of wy and of the map (initializer names: zero, one, two, four, five)
+CHUNKS = (("a", ("zero", "one"), ("one", "five")), ("b", ("one", "two"), ("zero", "four")))
 
 
 def _model() -> onnx.ModelProto:
@@ -29,8 +31,7 @@ def _model() -> onnx.ModelProto:
         make("DequantizeLinear", ["map", "map_scale", "map_zero"], ["cells"], name="dequantize"),
         *(
             node
-            for chunk, (start, end), (low, high) in (("a", ("zero", "one"), ("one", "five")),
-                                                     ("b", ("one", "two"), ("zero", "four")))  # fmt: skip
+            for chunk, (start, end), (low, high) in CHUNKS
             for node in (
                 make("Slice", ["cells", low, high, "zero"], [f"window_{chunk}"], name=f"window_{chunk}"),
                 make("Slice", ["wy", start, end, "zero"], [f"wy_{chunk}"], name=f"slice_{chunk}"),
@@ -85,7 +86,9 @@ def test_the_row_products_read_their_weights_as_bytes_quantised_once() -> None:
     def pooled(weights: np.ndarray) -> np.ndarray:  # the two chunks' products on their windows, joined
         return feeds["wx"] @ np.vstack([weights[0] @ cells[1:5], weights[1] @ cells[0:4]])
 
-    np.testing.assert_allclose(run_graph(model, feeds), pooled(np.round(wy * 255) / 255), rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(
+        run_graph(model, feeds), pooled(np.round(wy * 255) / 255), rtol=1e-5, atol=1e-5
+    )
     assert np.abs(run_graph(_model(), feeds) - pooled(wy)).max() < 1e-4  # rounding: well above that
     assert np.abs(pooled(np.round(wy * 255) / 255) - pooled(wy)).max() > 1e-3
 
@@ -96,7 +99,9 @@ def test_onnx_runtime_runs_them_as_integer_products(tmp_path) -> None:
     ort.InferenceSession(quantize_pool_weights(_model()).SerializeToString(), options,
                          providers=["CPUExecutionProvider"])  # fmt: skip
     ops = [n.op_type for n in onnx.load(str(tmp_path / "optimized.onnx")).graph.node]
-    assert ops.count("MatMulIntegerToFloat") == 2 and ops.count("MatMul") == 1  # the column product stays float
+    assert (
+        ops.count("MatMulIntegerToFloat") == 2 and ops.count("MatMul") == 1
+    )  # the column product stays float
 
 
 def test_the_row_product_reads_an_exact_int8_copy_of_the_map() -> None:
@@ -107,7 +112,11 @@ def test_the_row_product_reads_an_exact_int8_copy_of_the_map() -> None:
     dequantize = makers[makers["window_a"].input[0]]  # the windows' slices read the copy
     assert makers["window_b"].input[0] == dequantize.output[0]
     quantize = makers[dequantize.input[0]]
-    assert (dequantize.op_type, quantize.op_type, quantize.input[0]) == ("DequantizeLinear", "QuantizeLinear", "cells")
+    assert (dequantize.op_type, quantize.op_type, quantize.input[0]) == (
+        "DequantizeLinear",
+        "QuantizeLinear",
+        "cells",
+    )
     zero = constants[quantize.input[2]]
     assert zero.dtype == np.int8 and int(zero) == MAP_ZERO - 128 and quantize.input[1] == "map_scale"
     feeds = _feeds()
@@ -115,7 +124,9 @@ def test_the_row_product_reads_an_exact_int8_copy_of_the_map() -> None:
 
 
 @pytest.mark.parametrize(("flags", "window_type"), [({"avx512_vnni", "avx2"}, np.int8), ({"avx2"}, np.uint8)])
-def test_onnx_runtime_multiplies_int8_windows_where_the_cpu_adds_them_exactly(tmp_path, flags, window_type) -> None:
+def test_onnx_runtime_multiplies_int8_windows_where_the_cpu_adds_them_exactly(
+    tmp_path, flags, window_type
+) -> None:
     options = session_options(1, frozenset(flags))
     options.optimized_model_filepath = str(tmp_path / "optimized.onnx")
     model = signed_pool_maps(quantize_pool_weights(_model()))
@@ -126,7 +137,9 @@ def test_onnx_runtime_multiplies_int8_windows_where_the_cpu_adds_them_exactly(tm
     assert len(products) == 2  # the window's zero point: its type
     assert all(constants[product.input[5]].dtype == window_type for product in products)
     feeds = _feeds()  # the same answers either way: both kernels add exactly
-    np.testing.assert_array_equal(session.run(None, feeds)[0], run_graph(quantize_pool_weights(_model()), feeds))
+    np.testing.assert_array_equal(
+        session.run(None, feeds)[0], run_graph(quantize_pool_weights(_model()), feeds)
+    )
 
 
 def test_a_graph_without_such_a_product_is_unchanged() -> None:
