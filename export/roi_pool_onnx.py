@@ -109,7 +109,7 @@ def separable_pool_onnx(rows, wy, wx):
     chunks = pool_chunks(rows.shape[1] if rows.shape is not None else None)
     count, size = op.Shape(wy, start=0, end=1), op.Shape(wy, start=1, end=2)
     channels = op.Shape(rows, start=1, end=2)
-    cells = op.Transpose(rows, perm=[0, 2, 1])  # (B*H, W, C)
+    cells = op.Reshape(op.Transpose(rows, perm=[0, 2, 1]), _ints(0, -1))  # (B*H, W * C), channels last
     bounds = op.Div(op.Mul(count, _ints(*range(chunks + 1))), _ints(chunks))
     starts, ends = op.Slice(bounds, _ints(0), _ints(chunks)), op.Slice(bounds, _ints(1), _ints(chunks + 1))
     longest = op.Max(op.Div(op.Add(count, _ints(chunks - 1)), _ints(chunks)), _ints(1))
@@ -124,8 +124,12 @@ def separable_pool_onnx(rows, wy, wx):
         union.append(op.ReduceMin(op.Gather(first, members), _ints(1), keepdims=0))
         union.append(op.ReduceMax(op.Gather(end, members), _ints(1), keepdims=0))
     low_y, high_y, low_x, high_x = union
-    window_low, window_high = _per_chunk([low_y, low_x], chunks), _per_chunk([high_y, high_x], chunks)
-    row_low, row_high = _per_chunk([starts, low_y], chunks), _per_chunk([ends, high_y], chunks)
+    # windows as (h, w * C) slices of cells, row weights as (K * P, h) slices of wy's (R * P, B*H)
+    window_low = _per_chunk([low_y, op.Mul(low_x, channels)], chunks)
+    window_high = _per_chunk([high_y, op.Mul(high_x, channels)], chunks)
+    row_low = _per_chunk([op.Mul(starts, size), low_y], chunks)
+    row_high = _per_chunk([op.Mul(ends, size), high_y], chunks)
+    row_weights_all = op.Flatten(wy, axis=2)
     column_low, column_high = _per_chunk([starts, low_x], chunks), _per_chunk([ends, high_x], chunks)
     fill = op.Expand(_ints(1), _ints(chunks))
     shapes = _per_chunk(  # (K, P, w, C) with no -1, so that an empty chunk reshapes too
@@ -134,9 +138,9 @@ def separable_pool_onnx(rows, wy, wx):
     columns = op.Unsqueeze(wx, _ints(1))  # (R, 1, P, W)
     pieces = []
     for i in range(chunks):
-        window = op.Slice(cells, window_low[i], window_high[i], _ints(0, 1))  # (h, w, C)
-        row_weights = op.Slice(wy, row_low[i], row_high[i], _ints(0, 2))  # (K, P, h)
-        by_rows = op.MatMul(op.Flatten(row_weights, axis=2), op.Flatten(window, axis=1))  # (K * P, w * C)
+        window = op.Slice(cells, window_low[i], window_high[i], _ints(0, 1))  # (h, w * C)
+        row_weights = op.Slice(row_weights_all, row_low[i], row_high[i], _ints(0, 1))  # (K * P, h)
+        by_rows = op.MatMul(row_weights, window)  # (K * P, w * C)
         column_weights = op.Slice(columns, column_low[i], column_high[i], _ints(0, 3))  # (K, 1, P, w)
         pieces.append(op.MatMul(column_weights, op.Reshape(by_rows, shapes[i])))  # (K, P, P, C)
     return op.Concat(*pieces, axis=0) if chunks > 1 else pieces[0]
