@@ -23,7 +23,7 @@ import torch
 from torch import nn
 
 from a3d.export.base import MAX_IR_VERSION, MIN_OPSET, ExportError
-from a3d.export.roi_pool_onnx import dynamo_export, fold_pool_layout
+from a3d.export.roi_pool_onnx import dynamo_export, fold_pool_layout, join_maps_by_chunk
 from a3d.runtime.io.atomic import atomic_write_bytes
 from a3d.runtime.network.model import INPUT_NAMES, METADATA_KEY, OUTPUT_NAMES, ModelMetadata, content_digest
 from a3d.runtime.structures.boxes import BOX_DIM
@@ -118,6 +118,7 @@ def export_graph(graph: RuntimeGraph, path: str | os.PathLike, opset: int = MIN_
     if got != opset:
         raise ExportError(f"--opset {opset}: the exporter wrote opset {got}")
     model.ir_version = min(model.ir_version, MAX_IR_VERSION)
+    onnx.save(join_maps_by_chunk(model), str(path))
     return model
 
 

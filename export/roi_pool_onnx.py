@@ -31,7 +31,10 @@ from __future__ import annotations
 
 import logging
 import warnings
+from collections import Counter
 
+import numpy as np
+import onnx
 import torch
 from onnx import TensorProto
 from onnxscript import opset18 as op
@@ -147,6 +150,76 @@ def separable_pool_onnx(rows, wy, wx):
 
 
 TRANSLATIONS = {torch.ops.a3d.separable_pool.default: separable_pool_onnx}
+
+
+def join_maps_by_chunk(model: onnx.ModelProto) -> onnx.ModelProto:
+    """``model`` (changed in place) with fc6's input, the pooled maps (RoI, context) flattened and
+    joined side by side, each map the join of its chunks, rebuilt as each chunk's pieces of both
+    maps joined side by side (while they are in cache), then one join of the chunks and one
+    flattening: the same rows. The two maps' chunk i holds the same RoIs (``separable_pool_onnx``
+    cuts every map's rows alike). Measured: docs/edge-speed.md "Signed windows, an order for the
+    intermediate"."""
+    graph = model.graph
+    producers = {out: n for n in graph.node for out in n.output}
+    readers = Counter(name for n in graph.node for name in n.input)
+    shapes = {
+        i.name: onnx.numpy_helper.to_array(i) for i in graph.initializer if i.data_type == TensorProto.INT64
+    }
+
+    def chunked_map(name: str) -> tuple[onnx.NodeProto, onnx.NodeProto, int] | None:
+        """(the (R, X) flattening, the join of its chunks, X) behind ``name``, each read once, or None."""
+        flat = producers.get(name)
+        shape = shapes.get(flat.input[1]) if flat is not None and flat.op_type == "Reshape" else None
+        if shape is None or len(shape) != 2 or shape[0] != -1 or readers[name] != 1:
+            return None
+        chunks = producers.get(flat.input[0])
+        if chunks is None or chunks.op_type != "Concat" or _axis(chunks) != 0 or readers[flat.input[0]] != 1:
+            return None
+        return flat, chunks, int(shape[1])
+
+    replaced: set[str] = set()  # the flattenings' shapes
+    gone: set[str] = set()  # the maps' tensors before the join
+    for join in [n for n in graph.node if n.op_type == "Concat" and len(n.input) > 1]:
+        if _axis(join) not in (1, -1):
+            continue
+        maps = [chunked_map(name) for name in join.input]
+        if (
+            any(m is None for m in maps)
+            or len({(len(m[1].input), m[2]) for m in maps}) != 1  # alike chunks and rows
+            or len(maps[0][1].input) < 2
+        ):
+            continue
+        at = list(graph.node).index(join)
+        pairs = []
+        for i, pieces in enumerate(zip(*(m[1].input for m in maps), strict=True)):
+            pairs.append(f"{join.name}/chunk{i}")
+            graph.node.insert(at + i, onnx.helper.make_node(
+                "Concat", list(pieces), [pairs[-1]], axis=1, name=pairs[-1]))  # fmt: skip
+        width = f"{join.name}/row_shape"
+        graph.initializer.append(
+            onnx.numpy_helper.from_array(np.array([-1, sum(m[2] for m in maps)], np.int64), width)
+        )
+        graph.node.insert(at + len(pairs), onnx.helper.make_node(
+            "Concat", pairs, [f"{join.name}/chunks"], axis=0, name=f"{join.name}/chunks"))  # fmt: skip
+        graph.node.insert(at + len(pairs) + 1, onnx.helper.make_node(
+            "Reshape", [f"{join.name}/chunks", width], list(join.output),
+            name=f"{join.name}/rows"))  # fmt: skip
+        for node in [join, *(n for m in maps for n in m[:2])]:
+            graph.node.remove(node)
+        replaced |= {m[0].input[1] for m in maps}
+        gone |= {m[0].output[0] for m in maps} | {m[1].output[0] for m in maps}
+    used = {name for n in graph.node for name in n.input}
+    kept = [i for i in graph.initializer if i.name in used or i.name not in replaced]
+    del graph.initializer[:]
+    graph.initializer.extend(kept)
+    infos = [v for v in graph.value_info if v.name not in gone]
+    del graph.value_info[:]
+    graph.value_info.extend(infos)
+    return model
+
+
+def _axis(node: onnx.NodeProto) -> int | None:
+    return next((a.i for a in node.attribute if a.name == "axis"), None)
 
 
 def _first_linear(layer: nn.Module) -> nn.Linear:

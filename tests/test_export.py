@@ -184,11 +184,14 @@ def test_svd_int8_export_is_quantized_loads_and_stays_close(run) -> None:
     assert sum(n.op_type == "Gemm" for n in model.graph.node) >= 5  # fc6 and fc7 are two Gemms each
     windows = [n for n in model.graph.node if n.op_type == "MatMul"]
     assert len(windows) == 2 * 2 * POOL_CHUNKS  # both maps' window products, kept float
-    # fc6's input quantisation moved up to each chunk's product: the chunks are joined as bytes
-    joined = [n for n in model.graph.node if n.op_type == "Concat" and len(n.input) == POOL_CHUNKS]
+    # fc6's input quantisation moved up to each chunk's product: the pieces are joined as bytes,
+    # each chunk's two maps side by side (join_maps_by_chunk), then the chunks
+    (joined,) = [n for n in model.graph.node if n.op_type == "Concat" and len(n.input) == POOL_CHUNKS]
     makers = {out: n for n in model.graph.node for out in n.output}
-    assert len(joined) == 2 and all(makers[i].op_type == "QuantizeLinear" for n in joined for i in n.input)
-    assert all(makers[makers[i].input[0]].op_type == "MatMul" for n in joined for i in n.input)
+    pairs = [makers[i] for i in joined.input]
+    assert all(p.op_type == "Concat" and len(p.input) == 2 for p in pairs)
+    pieces = [makers[i] for p in pairs for i in p.input]
+    assert all(q.op_type == "QuantizeLinear" and makers[q.input[0]].op_type == "MatMul" for q in pieces)
     # each chunk's row product reads its bilinear weights as bytes (an integer product on the map's
     # bytes in ONNX Runtime), its column product float rows
     as_bytes = [n for n in windows if makers[n.input[0]].op_type == "DequantizeLinear"]

@@ -12,7 +12,12 @@ import pytest
 import torch
 
 from a3d.export.base import ExportError
-from a3d.export.roi_pool_onnx import WINDOW_MIN_CHANNELS, export_roi_align, fold_pool_layout
+from a3d.export.roi_pool_onnx import (
+    WINDOW_MIN_CHANNELS,
+    export_roi_align,
+    fold_pool_layout,
+    join_maps_by_chunk,
+)
 from a3d.export.svd import svd_compress
 from a3d.runtime.network.roi_order import POOL_CHUNKS
 from a3d.train.model.config import NetConfig
@@ -150,3 +155,44 @@ def test_network_exported_on_windows_answers_as_torch(tmp_path, monkeypatch) -> 
         want = RuntimeGraph(net, TargetStats.identity())(*inputs)
     for g, w in zip(got, want, strict=True):
         np.testing.assert_allclose(g, w.numpy(), rtol=1e-4, atol=1e-5 * float(w.abs().max()) + 1e-7)
+
+
+def _two_chunked_maps(chunks: tuple[int, int]) -> onnx.ModelProto:
+    """Pieces a0.. and b0.. (chunk i: i + 1 rows of (2, 2, 3)), each map's chunks joined, flattened
+    to (R, 12), the two maps joined side by side: the shape of fc6's input in the export."""
+    helper, value = onnx.helper, onnx.helper.make_tensor_value_info
+    inputs, nodes = [], []
+    for name, count in zip("ab", chunks, strict=True):
+        pieces = [f"{name}{i}" for i in range(count)]
+        inputs += [value(p, onnx.TensorProto.FLOAT, [i + 1, 2, 2, 3]) for i, p in enumerate(pieces)]
+        nodes.append(helper.make_node("Concat", pieces, [f"{name}_map"], axis=0, name=f"{name}_chunks"))
+        nodes.append(
+            helper.make_node("Reshape", [f"{name}_map", "rows"], [f"{name}_flat"], name=f"{name}_flat")
+        )
+    nodes.append(helper.make_node("Concat", ["a_flat", "b_flat"], ["out"], axis=1, name="join"))
+    rows = onnx.numpy_helper.from_array(np.array([-1, 12], np.int64), "rows")
+    graph = helper.make_graph(nodes, "g", inputs, [value("out", onnx.TensorProto.FLOAT, [None, 24])], [rows])
+    return helper.make_model(graph, opset_imports=[helper.make_opsetid("", 18)])
+
+
+def _run(model: onnx.ModelProto, feeds: dict[str, np.ndarray]) -> np.ndarray:
+    session = ort.InferenceSession(model.SerializeToString(), providers=["CPUExecutionProvider"])
+    return session.run(None, {i.name: feeds[i.name] for i in session.get_inputs()})[0]
+
+
+def test_the_maps_are_joined_chunk_by_chunk_with_the_same_rows() -> None:
+    rng = np.random.default_rng(0)
+    feeds = {
+        f"{m}{i}": rng.standard_normal((i + 1, 2, 2, 3)).astype(np.float32) for m in "ab" for i in range(3)
+    }
+    want = _run(_two_chunked_maps((3, 3)), feeds)
+    model = join_maps_by_chunk(_two_chunked_maps((3, 3)))
+    onnx.checker.check_model(model)
+    makers = {out: n for n in model.graph.node for out in n.output}
+    chunks = makers[makers["out"].input[0]]  # out = the rows of one join of the chunks
+    assert [makers[i].input for i in chunks.input] == [[f"a{i}", f"b{i}"] for i in range(3)]
+    assert [i.name for i in model.graph.initializer] == ["join/row_shape"]  # the old shape is gone
+    np.testing.assert_array_equal(_run(model, feeds), want)
+    unlike = _two_chunked_maps((3, 2))  # chunks that do not pair up: left as they are
+    before = unlike.SerializeToString()
+    assert join_maps_by_chunk(unlike).SerializeToString() == before
