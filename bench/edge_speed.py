@@ -298,8 +298,9 @@ def measure(args: argparse.Namespace, frames: Path, checkpoint: Path, fp32: Path
     """Every measurement, each in its own process (module docstring), the ceilings first and last
     (each ceiling the higher of the two). The a3d-run modes, the int8 network alone and its
     profile each run in ``args.processes`` processes (the modes' rounds interleaved), the fastest
-    kept: the machine may run a whole process at a slower speed (docs/edge-speed.md "Closing
-    numbers, part five"), which one process per mode would compare instead of the code."""
+    kept: the machine switches between two speeds for seconds to minutes at a time
+    (docs/edge-speed.md "Closing numbers, part five"), which one process per mode would compare
+    instead of the code."""
     m = Measurements(ceiling_runs=[measure_ceilings(args.threads)])
     common = {"frames": frames, "max_proposals": args.max_proposals, "threads": args.threads}
     full: dict[str, RunResult] = {}
