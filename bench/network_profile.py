@@ -13,8 +13,8 @@ one inter-op thread, full graph optimisation), so the nodes are the ones a3d-run
 
 Each node is judged against the ceiling of its kind and precision (bench.ceilings): a
 convolution against the convolution ceiling, a matrix product against the GEMM ceiling, int8
-kernels (QLinearConv, QGemm, ...) against int8, the others against fp32. The RoI pooling's two
-products of computed tensors stay fp32 in the int8 export (export/quantize.py).
+kernels (QLinearConv, QGemm, ...) against int8, the others against fp32. In the int8 export the
+RoI pooling's row products are integer, its column products fp32 (export/quantize.py).
 """
 
 from __future__ import annotations

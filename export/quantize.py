@@ -13,8 +13,10 @@ products (MatMul of two computed tensors: the bilinear weights and the feature m
 of ``quantize_static``; fc6's input quantisation is then moved up through the concatenations and
 reshapes that join the pooling's chunks (``quantize_before_layout``): each chunk's product is
 quantised where it is made, while it is in cache, and 100 MB of float copies become 25 MB of
-bytes. Last, each chunk's first product, whose other operand is the quantised map, gets its
+bytes. Then each chunk's first product, whose other operand is the quantised map, gets its
 bilinear weights as bytes too (``quantize_pool_weights``): an integer product on the map's bytes.
+Last, those maps are read through an exact int8 copy (``signed_pool_maps``), which lets ONNX
+Runtime use its uint8 x int8 kernel where the runtime's session allows int8 activations.
 
 ``quant_pre_process`` runs first (graph optimisation, ONNX shape inference) with ORT's symbolic
 shape inference skipped: it does not complete on the dynamo exporter's graphs. The float model
@@ -187,7 +189,8 @@ def signed_pool_maps(model: onnx.ModelProto) -> onnx.ModelProto:
     scale and the zero point less 128, so the same values exactly. Where a3d's session allows int8
     activations (``a3d.runtime.network.model.session_options``: CPUs whose int8 dot product adds
     uint8 x int8 exactly) ONNX Runtime runs the products on that kernel, the windows as the int8
-    operand (docs/edge-speed.md "Signed windows"); elsewhere it turns the windows back to uint8."""
+    operand (docs/edge-speed.md "Signed windows, an order for the intermediate"); elsewhere it
+    turns the windows back to uint8."""
     graph = model.graph
     initializers = {i.name: i for i in graph.initializer}
     maps = {dequantize.output[0]: dequantize for _, dequantize in _map_products(model)}
