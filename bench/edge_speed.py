@@ -297,14 +297,15 @@ def build_full_model(work: Path, frames: Path, args: argparse.Namespace) -> tupl
 def measure(args: argparse.Namespace, frames: Path, checkpoint: Path, fp32: Path, int8: Path) -> Measurements:
     """Every measurement, each in its own process (module docstring), the ceilings first and last
     (each ceiling the higher of the two). The a3d-run modes, the int8 network alone and its
-    profile each run in ``args.processes`` processes (the modes' rounds interleaved), the fastest
-    kept: the machine switches between two speeds for seconds to minutes at a time
-    (docs/edge-speed.md "Closing numbers, part five"), which one process per mode would compare
-    instead of the code."""
+    profile each run in ``args.processes`` processes, one of each per round, so that the rounds'
+    profiles are minutes apart; the fastest of each is kept. The machine switches between two
+    speeds for seconds to minutes at a time (docs/edge-speed.md "Closing numbers, part five"),
+    which one process per mode, or back-to-back processes, would compare instead of the code."""
     m = Measurements(ceiling_runs=[measure_ceilings(args.threads)])
     common = {"frames": frames, "max_proposals": args.max_proposals, "threads": args.threads}
     full: dict[str, RunResult] = {}
     small: dict[str, RunResult] = {}
+    networks: list[NetworkResult] = []
     for _ in range(args.processes):
         for overlap in report.MODES:
             rrd = args.work / f"{int8.stem}.{overlap}.rrd"
@@ -314,19 +315,15 @@ def measure(args: argparse.Namespace, frames: Path, checkpoint: Path, fp32: Path
             if args.small_model.is_file():
                 run = RunResult(**in_child("run", model=args.small_model, overlap=overlap, **common))
                 _keep_faster(small, overlap, run)
+        networks.append(NetworkResult(**in_child("ort", model=int8, **common)))
+        m.int8_profiles.append(NetworkProfile.from_dict(in_child("profile", model=int8, **common)))
     m.full, m.small = [full[o] for o in report.MODES], [small[o] for o in report.MODES if o in small]
-    m.networks["ort int8 + SVD"] = min(
-        (NetworkResult(**in_child("ort", model=int8, **common)) for _ in range(args.processes)),
-        key=lambda n: n.seconds,
-    )
+    m.networks["ort int8 + SVD"] = min(networks, key=lambda n: n.seconds)
     m.networks["ort fp32"] = NetworkResult(**in_child("ort", model=fp32, **common))
     if not args.no_torch:
         m.networks["torch eager fp32"] = NetworkResult(**in_child("torch", checkpoint=checkpoint, model=fp32,
                                                                   **common))  # fmt: skip
-    m.profiles["int8 + SVD"] = min(
-        (NetworkProfile.from_dict(in_child("profile", model=int8, **common)) for _ in range(args.processes)),
-        key=lambda p: p.seconds("trunks") + p.seconds("head"),
-    )
+    m.profiles["int8 + SVD"] = min(m.int8_profiles, key=lambda p: p.seconds("trunks") + p.seconds("head"))
     m.profiles["fp32"] = NetworkProfile.from_dict(in_child("profile", model=fp32, **common))
     if m.small:
         m.networks["ort small model"] = NetworkResult(**in_child("ort", model=args.small_model, **common))
