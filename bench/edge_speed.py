@@ -376,7 +376,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--processes",
         type=int,
-        default=2,
+        default=3,
         help="processes per a3d-run mode, int8 network, profile: the fastest",
     )
     args = parser.parse_args(argv)
