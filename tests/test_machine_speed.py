@@ -30,6 +30,12 @@ def test_one_late_call_is_no_spell_but_a_run_of_them_is() -> None:
     assert summary.slow_share == pytest.approx(4 / 12)
 
 
+def test_the_fastest_call_is_fast_even_amid_slow_ones() -> None:
+    summary = speed_spells(np.arange(5.0), np.array([0.5, 0.5, 0.4, 0.5, 0.5]), window=5)
+    assert summary.fast_median == pytest.approx(0.4) and summary.slow_share == pytest.approx(0.8)
+    assert [(s.start, s.calls) for s in summary.spells] == [(0.0, 2), (3.0, 2)]
+
+
 def test_one_speed_has_no_spell_and_mismatched_lengths_are_refused() -> None:
     summary = speed_spells(np.arange(5.0), np.full(5, 0.3) + 0.005 * np.arange(5))  # within 8 %
     assert summary.slow_median is None and summary.spells == [] and summary.slow_share == 0
