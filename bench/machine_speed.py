@@ -73,7 +73,9 @@ def speed_spells(
     )
 
 
-def time_calls(model: Path, frames: Path, seconds: float, *, threads: int, max_proposals: int) -> tuple:
+def time_calls(
+    model: Path, frames: Path, seconds: float, *, threads: int, max_proposals: int
+) -> tuple[np.ndarray, np.ndarray]:
     """The network of ``model`` on a3d-run's input for the first frame of ``frames``, called again
     and again for ``seconds`` (after one warm-up call): each call's start and duration."""
     from a3d.runtime.network.model import DetectorModel
