@@ -30,3 +30,11 @@ def read_columns(path: Path, entity: str) -> dict[int, dict[str, list]]:
 
 def as_array(value: list) -> np.ndarray:
     return np.asarray(value, dtype=np.float64)
+
+
+def entity_paths(path: Path) -> set[str]:
+    """Every entity path ("/world/...") the recording logs something at."""
+    return {
+        chunk.to_record_batch().schema.metadata.get(b"rerun:entity_path", b"").decode()
+        for chunk in rc.RrdReader(str(path)).stream()
+    }

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import rerun as rr
 
+from a3d.runtime.structures.classes import CLASSES
 from a3d.runtime.structures.geometry import (
     NYU_CROP_INTRINSICS,
     box_corners_camera,
@@ -17,7 +18,7 @@ from a3d.runtime.structures.geometry import (
 from a3d.runtime.viewer import options as viewer_options
 from a3d.runtime.viewer import shapes
 from a3d.runtime.viewer import view as viewer
-from tests.rrd_reader import as_array, read_columns
+from tests.rrd_reader import as_array, entity_paths, read_columns
 
 K = NYU_CROP_INTRINSICS
 H, W = 427, 561
@@ -74,6 +75,34 @@ def test_logged_boxes_read_back_equal(tmp_path: Path) -> None:
         np.testing.assert_allclose(
             centres, (frame["boxes2d"][:, :2] + frame["boxes2d"][:, 2:]) / 2, atol=1e-5
         )
+
+
+def _camera_view_labels(path: Path, frame: int) -> list[str]:
+    """The labels rerun writes in the camera view at ``frame``: those of every entity under the
+    image but the depth (the blueprint's contents), or, for an entity with class ids and no labels,
+    the class names of the annotation context; none where show_labels is false."""
+    shown = []
+    for entity in sorted(entity_paths(path)):
+        if not entity.startswith("/world/camera/image/") or entity.endswith("/depth"):
+            continue
+        columns = {name.split(":")[1]: v for name, v in read_columns(path, entity).get(frame, {}).items()}
+        if columns.get("show_labels") == [False]:
+            continue
+        shown += columns.get("labels") or [CLASSES[i - 1] for i in columns.get("class_ids", [])]
+    return shown
+
+
+def test_camera_view_writes_one_label_per_detection_with_its_score(tmp_path: Path) -> None:
+    """Not one per 2D box and one per projected edge: one "class score", at the top of the 2D box."""
+    frame = _frame(np.random.default_rng(6))
+    path = tmp_path / "labels.rrd"
+    _record(path, [frame])
+    assert sorted(_camera_view_labels(path, 0)) == ["chair 0.90", "table 0.55"]
+    anchors = as_array(read_columns(path, "/world/camera/image/labels")[0]["Points2D:positions"])
+    boxes = frame["boxes2d"]
+    np.testing.assert_allclose(anchors, np.c_[(boxes[:, 0] + boxes[:, 2]) / 2, boxes[:, 1]], atol=1e-5)
+    edges = read_columns(path, "/world/camera/image/boxes3d")[0]
+    assert len(edges["LineStrips2D:strips"]) > 2  # the projected boxes are drawn, their edges unlabelled
 
 
 def test_logged_box_pose_reproduces_the_corners() -> None:

@@ -31,6 +31,13 @@ def box_labels(class_ids: np.ndarray, scores: np.ndarray) -> list[str]:
     return [f"{CLASSES[c]} {s:.2f}" for c, s in zip(class_ids, scores, strict=True)]
 
 
+def label_anchors(boxes2d: np.ndarray) -> np.ndarray:
+    """(N, 2) top-centre of each XYXY box: rerun centres a point's label just below the point, so
+    the label reads as the box's title, inside it, even for a box that reaches the image's bottom."""
+    boxes = np.asarray(boxes2d, dtype=np.float64).reshape(-1, 4)
+    return np.stack([(boxes[:, 0] + boxes[:, 2]) / 2, boxes[:, 1]], axis=1)
+
+
 def projected_box_edges(
     boxes: np.ndarray, R_tilt: np.ndarray, K: Intrinsics, image_size: tuple[int, int] | None = None
 ) -> np.ndarray:

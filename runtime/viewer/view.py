@@ -8,8 +8,10 @@ One entity tree per recording, on a ``frame`` sequence timeline:
 - ``world/detections``: the detected amodal 3D boxes, labelled with class and score.
 - ``world/ground_truth``: the ground-truth 3D boxes when the frame has them.
 - ``world/camera``: the camera pose (``p_world = R_tilt p_cam``), and under it
-  ``world/camera/image`` the pinhole with the colour image, the depth image, the 2D boxes
-  and the 3D boxes projected into the image as line strips.
+  ``world/camera/image`` the pinhole with the colour image, the depth image, the 2D boxes,
+  the 3D boxes projected into the image as line strips, and ``world/camera/image/labels``:
+  one "class score" label per detection at the top of its 2D box (the only labels the 2D
+  views show: rerun would write one under each 2D box and a class name on every edge).
 - ``map`` (``a3d-run --map`` on a posed source): the object map's gravity-aligned frame
   (a3d.runtime.mapping.object_map), with ``map/objects`` its fused boxes, ``map/trajectory`` the
   camera's path so far and ``map/camera`` the moving camera (its pose, and a frustum under it).
@@ -32,7 +34,7 @@ from a3d.runtime.errors import InputError
 from a3d.runtime.structures.boxes import CENTER, THETA, boxes_array, local_half_sizes
 from a3d.runtime.structures.classes import CLASS_COLORS_RGB, CLASSES, to_softmax
 from a3d.runtime.structures.geometry import BOX_EDGES, Intrinsics, backproject_depth
-from a3d.runtime.viewer.shapes import ViewOptions, box_labels, projected_box_edges
+from a3d.runtime.viewer.shapes import ViewOptions, box_labels, label_anchors, projected_box_edges
 
 APPLICATION_ID = "a3d"
 DEFAULT_OPTIONS = ViewOptions()
@@ -68,7 +70,11 @@ def default_blueprint(with_map: bool = False) -> rrb.Blueprint:
                 rrb.Spatial2DView(
                     name="depth",
                     origin="world/camera/image",
-                    contents=["world/camera/image/depth", "world/camera/image/detections"],
+                    contents=[
+                        "world/camera/image/depth",
+                        "world/camera/image/detections",
+                        "world/camera/image/labels",
+                    ],
                 ),
             ),
             column_shares=[3, 2],
@@ -220,14 +226,25 @@ def log_frame(
             array=boxes2d,
             array_format=rr.Box2DFormat.XYXY,
             class_ids=to_softmax(class_ids),
+            labels=labels,  # for hovering; written once per detection by the labels entity
+            show_labels=False,
+        ),
+    )
+    rec.log(
+        "world/camera/image/labels",
+        rr.Points2D(
+            label_anchors(boxes2d),
+            radii=0.0,
+            class_ids=to_softmax(class_ids),
             labels=labels,
+            show_labels=True,
         ),
     )
     segments = projected_box_edges(boxes3d, R_tilt, K, (height, width))
     keep = np.isfinite(segments).all(axis=(1, 2))
+    edge_ids = np.repeat(to_softmax(class_ids), len(BOX_EDGES))[keep]  # the class colours, not names
     rec.log(
-        "world/camera/image/boxes3d",
-        rr.LineStrips2D(segments[keep], class_ids=np.repeat(to_softmax(class_ids), len(BOX_EDGES))[keep]),
+        "world/camera/image/boxes3d", rr.LineStrips2D(segments[keep], class_ids=edge_ids, show_labels=False)
     )
     if options.show_ground_truth and gt_boxes3d is not None and gt_class_ids is not None:
         gt_ids = np.asarray(gt_class_ids, dtype=np.int64).reshape(-1)
