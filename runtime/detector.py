@@ -23,12 +23,14 @@ import os
 import warnings
 from collections.abc import Iterable, Iterator
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from a3d.runtime.detector2d import Detector2D
 from a3d.runtime.io.detections_io import FrameDetections
-from a3d.runtime.models import model_path
+from a3d.runtime.models import model_path, pipeline_detector
 from a3d.runtime.network.model import DetectorModel
 from a3d.runtime.pipeline import FrameOutcome, FrontEnd, PipelineConfig, ProposalSource, detect, detect_frames
 from a3d.runtime.postprocess.score_calibration import SHOW_THRESHOLD
@@ -56,13 +58,20 @@ class Detector:
         proposals: ProposalSource = "auto",
         front_end: FrontEnd = "model",
         raw_scores: bool = False,
+        detector: str | os.PathLike | None = None,
+        detector_names: str | os.PathLike | None = None,
+        class_map: str | os.PathLike | None = None,
     ) -> Detector:
         """Open and check a model: a bundled one by name (``"accurate"``, the default, or ``"live"``;
         a3d.runtime.models) or a model file (ModelError naming it if unusable); the settings default to
         the model's own (its metadata), each overridable as on a3d-run's command line
         (``score_threshold``: what the pipeline keeps, a3d-run's --score-threshold, below what
         ``detect`` returns; ``front_end="live"``: the faster proposals a3d-run uses for cameras;
-        ``raw_scores``: the softmax scores, without the model's score calibration)."""
+        ``raw_scores``: the softmax scores, without the model's score calibration). ``detector``: a
+        2D detector by name (``"yolox-nano"``) or ONNX file whose boxes join the network's RoIs,
+        ``"none"`` for none; by default the one of a bundled pipeline (``"real"``), with its class
+        names (``detector_names``) and class map (``class_map``) files where given
+        (a3d.runtime.detector2d)."""
         network = DetectorModel.load(model_path(model), threads=threads)
         config = PipelineConfig.from_metadata(
             network.metadata,
@@ -72,6 +81,11 @@ class Detector:
             front_end=front_end,
             raw_scores=raw_scores,
         )
+        chosen = pipeline_detector(model, detector)
+        if chosen is not None:
+            names, mapping = _path(detector_names), _path(class_map)
+            boxes = Detector2D.load(chosen, names=names, class_map=mapping, threads=threads)
+            config = replace(config, detector=boxes)
         return cls(network, config)
 
     def detect(
@@ -117,6 +131,10 @@ class Detector:
             if outcome.detections is not None:
                 outcome = replace(outcome, detections=_above(outcome.detections, score_threshold))
             yield outcome
+
+
+def _path(value: str | os.PathLike | None) -> Path | None:
+    return None if value is None else Path(value)
 
 
 def _above(result: FrameDetections, score_threshold: float) -> FrameDetections:

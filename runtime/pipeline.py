@@ -47,6 +47,7 @@ import numpy as np
 
 from a3d.runtime.clock import Clock
 from a3d.runtime.errors import InputError, ModelError
+from a3d.runtime.frontend.box_pixels import lift_boxes
 from a3d.runtime.frontend.depth import fill_depth_info
 from a3d.runtime.frontend.frame_proposals import frame_proposals
 from a3d.runtime.frontend.gravity import choose_gravity
@@ -55,6 +56,7 @@ from a3d.runtime.frontend.proposals import ProposalConfig, Proposals, live_propo
 from a3d.runtime.io.detections_io import FrameDetections
 from a3d.runtime.network.network_input import frame_network_inputs
 from a3d.runtime.postprocess.box_limits import bound_boxes, near_range
+from a3d.runtime.postprocess.fuse import NETWORK, Picked, detector_picks, merge
 from a3d.runtime.postprocess.score_calibration import ScoreCalibration
 from a3d.runtime.postprocess.select import decode_detections, select_detections
 from a3d.runtime.sources.base import FrameLoader
@@ -66,6 +68,7 @@ from a3d.runtime.structures.frame import Frame
 from a3d.runtime.structures.geometry import box_corners_camera
 
 if TYPE_CHECKING:
+    from a3d.runtime.detector2d import Detections2D
     from a3d.runtime.network.model import ModelMetadata
 
 ProposalSource = Literal["auto", "compute", "precomputed"]
@@ -76,8 +79,19 @@ MOSTLY_MISSING = 0.5  # a frame with more of its depth missing than this says so
 logger = logging.getLogger(__name__)
 PROBE_FRAMES = 3  # overlapped frames timed by --overlap auto before it keeps overlapping
 OVERLAP_NOISE = 1.05  # "never slower": within 5 % of sequential, the spread of runs on a quiet machine
-STAGES = ("read", "depth_fill", "gravity", "proposals", "lifting", "network_input", "network", "postprocess")
+STAGES = (
+    "read", "depth_fill", "gravity", "proposals", "lifting", "detector2d", "network_input", "network",
+    "postprocess",
+)  # fmt: skip
 FRONT_END_STAGES = STAGES[: STAGES.index("network")]  # what ``load_and_prepare`` times
+
+
+class BoxDetector(Protocol):
+    """What the pipeline needs of a 2D detector: a3d.runtime.detector2d.Detector2D."""
+
+    name: str
+
+    def detect(self, color_rgb: np.ndarray) -> Detections2D: ...
 
 
 class NetworkRunner(Protocol):
@@ -102,7 +116,8 @@ class PipelineConfig:
     a3d.runtime.frontend.proposals.live_proposals (about 4x faster and at most 500, for cameras);
     an explicit ``max_proposals`` overrides either. ``score_calibration`` maps the network's class
     scores before top-k, threshold and NMS (the model's own, a3d.runtime.postprocess.score_calibration;
-    None: the softmax as it is).
+    None: the softmax as it is). ``detector``: a 2D detector whose boxes join the RoIs
+    (a3d.runtime.postprocess.fuse), None for a3d's own proposals alone.
     """
 
     mean_sizes: np.ndarray
@@ -115,6 +130,7 @@ class PipelineConfig:
     nms_iou: float = 0.3
     min_score: float = 0.0
     score_calibration: ScoreCalibration | None = None
+    detector: BoxDetector | None = None
 
     @classmethod
     def from_metadata(
@@ -157,7 +173,8 @@ class PreparedFrame:
 
     ``boxes`` (N, 4) proposal boxes in native pixels and ``centers`` (N, 3) their lifted centres
     (liftable proposals only); ``color_input`` / ``depth_input`` (1, 3, h, w) float32 trunk
-    inputs; ``rois`` / ``context_rois`` (N, 4) float32 in the resized image's pixels.
+    inputs; ``rois`` / ``context_rois`` (N, 4) float32 in the resized image's pixels. ``found``:
+    the 2D detector's liftable boxes, the last ``len(found.boxes)`` rows of ``boxes``.
     """
 
     frame: Frame
@@ -171,6 +188,13 @@ class PreparedFrame:
     timing: dict[str, float]
     gravity: str = ""
     notes: list[str] = field(default_factory=list)
+    found: Detections2D | None = None
+    detector: str = ""
+
+    @property
+    def own_rows(self) -> int:
+        """How many RoIs are a3d's own proposals (the first ones)."""
+        return len(self.boxes) - (0 if self.found is None else len(self.found.boxes))
 
 
 @dataclass(eq=False)
@@ -206,13 +230,52 @@ def prepare(frame: Frame, config: PipelineConfig, timing: dict[str, float] | Non
         if not len(boxes):
             notes.append("no proposals: none has depth to lift it")
     clock.lap("lifting")
+    found = None if config.detector is None else _detector_boxes(frame, filled, config, notes)
+    if found is not None and len(found.boxes):
+        lifted = lift_boxes(found.boxes, _reach(found.candidates, config.mean_sizes), frame.depth, filled,
+                            frame.intrinsics)  # fmt: skip
+        found = _subset(found, lifted.valid)
+        boxes = np.concatenate([boxes, found.boxes])
+        centers = np.concatenate([centers, lifted.centers[lifted.valid]])
+    clock.lap("detector2d")
     color, depth, rois, context_rois = frame_network_inputs(
         frame.color, filled, boxes, config.input_scale, config.depth_truncation_m, config.context_scale
     )
     clock.lap("network_input")
     R_tilt = np.asarray(gravity.R_tilt, np.float64)
     inputs = (color[None], depth[None], rois, context_rois)
-    return PreparedFrame(frame, R_tilt, boxes, centers, *inputs, timing, gravity.source, notes)
+    detector = "" if config.detector is None else config.detector.name
+    return PreparedFrame(
+        frame, R_tilt, boxes, centers, *inputs, timing, gravity.source, notes, found, detector
+    )
+
+
+def _detector_boxes(
+    frame: Frame, filled: np.ndarray, config: PipelineConfig, notes: list[str]
+) -> Detections2D | None:
+    """The 2D detector's boxes of the frame; where it fails, None and a note: the frame keeps
+    a3d's own detections."""
+    assert config.detector is not None
+    try:
+        return config.detector.detect(np.ascontiguousarray(frame.color[..., ::-1]))
+    except Exception as error:  # a detector that fails on one frame must not lose the frame
+        notes.append(f"2D detector {config.detector.name} failed ({type(error).__name__}: {error}); "
+                     "a3d's own detections only")  # fmt: skip
+        return None
+
+
+def _subset(found: Detections2D, keep: np.ndarray) -> Detections2D:
+    """The detections ``keep`` (a mask) selects."""
+    names = tuple(name for name, kept in zip(found.names, keep, strict=True) if kept)
+    return replace(found, boxes=found.boxes[keep], scores=found.scores[keep], class_ids=found.class_ids[keep],
+                   candidates=found.candidates[keep], names=names)  # fmt: skip
+
+
+def _reach(candidates: np.ndarray, mean_sizes: np.ndarray) -> np.ndarray:
+    """Per box, how far from its depth mode its object's pixels may lie: half the largest mean
+    size of the classes it may be, and 10 cm for sensor noise (a3d.runtime.frontend.box_pixels)."""
+    half = 0.5 * np.asarray(mean_sizes).max(axis=1)
+    return np.where(candidates, half[None, :], 0.0).max(axis=1) + 0.10
 
 
 def load_and_prepare(loader: FrameLoader, config: PipelineConfig) -> PreparedFrame:
@@ -268,9 +331,8 @@ def finish(prepared: PreparedFrame, out: NetworkOutput, config: PipelineConfig) 
     class_scores = out.probs[:, 1:]
     if config.score_calibration is not None:
         class_scores = config.score_calibration.apply(class_scores)
-    rows, class_idx, scores = select_detections(
-        class_scores, prepared.boxes, config.top_k, config.min_score, config.nms_iou
-    )
+    picked = _picked(prepared, class_scores, config)
+    rows, class_idx, scores = picked.rows, picked.class_idx, picked.scores
     boxes3d, amodal = decode_detections(
         rows,
         class_idx,
@@ -304,7 +366,26 @@ def finish(prepared: PreparedFrame, out: NetworkOutput, config: PipelineConfig) 
         notes=(*prepared.notes, *bounded.notes(scores)),
         intrinsics=frame.intrinsics,
         pose=frame.pose,
+        sources=picked.sources if prepared.detector else None,
     )
+
+
+def _picked(prepared: PreparedFrame, class_scores: np.ndarray, config: PipelineConfig) -> Picked:
+    """The frame's detections: a3d's own (top-k, threshold, NMS) and, with a detector, its boxes,
+    merged (a3d.runtime.postprocess.fuse)."""
+    n = prepared.own_rows
+    rows, class_idx, scores = select_detections(
+        class_scores[:n], prepared.boxes[:n], config.top_k, config.min_score, config.nms_iou
+    )
+    own = Picked(rows, class_idx, scores, (NETWORK,) * len(rows))
+    found = prepared.found
+    if found is None or not len(found.boxes):
+        return own
+    picks = detector_picks(class_scores, n, found.scores, found.candidates, prepared.detector)
+    alive = picks.scores >= config.min_score
+    picks = Picked(picks.rows[alive], picks.class_idx[alive], picks.scores[alive],
+                   tuple(s for s, a in zip(picks.sources, alive, strict=True) if a))  # fmt: skip
+    return merge(own, picks, prepared.boxes)
 
 
 def detect(frame: Frame, model: NetworkRunner, config: PipelineConfig) -> FrameDetections:

@@ -1,6 +1,7 @@
 """a3d-run: detect the objects in every frame of a source; one JSON line per frame, live rerun view.
 
     a3d-run FOLDER [--model model.onnx] [--output detections.jsonl] [--threads 2]
+            [--detector NAME|FILE|none] [--detector-names FILE] [--class-map FILE]
             [--proposals auto|compute|precomputed] [--max-proposals N] [--front-end model|live]
             [--score-threshold S] [--raw-scores]
             [--resume] [--overlap [auto|on|off]] [--headless] [--connect] [--url URL] [--serve]
@@ -54,7 +55,7 @@ import signal
 import sys
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -66,12 +67,13 @@ from a3d.runtime.cli.common import EXIT_USAGE, command
 from a3d.runtime.cli.common import build_parser as command_parser
 from a3d.runtime.cli.progress import make_progress
 from a3d.runtime.cli.summary import RunSummary
+from a3d.runtime.detector2d import DETECTORS, Detector2D
 from a3d.runtime.errors import InputError, ModelError
 from a3d.runtime.io.detections_io import format_line
 from a3d.runtime.mapping.object_map import ObjectMap
 from a3d.runtime.mapping.world import WORLD_AXES, down_of_up_axis
 from a3d.runtime.models import DEFAULT_MODEL as DEFAULT_NAME
-from a3d.runtime.models import MODELS, model_path
+from a3d.runtime.models import MODELS, NO_DETECTOR, model_path, pipeline_detector
 from a3d.runtime.models.card import model_card
 from a3d.runtime.network.model import DetectorModel
 from a3d.runtime.pipeline import (
@@ -123,6 +125,14 @@ def build_parser() -> argparse.ArgumentParser:
                    f"FOLDER/{DEFAULT_MODEL} where it exists, else {DEFAULT_NAME})")  # fmt: skip
     p.add_argument("--model-info", action=_ModelInfo, metavar="NAME|FILE",
                    help="print a model's card (from its metadata) and exit")  # fmt: skip
+    p.add_argument("--detector", metavar="NAME|FILE",
+                   help=f"a 2D detector ({', '.join(DETECTORS)}, or an ONNX file of YOLOX's, NanoDet's or a "
+                   f"boxes/scores/labels layout) whose boxes join the RoIs; '{NO_DETECTOR}': none (default: "
+                   "the bundled pipeline's, e.g. --model real's)")  # fmt: skip
+    p.add_argument("--detector-names", type=Path, metavar="FILE",
+                   help="--detector's class names, a line each (default: its metadata, or COCO)")  # fmt: skip
+    p.add_argument("--class-map", type=Path, metavar="FILE",
+                   help='JSON {"detector class": "a3d class" | [a3d classes]} (default: COCO)')  # fmt: skip
     p.add_argument("--color-topic", metavar="TOPIC", help="bag: the colour topic (default: the only one)")
     p.add_argument("--depth-topic", metavar="TOPIC", help="bag: the depth topic (default: the only one)")
     p.add_argument("--pose-topic", metavar="TOPIC",
@@ -248,7 +258,11 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
     if args.map is not None and (args.resume or args.shard != (0, 1)):
         parser.error("--map needs every frame in order: it excludes --resume and --shard")
     beside = args.source / DEFAULT_MODEL
-    args.model = model_path(args.model) if args.model is not None or not beside.is_file() else beside
+    named = args.model if args.model is not None or not beside.is_file() else beside
+    args.detector = pipeline_detector(named, args.detector)
+    if args.detector is None and (args.detector_names is not None or args.class_map is not None):
+        parser.error("--detector-names and --class-map need a 2D detector (--detector or --model real)")
+    args.model = model_path(named)
     return args
 
 
@@ -342,6 +356,10 @@ def _job(args: argparse.Namespace) -> _Job:
         front_end=front_end,
         raw_scores=args.raw_scores,
     )
+    if args.detector is not None:
+        boxes = Detector2D.load(args.detector, names=args.detector_names, class_map=args.class_map,
+                                threads=args.threads)  # fmt: skip
+        config = replace(config, detector=boxes)
     done = completed_frames(Path(args.output)) if args.resume else set()
     return _Job(source, done, model, config)
 

@@ -25,7 +25,10 @@ else degraded on the frame: depth mostly missing, no proposals, boxes clamped
 (a3d.runtime.postprocess.box_limits); an absent list means nothing did.
 ``pose`` (optional) is the frame's 4 x 4 camera-to-world pose where its source has one
 (docs/sources.md "Camera poses"), written exactly; it is what places the line's boxes in the world
-(a3d.runtime.mapping). Every problem is an ``InputError`` "FILE:LINE: what is wrong".
+(a3d.runtime.mapping). ``source`` (optional, per detection, all or none; written by runs with
+a 2D detector) says where the detection's class came from: the detector's name, "network" (a3d's
+own proposals and classifier) or both joined by "+" (a3d.runtime.postprocess.fuse). Every problem
+is an ``InputError`` "FILE:LINE: what is wrong".
 """
 
 from __future__ import annotations
@@ -66,12 +69,14 @@ class Detection:
     box3d: np.ndarray  # (7,) [x, y, z, l, w, h, theta], camera frame, theta in the tilt frame
     corners: np.ndarray  # (8, 3) camera frame
     box2d_amodal: np.ndarray | None = None  # (4,) the regressed amodal 2D box, when the line has it
+    source: str | None = None  # where its class came from: a 2D detector, "network" or both
 
     def to_dict(self) -> dict[str, Any]:
         """The detection as a detections line holds it (README "Detections format"), unrounded."""
         extra = {} if self.box2d_amodal is None else {"box2d_amodal": self.box2d_amodal.tolist()}
+        source = {} if self.source is None else {"source": self.source}
         return {"class": self.class_name, "score": self.score, "box2d": self.box2d.tolist(), **extra,
-                "box3d": self.box3d.tolist(), "corners": self.corners.tolist()}  # fmt: skip
+                "box3d": self.box3d.tolist(), "corners": self.corners.tolist(), **source}  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -99,6 +104,7 @@ class FrameDetections:
     notes: tuple[str, ...] = ()  # what degraded on this frame, one sentence each
     intrinsics: Intrinsics | None = None  # the frame's camera, for drawing (not part of the line)
     pose: np.ndarray | None = None  # (4, 4) camera-to-world where the frame has a pose
+    sources: tuple[str, ...] | None = None  # per detection, with a 2D detector: a3d.runtime.postprocess.fuse
 
     @property
     def classes(self) -> list[str]:
@@ -125,8 +131,10 @@ class FrameDetections:
         if isinstance(index, (int, np.integer)):
             i = range(len(self))[index]  # IndexError beyond the end, negative indices from it
             amodal = None if self.boxes2d_amodal is None else self.boxes2d_amodal[i]
+            source = None if self.sources is None else self.sources[i]
             return Detection(CLASSES[self.class_ids[i]], int(self.class_ids[i]), float(self.scores[i]),
-                             self.boxes2d[i], self.boxes3d[i], self.box_corners[i], amodal)  # fmt: skip
+                             self.boxes2d[i], self.boxes3d[i], self.box_corners[i], amodal,
+                             source)  # fmt: skip
         rows = np.arange(len(self))[index]
         if rows.ndim != 1:
             raise IndexError(f"detections: expected an int, slice, mask or indices, got {index!r:.60}")
@@ -138,6 +146,7 @@ class FrameDetections:
             boxes3d=self.boxes3d[rows],
             corners=None if self.corners is None else self.corners[rows],
             boxes2d_amodal=None if self.boxes2d_amodal is None else self.boxes2d_amodal[rows],
+            sources=None if self.sources is None else tuple(self.sources[i] for i in rows),
         )
 
     def to_json(self) -> str:
@@ -191,6 +200,7 @@ def format_line(det: FrameDetections) -> str:
         if det.boxes2d_amodal is None
         else _rounded(det.boxes2d_amodal, (-1, 4), PIXEL_DECIMALS)
     )
+    sources = [None] * len(det.class_ids) if det.sources is None else det.sources
     line["detections"] = [
         {
             "class": CLASSES[c],
@@ -199,14 +209,16 @@ def format_line(det: FrameDetections) -> str:
             **({} if a is None else {"box2d_amodal": a}),
             "box3d": b3,
             "corners": cn,
+            **({} if src is None else {"source": src}),
         }
-        for c, s, b2, a, b3, cn in zip(
+        for c, s, b2, a, b3, cn, src in zip(
             det.class_ids.tolist(),
             np.asarray(det.scores, dtype=np.float64).tolist(),
             _rounded(det.boxes2d, (-1, 4), PIXEL_DECIMALS),
             amodal,
             _rounded(det.boxes3d, (-1, BOX_DIM), METRE_DECIMALS),
             _rounded(corners, (-1, 8, 3), METRE_DECIMALS),
+            sources,
             strict=True,
         )
     ]
@@ -311,7 +323,21 @@ def parse_line(text: str, where: str) -> FrameDetections:
         gravity=_optional_str(obj, "gravity", where),
         notes=_notes(obj.get("notes", []), where),
         pose=pose,
+        sources=_sources(dets, where),
     )
+
+
+def _sources(dets: list[dict], where: str) -> tuple[str, ...] | None:
+    """The optional per-detection ``source``: a non-empty string for every detection or for none."""
+    given = sum("source" in d for d in dets)
+    if given == 0:
+        return None
+    if given < len(dets):
+        raise InputError(f"{where}: 'source' given for some detections but not all")
+    bad = [i for i, d in enumerate(dets) if not (isinstance(d["source"], str) and d["source"])]
+    if bad:
+        raise InputError(f"{where}: detection {bad[0]}: 'source' must be a non-empty string")
+    return tuple(d["source"] for d in dets)
 
 
 def _notes(value, where: str) -> tuple[str, ...]:

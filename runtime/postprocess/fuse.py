@@ -1,0 +1,97 @@
+"""One list of objects from a3d's own detections and a 2D detector's, each object once.
+
+A 2D detector trained on real photographs (a3d.runtime.detector2d) knows a few of a3d's classes
+far better on real frames than a network trained on synthetic rooms; a3d's own proposals and
+classifier know all 19 and find objects the detector misses (half hidden, in the dark). The
+detector's boxes therefore join the network's RoIs (the network infers their 3D box for the
+detector's class) and both lists are kept:
+
+- a detector box's class is its detector class's a3d class; where that maps to several (COCO's
+  "tv": monitor or television) the network's score picks among them;
+- its score fuses the two opinions in log-odds: the detector's counts fully, the network's by
+  ``NETWORK_WEIGHT`` and read against ``NETWORK_REFERENCE``:
+  ``sigmoid(logit(detector) + NETWORK_WEIGHT * (logit(network) - logit(NETWORK_REFERENCE)))``.
+  The network was trained on synthetic rooms only: on real objects that a detector boxes its
+  calibrated score is low (mostly 0.02 to 0.4 on real chairs, against below 0.03 on the detector's
+  wrong boxes), so what carries evidence is its score against that level, not against 0.5, and
+  it counts half as much as the detector's. Both constants were read off the real frames of
+  docs/real-rooms.md, where what they give is measured;
+- an own detection of the same class whose 2D box overlaps a detector box by IoU >=
+  ``SAME_OBJECT_IOU`` (what detection benchmarks call the same object) is reported once, on the
+  detector's box (the tighter 2D box), with the better score and both sources.
+
+Each detection's source says where its class came from: the detector's name, "network", or both
+("yolox-nano+network").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from a3d.runtime.postprocess.score_calibration import SCORE_EPS
+from a3d.runtime.structures.geometry import iou_2d
+
+NETWORK = "network"
+NETWORK_WEIGHT = 0.5
+NETWORK_REFERENCE = 0.05
+SAME_OBJECT_IOU = 0.5
+
+
+@dataclass(frozen=True)
+class Picked:
+    """Detections as rows of the network's outputs: ``rows`` (K,) RoI indices, ``class_idx`` (K,)
+    0-based CLASSES, ``scores`` (K,) and ``sources`` (K,) where each class came from."""
+
+    rows: np.ndarray
+    class_idx: np.ndarray
+    scores: np.ndarray
+    sources: tuple[str, ...]
+
+
+def _logit(p: np.ndarray) -> np.ndarray:
+    p = np.clip(np.asarray(p, np.float64), SCORE_EPS, 1 - SCORE_EPS)
+    return np.log(p) - np.log1p(-p)
+
+
+def fused_score(detector: np.ndarray, network: np.ndarray) -> np.ndarray:
+    """The detector's and the network's scores of one object as one (module docstring)."""
+    evidence = NETWORK_WEIGHT * (_logit(network) - _logit(np.float64(NETWORK_REFERENCE)))
+    return 1.0 / (1.0 + np.exp(-(_logit(detector) + evidence)))
+
+
+def detector_picks(
+    class_scores: np.ndarray, first_row: int, detector_scores: np.ndarray, candidates: np.ndarray, name: str
+) -> Picked:
+    """The detector's boxes as detections: RoIs ``first_row`` on, ``class_scores`` (N, C) of all
+    RoIs (calibrated, no background), ``candidates`` (M, C) the classes each box may be."""
+    m = len(detector_scores)
+    rows = first_row + np.arange(m, dtype=np.int64)
+    network = np.where(candidates, class_scores[rows], -1.0)
+    class_idx = np.argmax(network, axis=1).astype(np.int64)
+    net = network[np.arange(m), class_idx]
+    return Picked(rows, class_idx, fused_score(detector_scores, net), (name,) * m)
+
+
+def merge(own: Picked, found: Picked, boxes2d: np.ndarray) -> Picked:
+    """``own`` (network) and ``found`` (detector) detections as one list by descending score, an
+    object both give counted once (module docstring); ``boxes2d`` (N, 4) the RoIs' boxes."""
+    if not len(found.rows):
+        return own
+    same = iou_2d(boxes2d[own.rows], boxes2d[found.rows]) >= SAME_OBJECT_IOU
+    same &= own.class_idx[:, None] == found.class_idx[None, :]
+    scores = found.scores.copy()
+    sources = list(found.sources)
+    for j in range(len(found.rows)):
+        matched = np.flatnonzero(same[:, j])
+        if len(matched):
+            scores[j] = max(scores[j], float(own.scores[matched].max()))
+            sources[j] = f"{found.sources[j]}+{NETWORK}"
+    alone = ~same.any(axis=1)
+    rows = np.concatenate([own.rows[alone], found.rows])
+    class_idx = np.concatenate([own.class_idx[alone], found.class_idx])
+    all_scores = np.concatenate([own.scores[alone], scores])
+    all_sources = [s for s, keep in zip(own.sources, alone, strict=True) if keep] + sources
+    order = np.argsort(-all_scores, kind="stable")
+    return Picked(rows[order], class_idx[order], all_scores[order], tuple(all_sources[i] for i in order))
