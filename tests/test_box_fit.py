@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from a3d.runtime.errors import InputError
-from a3d.runtime.mapping.box_fit import fit_box, world_points
+from a3d.runtime.mapping.box_fit import fit_box, floor_level, world_points
 from a3d.runtime.mapping.world import box_differences
 from a3d.runtime.structures.frame import Frame
 from a3d.runtime.structures.geometry import Intrinsics, box_corners_camera
@@ -53,3 +53,19 @@ def test_world_points_are_each_posed_frames_depth_moved_into_the_world() -> None
     assert points.shape == (24 * 32 - 1, 3)
     # every point is 2 m in front of the camera along its optical axis (world +x after the turn)
     np.testing.assert_allclose(points[:, 0], 1.0 + 2.0, atol=1e-9)
+
+
+def test_the_floor_round_an_object_is_left_out_and_its_box_stands_on_the_floor() -> None:
+    rng = np.random.default_rng(1)
+    standing = TRUE.copy()
+    standing[1] = -standing[5] / 2  # its bottom on the floor, y = 0
+    floor = np.column_stack(
+        [rng.uniform(-2, 4, 20000), rng.normal(0, 0.005, 20000), rng.uniform(0, 6, 20000)]
+    )
+    object_points = surface_points(standing, 400, rng)
+    points = np.vstack([object_points[object_points[:, 1] < -0.05], floor])  # the sensor misses its foot
+    rough = standing + np.array([0.05, 0.06, -0.05, 0.1, 0.1, 0.1, 0.1])  # its bottom 1 cm below the floor
+    assert abs(floor_level(points)) < 0.01
+    fitted = fit_box(points, rough, floor_y=floor_level(points))
+    assert box_differences(fitted[None], standing[None])[0] < 0.02
+    assert box_differences(fit_box(points, rough)[None], standing[None])[0] > 0.05  # the floor taken in

@@ -22,12 +22,20 @@ from a3d.runtime.structures.geometry import backproject, boxes_from_corners_tilt
 from a3d.runtime.structures.pose import transform_points
 
 MIN_POINTS = 20  # fewer points inside a rough box are no object's surface
+FLOOR_SEARCH_M = 0.3  # the floor is looked for this far above the cloud's lowest points
+FLOOR_GAP_M = 0.03  # points this close to the floor are the floor's, not an object's
+FLOOR_SNAP_M = 0.1  # a fitted box whose bottom is this close to the floor stands on it
 
 
 def world_points(frames: Iterable[Frame], stride: int = 4) -> np.ndarray:
     """(N, 3) world points of posed frames' depth (every ``stride``-th pixel each way; frames without
-    a pose are left out): the point cloud to look at in rerun and to fit boxes to."""
-    clouds = []
+    a pose are left out): the point cloud to fit boxes to."""
+    return world_cloud(frames, stride)[0]
+
+
+def world_cloud(frames: Iterable[Frame], stride: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """``world_points`` and their colours (N, 3) uint8 RGB: the cloud a person draws rough boxes in."""
+    clouds, colours = [], []
     for frame in frames:
         if frame.pose is None:
             continue
@@ -36,20 +44,45 @@ def world_points(frames: Iterable[Frame], stride: int = 4) -> np.ndarray:
         seen = depth > 0  # only the sampled, measured pixels are back-projected
         points = backproject(cols[seen], rows[seen], depth[seen].astype(np.float64), frame.intrinsics)
         clouds.append(transform_points(frame.pose, points))
-    return np.concatenate(clouds) if clouds else np.zeros((0, 3))
+        colours.append(frame.color[::stride, ::stride][seen][:, ::-1])  # BGR -> RGB
+    if not clouds:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.uint8)
+    return np.concatenate(clouds), np.concatenate(colours)
 
 
-def fit_box(points: np.ndarray, rough: np.ndarray, margin_m: float = 0.1) -> np.ndarray:
+def floor_level(points: np.ndarray) -> float | None:
+    """The floor's y (the fullest centimetre of y among the lowest 30 cm of the cloud; y is down), or
+    None for too few points: what standing objects' boxes reach down to."""
+    ys = np.asarray(points, np.float64)[:, 1]
+    if len(ys) < MIN_POINTS:
+        return None
+    lowest = float(np.percentile(ys, 99.5))  # a few noisy points below the floor do not count
+    counts, edges = np.histogram(ys, bins=np.arange(lowest - FLOOR_SEARCH_M, lowest + 0.05, 0.01))
+    k = int(np.argmax(counts))
+    return float(0.5 * (edges[k] + edges[k + 1]))
+
+
+def fit_box(
+    points: np.ndarray, rough: np.ndarray, margin_m: float = 0.1, floor_y: float | None = None
+) -> np.ndarray:
     """The gravity-aligned box (world 7-vector) of the world ``points`` inside ``rough`` grown by
-    ``margin_m``: footprint by the smallest-area rectangle, height by the points' y range."""
+    ``margin_m``: footprint by the smallest-area rectangle, height by the points' y range.
+
+    With ``floor_y`` (``floor_level``), points within ``FLOOR_GAP_M`` of the floor are left out
+    (the floor round an object's foot would widen its footprint), and a box whose bottom ends within
+    ``FLOOR_SNAP_M`` of the floor is extended down to it (the object stands there)."""
     config = LabelConfig(margin_m=margin_m, floor_gap_m=0.0)
     points = np.asarray(points, np.float64)
     inside = points[inside_box(points, np.asarray(rough, np.float64), np.eye(3), config)]
+    if floor_y is not None:
+        inside = inside[inside[:, 1] < floor_y - FLOOR_GAP_M]
     if len(inside) < MIN_POINTS:
         raise InputError(f"rough box {np.round(rough, 3).tolist()}: {len(inside)} points inside, "
                          f"need {MIN_POINTS} (is it where the object is?)")  # fmt: skip
     footprint = cv2.boxPoints(cv2.minAreaRect(inside[:, [0, 2]].astype(np.float32))).astype(np.float64)
     top, bottom = inside[:, 1].min(), inside[:, 1].max()  # y is down: the lower face has the larger y
+    if floor_y is not None and floor_y - bottom < FLOOR_SNAP_M:
+        bottom = max(bottom, floor_y)
     corners = np.zeros((1, 8, 3))
     corners[0, :4, [0, 2]] = footprint.T
     corners[0, 4:, [0, 2]] = footprint.T
