@@ -54,6 +54,11 @@ def draw_tile(color_bgr: np.ndarray, title: str, shown: TileBoxes) -> np.ndarray
         dashed_rectangle(image, box, EXPECTED_COLOR)
     order = np.argsort(shown.scores, kind="stable")  # the result's own drawing, in the viewer's colours
     image = draw_detections(image, shown.class_ids[order], shown.scores[order], shown.boxes[order], bgr=True)
+    return titled(image, title)
+
+
+def titled(image: np.ndarray, title: str) -> np.ndarray:
+    """``image`` under a title bar, as every tile of a sheet is."""
     bar = np.full((TITLE_HEIGHT, image.shape[1], 3), BACKGROUND, np.uint8)
     cv2.putText(bar, title, (6, TITLE_HEIGHT - 9), FONT, 0.6, (255, 255, 255), 1, cv2.LINE_AA)
     return np.vstack([bar, image])

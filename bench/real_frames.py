@@ -1,9 +1,10 @@
 """What a model finds in real frames that have no 3D ground truth, against hand-drawn 2D boxes.
 
     .venv/bin/python -m bench.real_frames FOLDER --model runtime/models/live.onnx [--model-name LABEL] \\
-        --boxes bench/data/real_frames_boxes.json [--threshold 0.5] --out DIR
+        --boxes bench/data/real_frames_boxes.json [--boxes3d bench/data/real_frames_boxes3d.json | --no-3d] \\
+        [--threshold 0.5] --out DIR
 
-mAP needs 3D boxes, and real frames such as the nine the project looked at have none; what a user
+mAP needs 3D boxes, and real frames such as the nine the project looked at come without any; what a user
 sees is which boxes a model draws on them. This runs the model on every frame of FOLDER (an a3d
 frame folder) through the runtime's Python API, and counts its detections at or above the
 threshold against the boxes file (bench/data/real_frames_boxes.json: every plainly visible object
@@ -18,11 +19,18 @@ The 2D box compared is ``box2d``, the proposal box: proposals are boxes of visib
 hand-drawn boxes are visible extents, while ``box2d_amodal`` is the network's regression towards
 the amodal box (through occluders and off the image edge). ``--box amodal`` counts with that one.
 
+In 3D (bench.real_frames_3d), against the amodal 3D boxes that bench/data/real_frames_boxes3d.json
+gives most of the hand-drawn objects (fitted once and corrected by hand, bench.real_frames_fit):
+AP@0.25 per class and their mean over the classes with a 3D box, a3d's own metric over all
+detections, and the median 3D IoU of the objects found above. ``--no-3d`` counts in 2D only, for
+a folder whose objects have no 3D boxes.
+
 Writes DIR/contact_sheet.png (every frame a tile, bench.contact_sheet; each tile alone in
-DIR/tiles/), DIR/real_frames.json (the numbers, with the missed objects and wrong detections per
-frame) and DIR/detections.jsonl (the detections file, README "Detections format"), and prints the
-table in markdown. A bad input (no such folder, a boxes file that names a frame the folder lacks,
-an unknown class, a bad box) is one line on stderr and exit status 1.
+DIR/tiles/), DIR/real_frames.json (the numbers, with the objects found and missed and the wrong
+detections per frame, and the 3D numbers under "3d") and DIR/detections.jsonl (the detections
+file, README "Detections format"), and prints the tables in markdown. A bad input (no such folder,
+a boxes file that names a frame the folder lacks, an unknown class, a bad box, a 3D boxes file
+that does not match the boxes file) is one line on stderr and exit status 1.
 """
 
 from __future__ import annotations
@@ -39,12 +47,14 @@ import numpy as np
 
 from a3d.runtime import Detector
 from a3d.runtime.errors import InputError
+from a3d.runtime.evaluation.metric import FrameTruth
 from a3d.runtime.io.detections_io import FrameDetections, write_detections
 from a3d.runtime.io.json_input import is_finite_number, parse_json
 from a3d.runtime.sources.folder import FolderSource
 from a3d.runtime.structures.classes import CLASSES, class_index
-from a3d.runtime.structures.geometry import iou_2d
+from a3d.runtime.structures.geometry import check_rotation, iou_2d
 from bench.contact_sheet import TileBoxes, contact_sheet, draw_tile
+from bench.real_frames_3d import IOU_3D, Score3D, as_dict, markdown_3d, score_3d
 
 IOU = 0.5
 DEFAULT_BOXES = Path(__file__).parent / "data" / "real_frames_boxes.json"
@@ -52,6 +62,11 @@ BOX_FIELDS = {"proposal": "boxes2d", "amodal": "boxes2d_amodal"}
 _FILE_KEYS = ("about", "image_size", "frames")
 _FRAME_KEYS = ("objects", "notes")
 _OBJECT_KEYS = ("class", "box")
+DEFAULT_BOXES3D = Path(__file__).parent / "data" / "real_frames_boxes3d.json"
+_FILE3D_KEYS = ("about", "frames")
+_FRAME3D_KEYS = ("R_tilt", "objects", "skipped")
+_OBJECT3D_KEYS = ("object", "class", "box3d", "note")
+_SKIPPED_KEYS = ("object", "class", "why")
 
 
 # ----------------------------------------------------------------------------- the boxes file
@@ -127,6 +142,94 @@ def _box(value: Any, path: Path, what: str, size: tuple[int, int]) -> list[float
     if not (0 <= x1 and 0 <= y1 and x2 <= size[0] and y2 <= size[1]):
         raise InputError(f"{path}: {what}: box {value} is outside the {size[0]}x{size[1]} image")
     return [x1, y1, x2, y2]
+
+
+# ----------------------------------------------------------------------------- the 3D boxes file
+
+
+@dataclass(frozen=True)
+class Boxes3D:
+    """One frame's 3D boxes (``truth``: classes, camera-frame boxes, the R_tilt their yaw is in)
+    and which of its hand-drawn objects (0-based, the boxes file's order) each one is."""
+
+    truth: FrameTruth
+    objects: np.ndarray  # (N,) int64
+
+
+def read_boxes3d(path: Path, boxes: BoxesFile) -> dict[str, Boxes3D]:
+    """Read and validate a 3D boxes file against the boxes file it completes: the same frames, and
+    every hand-drawn object either boxed (same class) or skipped with a reason, exactly once.
+    Problems are ``InputError("PATH: where: what")``, as for ``read_boxes``."""
+    try:
+        text = path.read_bytes()
+    except OSError as e:
+        raise InputError(f"{path}: cannot read the 3D boxes file ({e.strerror or e})") from None
+    doc = _mapping(parse_json(text, str(path), "3D boxes file"), path, "the file", _FILE3D_KEYS)
+    frames = doc.get("frames")
+    if not isinstance(frames, dict) or set(frames) != set(boxes.frames):
+        names = ", ".join(boxes.frames)
+        raise InputError(f"{path}: 'frames' must name the frames of {boxes.path} ({names}), no other")
+    return {name: _frame3d(frames[name], path, f"frames.{name}", hand) for name, hand in boxes.frames.items()}
+
+
+def _frame3d(entry: Any, path: Path, where: str, hand: HandBoxes) -> Boxes3D:
+    """One frame's entry: its R_tilt, boxed objects and skipped ones."""
+    entry = _mapping(entry, path, where, _FRAME3D_KEYS)
+    try:
+        R_tilt = check_rotation(np.asarray(entry.get("R_tilt"), np.float64), f"{where}.R_tilt")
+    except InputError as e:
+        raise InputError(f"{path}: {e}") from None
+    except (ValueError, TypeError):  # ragged rows or no numbers
+        raise InputError(f"{path}: {where}.R_tilt must be a 3x3 rotation (rows of numbers)") from None
+    listed, boxed = [], []
+    for key, fields in (("objects", _OBJECT3D_KEYS), ("skipped", _SKIPPED_KEYS)):
+        items = entry.get(key, [])
+        if not isinstance(items, list):
+            raise InputError(f"{path}: {where}.{key} must be a list")
+        for i, item in enumerate(items):
+            what = f"{where}.{key}[{i}]"
+            item = _mapping(item, path, what, fields)
+            listed.append(_hand_object(item, path, what, hand))
+            if key == "objects":
+                boxed.append(_box3d(item.get("box3d"), path, what))
+            elif not (isinstance(item.get("why"), str) and item["why"]):
+                raise InputError(f"{path}: {what}: 'why' must say why the object has no 3D box")
+    for index in range(len(hand.class_ids)):
+        if listed.count(index) != 1:
+            how = "listed twice" if listed.count(index) else "neither boxed nor skipped"
+            raise InputError(f"{path}: {where}: hand-drawn object {index} is {how}")
+    objects = np.asarray(listed[: len(boxed)], np.int64)
+    boxes3d = np.asarray(boxed, np.float64).reshape(-1, 7)
+    return Boxes3D(FrameTruth(hand.class_ids[objects], boxes3d, R_tilt), objects)
+
+
+def _hand_object(item: dict, path: Path, what: str, hand: HandBoxes) -> int:
+    """The index of the hand-drawn object an entry names, checked against that object's class."""
+    index = item.get("object")
+    if isinstance(index, bool) or not (isinstance(index, int) and 0 <= index < len(hand.class_ids)):
+        raise InputError(
+            f"{path}: {what}: 'object' must index the frame's {len(hand.class_ids)} hand-drawn objects, "
+            f"got {_preview(index)}"
+        )
+    expected = CLASSES[hand.class_ids[index]]
+    if item.get("class") != expected:
+        raise InputError(
+            f"{path}: {what}: 'class' must be {expected!r} (hand-drawn object {index}), "
+            f"got {_preview(item.get('class'))}"
+        )
+    return index
+
+
+def _box3d(value: Any, path: Path, what: str) -> list[float]:
+    """[x, y, z, l, w, h, theta] in canonical form: l >= w > 0, h > 0, theta in [-pi/2, pi/2]."""
+    if not (isinstance(value, list) and len(value) == 7 and all(is_finite_number(v) for v in value)):
+        raise InputError(
+            f"{path}: {what}: 'box3d' must be [x, y, z, l, w, h, theta] (7 numbers), got {_preview(value)}"
+        )
+    x, y, z, l, w, h, theta = (float(v) for v in value)
+    if not (l >= w > 0 and h > 0 and abs(theta) <= np.pi / 2):
+        raise InputError(f"{path}: {what}: box3d {value} needs l >= w > 0, h > 0 and |theta| <= pi/2")
+    return [x, y, z, l, w, h, theta]
 
 
 def _mapping(value: Any, path: Path, where: str, known: tuple[str, ...]) -> dict:
@@ -216,8 +319,8 @@ def count(
 
 
 def frame_report(truth: HandBoxes, dets: FrameMatch, threshold: float) -> tuple[Count, dict[str, Any]]:
-    """A frame's Count, and with it what a reader looks for next: the classes of the objects
-    missed and the class and score of each wrong detection."""
+    """A frame's Count, and with it what a reader looks for next: the objects found (indices), the
+    classes of the objects missed and the class and score of each wrong detection."""
     matched = match(truth, dets.class_ids, dets.scores, dets.boxes, threshold)
     kept = np.asarray(dets.scores) >= threshold
     right = int((matched >= 0).sum())
@@ -229,6 +332,7 @@ def frame_report(truth: HandBoxes, dets: FrameMatch, threshold: float) -> tuple[
         if k and m < 0
     ]
     details = {
+        "found_objects": sorted(taken),
         "missed": [CLASSES[c] for i, c in enumerate(truth.class_ids) if i not in taken],
         "wrong": sorted(wrong, key=lambda w: -w["score"]),
     }
@@ -278,11 +382,22 @@ def detect_all(source: FolderSource, model: Path, threads: int) -> list[tuple[Fr
     return results
 
 
+def _in_3d(
+    boxes3d: dict[str, Boxes3D], detections: list[FrameDetections], reports: dict[str, dict], threshold: float
+) -> Score3D:
+    """The 3D score of the run's detections (bench.real_frames_3d): an object is found when the 2D
+    count found it."""
+    found = {name: np.isin(b.objects, reports[name]["found_objects"]) for name, b in boxes3d.items()}
+    truth = {name: b.truth for name, b in boxes3d.items()}
+    return score_3d(truth, {det.frame: det for det in detections}, found, threshold)
+
+
 def run(args: argparse.Namespace) -> int:
     """The benchmark (module docstring); InputError on a bad input."""
     if not args.folder.is_dir():
         raise InputError(f"{args.folder}: no such frame folder")
     boxes = read_boxes(args.boxes)
+    boxes3d = None if args.no_3d else read_boxes3d(args.boxes3d, boxes)
     source = FolderSource(args.folder)
     check_frames(source, boxes)
     label = args.model_name or args.model.stem
@@ -318,10 +433,18 @@ def run(args: argparse.Namespace) -> int:
         "model": str(args.model), "model_name": label, "boxes": str(args.boxes), "threshold": args.threshold,
         "iou": IOU, "box": args.box, "frames": reports, "total": total.as_dict(),
     }  # fmt: skip
+    if boxes3d is not None:
+        score = _in_3d(boxes3d, [det for det, _ in results], reports, args.threshold)
+        objects = {name: b.objects for name, b in boxes3d.items()}
+        summary["3d"] = {"boxes3d": str(args.boxes3d), **as_dict(score, objects)}
     (args.out / "real_frames.json").write_text(json.dumps(summary, indent=1) + "\n")
     print(f"{label} on {args.folder} ({len(results)} frames), detections >= {args.threshold:g}, "
           f"{args.box} box IoU >= {IOU} with a hand-drawn object of the same class:\n")  # fmt: skip
     print(markdown_table(counts, total))
+    if boxes3d is not None:
+        print(f"\nIn 3D, against {args.boxes3d}: all detections, 3D IoU >= {IOU_3D} (a3d-eval, the paper's "
+              f"protocol), over the classes with a 3D box:\n")  # fmt: skip
+        print(markdown_3d(score))
     print(f"\nwrote {args.out / 'contact_sheet.png'}, {args.out / 'real_frames.json'}")
     return 0
 
@@ -334,6 +457,10 @@ def main(argv: list[str] | None = None) -> int:
         "--model-name", help="the model's name on the sheet and in the JSON (default: its stem)"
     )
     parser.add_argument("--boxes", type=Path, default=DEFAULT_BOXES, help="the hand-drawn boxes file")
+    parser.add_argument(
+        "--boxes3d", type=Path, default=DEFAULT_BOXES3D, help="the 3D boxes of the boxes file's objects"
+    )
+    parser.add_argument("--no-3d", action="store_true", help="count in 2D only (a folder without 3D boxes)")
     parser.add_argument("--threshold", type=float, default=0.5, help="lowest score counted and drawn")
     parser.add_argument("--box", choices=sorted(BOX_FIELDS), default="proposal", help="the 2D box compared")
     parser.add_argument("--threads", type=int, default=2)

@@ -1,6 +1,7 @@
 """bench/real_frames.py: the count against hand-drawn 2D boxes (class, IoU, duplicates, threshold),
-the boxes file's validation (one line naming the file and what is wrong), the committed boxes
-file, and a run of the bundled model on a tiny frame folder (sheet and JSON written)."""
+the boxes files' validation (one line naming the file and what is wrong), the committed boxes
+files, the 3D score on hand-made detections (bench/real_frames_3d.py), and a run of the bundled
+model on a tiny frame folder (sheet and JSON written)."""
 
 from __future__ import annotations
 
@@ -12,10 +13,14 @@ import numpy as np
 import pytest
 
 from a3d.runtime.errors import InputError
+from a3d.runtime.evaluation.metric import FrameTruth, retilt_boxes
+from a3d.runtime.io.detections_io import FrameDetections
 from a3d.runtime.structures.classes import CLASSES, class_index
+from a3d.runtime.structures.geometry import rtilt_from_pitch_roll
 from bench import real_frames
 from bench.contact_sheet import GAP, TITLE_HEIGHT
-from bench.real_frames import Count, HandBoxes, count, match, read_boxes
+from bench.real_frames import Count, HandBoxes, count, match, read_boxes, read_boxes3d
+from bench.real_frames_3d import Score3D, score_3d
 from tests.helpers.runtime_frames import H, W, write_scene_folder
 from tests.helpers.samples import SAMPLE_MODEL
 
@@ -85,8 +90,8 @@ def test_a_frame_with_nothing_to_find_and_the_sum() -> None:
 # ----------------------------------------------------------------------------- the boxes file
 
 
-def _write(tmp_path: Path, doc: object) -> Path:
-    path = tmp_path / "boxes.json"
+def _write(tmp_path: Path, doc: object, name: str = "boxes.json") -> Path:
+    path = tmp_path / name
     path.write_text(doc if isinstance(doc, str) else json.dumps(doc))
     return path
 
@@ -142,14 +147,171 @@ def test_the_committed_boxes_file_validates() -> None:
         assert len(np.unique(frame.boxes, axis=0)) == len(frame.boxes), f"{name}: the same box twice"
 
 
+# ----------------------------------------------------------------------------- the 3D boxes file
+
+_CUBE = [0.0, 0.0, 3.0, 1.0, 1.0, 1.0, 0.0]  # a 1 m cube 3 m ahead
+
+
+def _boxes2d_file(tmp_path: Path) -> real_frames.BoxesFile:
+    objects = [{"class": "chair", "box": [0, 0, 10, 10]}, {"class": "table", "box": [20, 0, 40, 10]}]
+    return read_boxes(_write(tmp_path, {"frames": {"f": {"objects": objects}}}))
+
+
+_SKIPPED = {"object": 1, "class": "table", "why": "no depth"}
+
+
+def _boxed(**changes: object) -> dict:
+    return {"object": 0, "class": "chair", "box3d": _CUBE, **changes}
+
+
+def _doc3d(frame: dict | None = None, **changes: object) -> dict:
+    entry = {
+        "R_tilt": np.eye(3).tolist(),
+        "objects": [_boxed()],
+        "skipped": [_SKIPPED],
+    }
+    entry.update(changes)
+    return {"frames": {"f": entry}} if frame is None else frame
+
+
+def _read3d(tmp_path: Path, doc: object) -> dict:
+    return read_boxes3d(_write(tmp_path, doc, "boxes3d.json"), _boxes2d_file(tmp_path))
+
+
+def test_a_good_3d_boxes_file_reads_as_truth_with_the_objects_indices(tmp_path: Path) -> None:
+    frame = _read3d(tmp_path, _doc3d())["f"]
+    assert frame.objects.tolist() == [0] and frame.truth.class_ids.tolist() == [CHAIR]
+    np.testing.assert_array_equal(frame.truth.boxes3d, [_CUBE])
+
+
+@pytest.mark.parametrize(
+    ("doc", "problem"),
+    [
+        ("[1, 2", "malformed JSON"),
+        (_doc3d(frame={"frames": {"g": {}}}), "'frames' must name the frames of"),
+        (_doc3d(R_tilt=[[1, 0, 0], [0, 1, 0]]), "frames.f.R_tilt: expected a 3x3 rotation"),
+        (_doc3d(R_tilt=[[1, 0, 0], [0, 1, 0], [0, 0, -1]]), "frames.f.R_tilt: not a proper rotation"),
+        (_doc3d(R_tilt="up"), "frames.f.R_tilt must be a 3x3 rotation"),
+        (_doc3d(objects=[_boxed(box3d=_CUBE[:6])]), "'box3d' must be [x, y, z, l, w, h, theta] (7 numbers)"),
+        (_doc3d(objects=[_boxed(box3d=[0, 0, 3, 0.5, 1, 1, 0])]), "needs l >= w > 0"),
+        (_doc3d(objects=[_boxed(box3d=[0, 0, 3, 1, 1, -1, 0])]), "h > 0"),
+        (_doc3d(objects=[_boxed(box3d=[0, 0, 3, 1, 1, 1, 2])]), "|theta| <= pi/2"),
+        (_doc3d(objects=[_boxed(**{"class": "table"})]), "'class' must be 'chair' (hand-drawn object 0)"),
+        (_doc3d(objects=[_boxed(object=2)]), "'object' must index the frame's 2 hand-drawn objects"),
+        (_doc3d(objects=[_boxed(object=True)]), "'object' must index"),
+        (_doc3d(objects=[{**_boxed(), "box": _CUBE}]), "unknown key 'box'"),
+        (_doc3d(skipped=[{"object": 1, "class": "table"}]), "'why' must say why"),
+        (_doc3d(skipped=[]), "hand-drawn object 1 is neither boxed nor skipped"),
+        (_doc3d(skipped=[{**_boxed(why="x"), "box3d": None}]), "unknown key 'box3d'"),
+        (_doc3d(skipped=[{"object": 0, "class": "chair", "why": "x"}, _SKIPPED]), "object 0 is listed twice"),
+    ],
+)  # fmt: skip
+def test_a_bad_3d_boxes_file_is_one_line_naming_the_file_and_the_problem(
+    tmp_path: Path, doc: object, problem: str
+) -> None:
+    with pytest.raises(InputError) as e:
+        _read3d(tmp_path, doc)
+    message = str(e.value)
+    assert message.startswith(f"{tmp_path / 'boxes3d.json'}: ") and problem in message and "\n" not in message
+
+
+def test_the_committed_3d_boxes_file_validates_against_the_boxes_file() -> None:
+    boxes = read_boxes(real_frames.DEFAULT_BOXES)
+    frames = read_boxes3d(real_frames.DEFAULT_BOXES3D, boxes)  # every object boxed or skipped, classes agree
+    boxed = np.concatenate([f.truth.boxes3d for f in frames.values()])
+    assert len(boxed) == 40 and sum(len(f.class_ids) for f in boxes.frames.values()) == 52
+    assert ((boxed[:, 3:6] > 0.05) & (boxed[:, 3:6] < 3.0)).all()  # no sliver, no room-sized box
+    assert ((boxed[:, 2] > 0.5) & (boxed[:, 2] < 8.0)).all()  # in front of the camera, within Kinect range
+    doc = json.loads(real_frames.DEFAULT_BOXES3D.read_text())
+    assert "never trained on" in doc["about"].lower()
+
+
+# ----------------------------------------------------------------------------- the 3D score
+
+
+def _truth3d(*objects: tuple[int, list[float]], R_tilt: np.ndarray | None = None) -> FrameTruth:
+    ids = np.array([c for c, _ in objects], np.int64)
+    return FrameTruth(
+        ids, np.array([b for _, b in objects], float).reshape(-1, 7), np.eye(3) if R_tilt is None else R_tilt
+    )
+
+
+def _dets3d(*dets: tuple[int, float, list[float]], R_tilt: np.ndarray | None = None) -> FrameDetections:
+    n = len(dets)
+    return FrameDetections(
+        frame="f",
+        R_tilt=np.eye(3) if R_tilt is None else R_tilt,
+        class_ids=np.array([d[0] for d in dets], np.int64),
+        scores=np.array([d[1] for d in dets], float),
+        boxes2d=np.tile([0.0, 0.0, 10.0, 10.0], (n, 1)) + 20 * np.arange(n)[:, None],  # apart: no 2D NMS
+        boxes3d=np.array([d[2] for d in dets], float).reshape(-1, 7),
+    )
+
+
+def _score(truth: FrameTruth, det: FrameDetections, found: list[bool] | None = None) -> Score3D:
+    found = [True] * len(truth.class_ids) if found is None else found
+    return score_3d({"f": truth}, {"f": det}, {"f": np.array(found)}, threshold=0.5)
+
+
+def _shifted(dx: float) -> list[float]:
+    return [_CUBE[0] + dx, *_CUBE[1:]]
+
+
+def test_a_perfect_detection_scores_ap_100_and_iou_1() -> None:
+    s = _score(_truth3d((CHAIR, _CUBE)), _dets3d((CHAIR, 0.9, _CUBE)))
+    assert [c.name for c in s.classes] == ["chair"] and 100 * s.map == pytest.approx(100.0)
+    assert s.median_iou == pytest.approx(1.0) and s.found_ious.tolist() == pytest.approx([1.0])
+
+
+def test_a_shifted_detection_has_the_overlap_s_iou_and_counts_at_0_25_only() -> None:
+    near = _score(_truth3d((CHAIR, _CUBE)), _dets3d((CHAIR, 0.9, _shifted(0.5))))
+    assert near.median_iou == pytest.approx(0.5 / 1.5) and near.map == pytest.approx(1.0)  # IoU 1/3 >= 0.25
+    far = _score(_truth3d((CHAIR, _CUBE)), _dets3d((CHAIR, 0.9, _shifted(0.7))))
+    assert far.median_iou == pytest.approx(0.3 / 1.7) and far.map == 0.0  # IoU 0.18 < 0.25
+
+
+def test_a_detection_of_another_class_scores_nothing() -> None:
+    s = _score(_truth3d((CHAIR, _CUBE)), _dets3d((TABLE, 0.9, _CUBE)))
+    assert s.map == 0.0 and s.median_iou == 0.0
+    assert [c.name for c in s.classes] == ["chair"]  # the table has no 3D box: not in the mean
+
+
+def test_the_mean_is_over_the_classes_with_a_3d_box_and_the_median_over_the_objects_found() -> None:
+    truth = _truth3d((CHAIR, _CUBE), (TABLE, [3.0, 0.0, 3.0, 1.0, 1.0, 1.0, 0.0]))
+    det = _dets3d((CHAIR, 0.9, _CUBE), (TABLE, 0.8, [5.0, 0.0, 3.0, 1.0, 1.0, 1.0, 0.0]))
+    s = _score(truth, det, found=[False, True])
+    assert 100 * s.map == pytest.approx(50.0)  # chair 100, table 0
+    assert s.best_iou["f"].tolist() == pytest.approx([1.0, 0.0]) and s.found_ious.tolist() == [0.0]
+    assert _score(truth, det, found=[False, False]).median_iou is None
+
+
+def test_below_the_threshold_a_detection_counts_for_ap_but_not_for_the_iou() -> None:
+    s = _score(_truth3d((CHAIR, _CUBE)), _dets3d((CHAIR, 0.2, _CUBE)))
+    assert s.map == pytest.approx(1.0) and s.median_iou == 0.0
+
+
+def test_detections_in_another_tilt_frame_are_converted_through_their_corners() -> None:
+    R_truth = rtilt_from_pitch_roll(np.radians(-15.0), np.radians(3.0))
+    R_det = rtilt_from_pitch_roll(np.radians(-13.0), np.radians(2.0))
+    box = [0.4, 0.2, 3.0, 1.2, 0.6, 0.8, 0.3]
+    moved = retilt_boxes(np.array([box]), R_truth, R_det)[
+        0
+    ]  # the same camera-frame box, the other frame's yaw
+    s = _score(_truth3d((CHAIR, box), R_tilt=R_truth), _dets3d((CHAIR, 0.9, moved), R_tilt=R_det))
+    assert s.result.retilted_frames == ["f"] and s.median_iou > 0.9
+    naive = _score(_truth3d((CHAIR, box), R_tilt=R_truth), _dets3d((CHAIR, 0.9, moved), R_tilt=R_truth))
+    assert naive.median_iou < s.median_iou  # read in the wrong frame, the box is off
+
+
 # ----------------------------------------------------------------------------- the command
 
 
-def _tiny_run(tmp_path: Path, boxes: dict, *extra: str) -> tuple[int, Path]:
+def _tiny_run(tmp_path: Path, boxes: dict, *extra: str, boxes3d: dict | None = None) -> tuple[int, Path]:
     folder = write_scene_folder(tmp_path / "frames", ["a", "b"])
     path = _write(tmp_path, boxes)
     out = tmp_path / "out"
     argv = [str(folder), "--model", str(SAMPLE_MODEL), "--boxes", str(path), "--out", str(out), *extra]
+    argv += ["--boxes3d", str(_write(tmp_path, boxes3d, "boxes3d.json"))] if boxes3d else ["--no-3d"]
     return real_frames.main(argv), out
 
 
@@ -159,7 +321,9 @@ def _tiny_boxes(**frames: list) -> dict:
 
 def test_the_bundled_model_on_a_tiny_folder_writes_the_sheet_and_the_counts(tmp_path: Path, capsys) -> None:
     chair = {"class": "chair", "box": [10, 10, 40, 60]}
-    rc, out = _tiny_run(tmp_path, _tiny_boxes(a=[chair, {"class": "table", "box": [50, 40, 90, 70]}], b=[]))
+    boxes3d = {"frames": {"a": _doc3d()["frames"]["f"], "b": {"R_tilt": np.eye(3).tolist()}}}
+    boxes = _tiny_boxes(a=[chair, {"class": "table", "box": [50, 40, 90, 70]}], b=[])
+    rc, out = _tiny_run(tmp_path, boxes, boxes3d=boxes3d)
     assert rc == 0, capsys.readouterr().err
     sheet = cv2.imread(str(out / "contact_sheet.png"))
     cell_h = TITLE_HEIGHT + H  # two tiles in one row under the header line
@@ -172,6 +336,11 @@ def test_the_bundled_model_on_a_tiny_folder_writes_the_sheet_and_the_counts(tmp_
     table = capsys.readouterr().out
     assert "| frame | objects | found | detections | right | recall | precision |" in table
     assert "| b | 0 | 0 |" in table and "| **total** | 2 |" in table
+    in3d = report["3d"]  # the frames' given R_tilt differs from the file's identity: converted
+    assert set(in3d["classes"]) == {"chair"} and in3d["retilted_frames"] == ["a", "b"]
+    assert [(o["object"], o["class"]) for o in in3d["frames"]["a"]] == [(0, "chair")]
+    assert in3d["frames"]["b"] == [] and in3d["found"] == 0 and in3d["median_iou"] is None
+    assert "| class | objects | detections | AP@0.25 |" in table and "| **mAP** | 1 |" in table
 
 
 @pytest.mark.parametrize(

@@ -1,0 +1,82 @@
+"""bench/real_frames_fit.py: the floor plane under a fuller table layer, the object's cluster, the
+fitted box down to the floor for a floor class, the file format the committed 3D boxes keep, and
+both modes on a tiny frame folder (the draft validates; the pictures are written)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from bench import real_frames_fit
+from bench.real_frames import DEFAULT_BOXES3D, read_boxes, read_boxes3d
+from bench.real_frames_fit import FrameCloud, dump, fit_object, floor_plane, largest_cluster
+from tests.helpers.runtime_frames import W, write_scene_folder
+
+RNG = np.random.default_rng(0)
+
+
+def _layer(n: int, y: float | np.ndarray, x: tuple[float, float], z: tuple[float, float]) -> np.ndarray:
+    xs, zs = RNG.uniform(*x, n), RNG.uniform(*z, n)
+    return np.column_stack([xs, y(xs, zs) if callable(y) else np.full(n, y), zs])
+
+
+def test_the_floor_is_the_lowest_layer_with_a_share_of_the_points_as_a_tilted_plane() -> None:
+    floor = _layer(3000, lambda x, z: 0.01 * x + 0.02 * z + 1.4, (-2, 2), (1, 5))
+    tables = _layer(30000, 0.7, (-1, 1), (2, 3))  # ten times the floor's points, higher up
+    noise = _layer(20, 1.9, (-1, 1), (2, 3))  # a few wrong points below the floor
+    np.testing.assert_allclose(floor_plane(np.vstack([floor, tables, noise])), [0.01, 0.02, 1.4], atol=1e-6)
+
+
+def test_the_object_is_the_largest_cluster_by_distance() -> None:
+    chair = _layer(500, 0.8, (-0.2, 0.2), (2.0, 2.3))
+    wall = _layer(300, 0.8, (-0.2, 0.2), (3.5, 3.6))
+    assert (
+        len(largest_cluster(np.vstack([wall, chair]))) == 500 and len(largest_cluster(np.zeros((0, 3)))) == 0
+    )
+
+
+@pytest.mark.parametrize(("name", "height"), [("chair", 0.9), ("box", 0.5)])
+def test_a_floor_class_reaches_down_to_the_floor_and_another_does_not(name: str, height: float) -> None:
+    cloud = FrameCloud(np.eye(3), np.zeros((1, 1, 3)), np.ones((1, 1), bool), np.array([0.0, 0.0, 1.4]))
+    points = np.vstack([_layer(400, y, (0.0, 0.5), (2.0, 2.4)) for y in np.linspace(0.5, 1.0, 11)])
+    box = fit_object(points, name, cloud)
+    assert box[5] == pytest.approx(height, abs=0.02) and box[1] + box[5] / 2 == pytest.approx(
+        0.5 + height, abs=0.02
+    )
+    assert sorted(box[3:5]) == pytest.approx([0.4, 0.5], abs=0.03)
+
+
+def test_the_committed_3d_boxes_file_is_in_dump_s_one_object_a_line_form() -> None:
+    text = DEFAULT_BOXES3D.read_text()
+    assert dump(json.loads(text)) == text
+
+
+def test_fit_writes_a_draft_that_validates_and_draw_writes_the_pictures(tmp_path: Path, capsys) -> None:
+    folder = write_scene_folder(tmp_path / "frames", ["a", "b"])
+    hand = {"frames": {"a": {"objects": [{"class": "chair", "box": [0, 0, W, 40]}]}, "b": {"objects": []}}}
+    boxes = tmp_path / "boxes.json"
+    boxes.write_text(json.dumps(hand))
+    draft = tmp_path / "draft.json"
+    assert real_frames_fit.main([str(folder), "--fit", str(draft), "--boxes", str(boxes)]) == 0
+    frames = read_boxes3d(draft, read_boxes(boxes))  # every object boxed or skipped, with a reason
+    assert len(frames["a"].objects) + len(json.loads(draft.read_text())["frames"]["a"]["skipped"]) == 1
+    out = tmp_path / "pictures"
+    argv = [str(folder), "--draw", str(out), "--boxes", str(boxes), "--boxes3d", str(draft)]
+    assert real_frames_fit.main(argv) == 0, capsys.readouterr().err
+    assert cv2.imread(str(out / "real_frames_boxes3d.jpg")) is not None and (out / "a.png").is_file()
+    assert len(list((out / "objects").glob("a_*.png"))) == len(frames["a"].objects)
+
+
+def test_a_bad_boxes_file_stops_either_mode_with_one_line(tmp_path: Path, capsys) -> None:
+    folder = write_scene_folder(tmp_path / "frames", ["a"])
+    rc = real_frames_fit.main(
+        [str(folder), "--fit", str(tmp_path / "d.json"), "--boxes", str(tmp_path / "no.json")]
+    )
+    err = capsys.readouterr().err.strip()
+    assert (
+        rc == 1 and err.startswith("real_frames_fit: ") and "no.json: cannot read" in err and "\n" not in err
+    )
