@@ -1,17 +1,14 @@
 """a3d.runtime.detector2d: the three output layouts decoded into original-image pixels, class names,
 the class map, the errors a user sees, and the bundled YOLOX-Nano.
 
-The graphs are built here with onnx.helper: their outputs are constants crafted so that the
-decoded boxes are known (and, for the boxes layout, scores that are each channel's mean of the
-input, which pins its RGB 0..1 convention). The image is 300 x 150 into a 96 x 64 input, so the
-letterbox scale is 0.32 and the lower part of the input is padding.
+The graphs are tests/helpers/detector_files.py's: the decoded boxes are known. The image is 300 x
+150 into a 96 x 64 input, so the letterbox scale is 0.32 and the lower part of the input is padding.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-import math
 from pathlib import Path
 
 import numpy as np
@@ -23,60 +20,17 @@ from a3d.runtime.detector2d.names import COCO80
 from a3d.runtime.detector2d.preprocess import network_input
 from a3d.runtime.errors import InputError
 from a3d.runtime.structures.classes import CLASSES
+from tests.helpers.detector_files import INPUT_HW, boxes_outputs, detector_graph, nanodet_outputs, yolox_grid
 
-INPUT_HW = (64, 96)
 IMAGE = np.zeros((150, 300, 3), np.uint8)  # letterboxed by r = min(64 / 150, 96 / 300) = 0.32
 R = 0.32
 MODELS = Path(__file__).resolve().parents[1] / "runtime" / "models"
 
 
-def _graph(path: Path, input_shape: list[int], outputs: dict[str, np.ndarray | str],
-           metadata: dict[str, str] | None = None) -> Path:  # fmt: skip
-    """An ONNX file with one float input ``image`` and the given outputs: a constant array, or
-    "channel means" (the input's mean per channel, (1, 3) or (3,) as the input is batched or not)."""
-    onnx = pytest.importorskip("onnx")
-    from onnx import TensorProto, helper, numpy_helper
-
-    nodes, infos = [], []
-    for name, value in outputs.items():
-        if isinstance(value, str):
-            axes = [2, 3] if len(input_shape) == 4 else [1, 2]
-            nodes.append(helper.make_node("ReduceMean", ["image"], [name], axes=axes, keepdims=0))
-            infos.append(helper.make_tensor_value_info(name, TensorProto.FLOAT, input_shape[:-2]))
-        else:
-            nodes.append(helper.make_node("Constant", [], [name], value=numpy_helper.from_array(value, name)))
-            kind = TensorProto.INT64 if value.dtype == np.int64 else TensorProto.FLOAT
-            infos.append(helper.make_tensor_value_info(name, kind, list(value.shape)))
-    image = helper.make_tensor_value_info("image", TensorProto.FLOAT, input_shape)
-    model = helper.make_model(
-        helper.make_graph(nodes, "detector", [image], infos), opset_imports=[helper.make_opsetid("", 13)]
-    )
-    model.ir_version = 8
-    for key, value in (metadata or {}).items():
-        model.metadata_props.add(key=key, value=value)
-    onnx.save(model, path)
-    return path
-
-
-def _yolox_grid() -> np.ndarray:
-    """(1, 126, 8): strides 8, 16, 32 over 64 x 96 (8 x 12 + 4 x 6 + 2 x 3 cells), 3 classes."""
-    grid = np.zeros((1, 126, 8), np.float32)
-    # stride 8, row 2, column 5: centre (44, 18), size 16 x 12; chair 0.9 x 0.8 = 0.72
-    grid[0, 2 * 12 + 5] = [0.5, 0.25, math.log(2), math.log(1.5), 0.9, 0.1, 0.8, 0.1]
-    # its neighbour, the same box (x offset -0.5) as chair 0.45: suppressed by NMS
-    grid[0, 2 * 12 + 6] = [-0.5, 0.25, math.log(2), math.log(1.5), 0.9, 0.0, 0.5, 0.0]
-    # stride 16, row 1, column 2: a cat 0.81, a class the map drops
-    grid[0, 96 + 1 * 6 + 2] = [0.5, 0.5, 0.0, 0.0, 0.9, 0.9, 0.0, 0.0]
-    # stride 32, row 1, column 2: centre (64, 48), 32 x 48 into the padding; tv 0.6 x 0.5 = 0.3
-    grid[0, 120 + 1 * 3 + 2] = [0.0, 0.5, 0.0, math.log(1.5), 0.6, 0.0, 0.0, 0.5]
-    grid[0, 0] = [0.5, 0.5, 0.0, 0.0, 0.04, 0.0, 1.0, 0.0]  # a chair below the 0.05 threshold
-    return grid
-
-
 @pytest.fixture
 def yolox_file(tmp_path: Path) -> Path:
     names = {"names": json.dumps(["cat", "chair", "tv"])}
-    return _graph(tmp_path / "tiny_yolox.onnx", [1, 3, *INPUT_HW], {"output": _yolox_grid()}, names)
+    return detector_graph(tmp_path / "tiny_yolox.onnx", [1, 3, *INPUT_HW], {"output": yolox_grid()}, names)
 
 
 def test_yolox_layout_decodes_into_the_original_image(yolox_file: Path) -> None:
@@ -99,17 +53,8 @@ def test_yolox_layout_decodes_into_the_original_image(yolox_file: Path) -> None:
 
 
 def test_nanodet_layout_decodes_the_distance_distributions(tmp_path: Path) -> None:
-    cells = (96, 24, 6)  # strides 8, 16, 32 over 64 x 96
-    class_maps = [np.full((1, n, 3), 0.01, np.float32) for n in cells]
-    distributions = [np.zeros((1, n, 32), np.float32) for n in cells]
-    class_maps[1][0, 1 * 6 + 3, 2] = 0.7  # stride 16, row 1, column 3: a couch, centre (56, 24)
-    logits = np.zeros((4, 8), np.float32)
-    logits[0, 1] = logits[1, 1] = logits[2, 2] = logits[3, 0] = logits[3, 1] = 30.0  # 1, 1, 2, 0.5 strides
-    distributions[1][0, 1 * 6 + 3] = logits.ravel()
-    class_maps[0][0, 7, 1] = 0.9  # a cup: dropped by the map
-    outputs = {f"cls{i}": m for i, m in enumerate(class_maps)}
-    outputs |= {f"reg{i}": m for i, m in enumerate(distributions)}  # after the class maps, as NanoDet's
-    path = _graph(tmp_path / "tiny_nanodet.onnx", [1, 3, *INPUT_HW], outputs)
+    outputs = nanodet_outputs()
+    path = detector_graph(tmp_path / "tiny_nanodet.onnx", [1, 3, *INPUT_HW], outputs)
     names = tmp_path / "names.txt"
     names.write_text("chair\ncup\ncouch\n")
     detector = Detector2D.load(path, names=names)
@@ -122,16 +67,10 @@ def test_nanodet_layout_decodes_the_distance_distributions(tmp_path: Path) -> No
 
 @pytest.mark.parametrize("batched", [True, False])
 def test_boxes_layout_takes_rgb_in_0_to_1_and_scales_boxes_back(tmp_path: Path, batched: bool) -> None:
-    boxes = np.array([[6, 4, 30, 20], [30, 20, 60, 40], [0, 0, 10, 10]], np.float32)  # in the 60 x 40 input
-    labels = np.array([0, 1, 2], np.int64)
     lead = [1] if batched else []
-    outputs = {
-        "boxes": boxes.reshape(*lead, 3, 4),
-        "scores": "channel means",  # R, G, B of the input: 1.0, 0.6, 0.0 for the image below
-        "labels": labels.reshape(*lead, 3),
-    }
+    outputs = boxes_outputs(batched)  # scores: R, G, B of the input, 1.0, 0.6, 0.0 for the image below
     metadata = {"names": "{0: 'bed', 1: 'toilet', 2: 'sink'}"}  # as ultralytics writes it
-    path = _graph(tmp_path / "tiny_boxes.onnx", [*lead, 3, 40, 60], outputs, metadata)
+    path = detector_graph(tmp_path / "tiny_boxes.onnx", [*lead, 3, 40, 60], outputs, metadata)
     detector = Detector2D.load(path)
     assert detector.layout == "boxes" and detector.class_names == ("bed", "toilet", "sink")
     image = np.empty((150, 300, 3), np.uint8)
@@ -166,7 +105,8 @@ def test_network_input_letterboxes_bgr_at_the_top_left() -> None:
 
 
 def test_an_unknown_layout_is_one_line_naming_the_file(tmp_path: Path) -> None:
-    path = _graph(tmp_path / "classifier.onnx", [1, 3, 32, 32], {"logits": np.zeros((1, 10), np.float32)})
+    outputs = {"logits": np.zeros((1, 10), np.float32)}
+    path = detector_graph(tmp_path / "classifier.onnx", [1, 3, 32, 32], outputs)
     with pytest.raises(InputError, match="unknown 2D detector layout: outputs logits \\(1, 10\\)") as error:
         Detector2D.load(path)
     assert str(path) in str(error.value) and "\n" not in str(error.value)

@@ -1,0 +1,133 @@
+"""a3d-run --detector end to end: a 2D detector of each layout adds its boxes to a run, each line
+says where every detection's class came from, bad detector inputs are one line and exit 2, and a
+frame whose detector fails keeps a3d's own detections and says so."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from a3d.runtime.cli import run as run_cli
+from a3d.runtime.io.detections_io import read_detections
+from a3d.runtime.postprocess.fuse import NETWORK
+from tests.helpers.detector_files import (
+    INPUT_HW,
+    boxes_outputs,
+    detector_graph,
+    nanodet_outputs,
+    yolox_grid,
+)
+from tests.helpers.runtime_frames import FakeModel, write_scene_folder
+
+EXPECTED = {  # the a3d classes each test file's boxes may take
+    "yolox": {"chair", "monitor", "television"},
+    "nanodet": {"sofa"},
+    "boxes": {"bed", "toilet", "sink"},
+}
+NAMES = {
+    "yolox": ["cat", "chair", "tv"],
+    "nanodet": ["chair", "cup", "couch"],
+    "boxes": ["bed", "toilet", "sink"],
+}
+
+
+def run(argv: list[str]) -> int:
+    try:
+        return run_cli.main(argv)
+    except SystemExit as e:
+        return int(e.code or 0)
+
+
+@pytest.fixture
+def fake_model(monkeypatch: pytest.MonkeyPatch) -> FakeModel:
+    model = FakeModel()
+    monkeypatch.setattr(run_cli, "load_model", lambda path, threads: model)
+    return model
+
+
+def _detector(folder: Path, layout: str, names: list[str] | None = None) -> Path:
+    metadata = {"names": json.dumps(names or NAMES[layout])}
+    if layout == "yolox":
+        return detector_graph(folder / "yolox.onnx", [1, 3, *INPUT_HW], {"output": yolox_grid()}, metadata)
+    if layout == "nanodet":
+        return detector_graph(folder / "nanodet.onnx", [1, 3, *INPUT_HW], nanodet_outputs(), metadata)
+    return detector_graph(folder / "boxes.onnx", [1, 3, 40, 60], boxes_outputs(), metadata)
+
+
+@pytest.mark.parametrize("layout", ["yolox", "nanodet", "boxes"])
+def test_a_detector_of_each_layout_adds_its_boxes_to_the_run(tmp_path: Path, fake_model, layout: str) -> None:
+    folder = write_scene_folder(tmp_path / "frames", ["a", "b"])
+    detector = _detector(tmp_path, layout)
+    plain, joined = tmp_path / "plain.jsonl", tmp_path / "joined.jsonl"
+    common = [str(folder), "--headless", "--score-threshold", "0"]
+    assert run([*common, "--output", str(plain)]) == 0
+    assert run([*common, "--output", str(joined), "--detector", str(detector)]) == 0
+    for own, both in zip(read_detections(plain), read_detections(joined), strict=True):
+        assert own.sources is None  # a run without a detector writes no source
+        assert both.sources is not None and set(both.sources) <= {NETWORK, detector.stem,
+                                                                   f"{detector.stem}+{NETWORK}"}  # fmt: skip
+        from_detector = [i for i, s in enumerate(both.sources) if s.startswith(detector.stem)]
+        assert from_detector, f"{layout}: no detection from the detector in frame {both.frame}"
+        assert {both.classes[i] for i in from_detector} <= EXPECTED[layout]
+        assert np.all(both.boxes3d[from_detector, 3:6] > 0)
+        assert len(both) >= len(own) - len(from_detector)  # own detections are kept (or merged)
+
+
+@pytest.mark.parametrize(
+    ("problem", "message"),
+    [
+        ("layout", "unknown 2D detector layout"),
+        ("names", "has 2 class names but the detector"),
+        ("class map", "names no a3d class"),
+        ("missing", "no such 2D detector file"),
+    ],
+)
+def test_bad_detector_inputs_are_one_line_and_exit_2(
+    tmp_path: Path, fake_model, capsys: pytest.CaptureFixture, problem: str, message: str
+) -> None:
+    folder = write_scene_folder(tmp_path / "frames", ["a"])
+    out = tmp_path / "det.jsonl"
+    detector = _detector(tmp_path, "yolox")
+    extra = ["--detector", str(detector)]
+    if problem == "layout":
+        logits = {"logits": np.zeros((1, 10), np.float32)}
+        classifier = detector_graph(tmp_path / "cls.onnx", [1, 3, 32, 32], logits)
+        extra = ["--detector", str(classifier)]
+    elif problem == "names":
+        names = tmp_path / "two.names"
+        names.write_text("chair\ntv\n")
+        extra += ["--detector-names", str(names)]
+    elif problem == "class map":
+        mapping = tmp_path / "map.json"
+        mapping.write_text(json.dumps({"chair": [], "tv": []}))
+        extra += ["--class-map", str(mapping)]
+    else:
+        extra = ["--detector", str(tmp_path / "absent.onnx")]
+    assert run([str(folder), "--headless", "--output", str(out), *extra]) == 2
+    err = capsys.readouterr().err
+    assert message in err and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_detector_flags_without_a_detector_are_a_usage_error(tmp_path: Path, fake_model) -> None:
+    folder = write_scene_folder(tmp_path / "frames", ["a"])
+    names = tmp_path / "x.names"
+    names.write_text("chair\n")
+    assert run([str(folder), "--headless", "--detector-names", str(names)]) == 2
+
+
+def test_a_frame_whose_detector_fails_keeps_its_own_detections_and_says_so(tmp_path: Path, fake_model):
+    folder = write_scene_folder(tmp_path / "frames", ["a"])
+    # Labels 0..2 with two class names: the third box's class does not exist, found at inference.
+    broken = _detector(tmp_path, "boxes", names=["bed", "toilet"])
+    plain, joined = tmp_path / "plain.jsonl", tmp_path / "joined.jsonl"
+    common = [str(folder), "--headless", "--score-threshold", "0"]
+    assert run([*common, "--output", str(plain)]) == 0
+    assert run([*common, "--output", str(joined), "--detector", str(broken)]) == 0
+    (own,), (kept,) = read_detections(plain), read_detections(joined)
+    assert kept.scores.tolist() == own.scores.tolist() and set(kept.sources) == {NETWORK}
+    (note,) = [n for n in kept.notes if "2D detector" in n]
+    assert note.startswith("2D detector boxes failed (ValueError: ") and "a3d's own detections only" in note
