@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import pickle
 from pathlib import Path
 
 import numpy as np
@@ -158,3 +159,10 @@ def test_the_bundled_yolox_nano_loads_by_name_and_finds_little_in_a_blank_image(
 def test_the_bundled_file_is_the_one_its_licence_describes() -> None:
     digest = hashlib.sha256((MODELS / DETECTORS["yolox-nano"]).read_bytes()).hexdigest()
     assert f"sha256 {digest}" in (MODELS / "LICENSE-YOLOX.txt").read_text()
+
+
+def test_a_detector_pickles_as_what_it_was_opened_with(yolox_file: Path) -> None:
+    """Ray ships the pipeline to its workers by pickle; each reopens the file."""
+    copy = pickle.loads(pickle.dumps(Detector2D.load(yolox_file, threads=1)))
+    assert (copy.name, copy.layout, copy.class_names) == ("tiny_yolox", "yolox", ("cat", "chair", "tv"))
+    np.testing.assert_allclose(copy.detect(IMAGE).scores, [0.72, 0.3], rtol=1e-6)

@@ -54,6 +54,7 @@ class Detector2D:
         self._map = class_map
         self._name = name
         self._threshold = score_threshold
+        self._opened_as: tuple | None = None  # load()'s arguments, what a pickle reopens
 
     @classmethod
     def load(
@@ -85,7 +86,16 @@ class Detector2D:
         detector_names = class_names(names, metadata, layout.num_classes, where)
         compiled = _compiled_map(class_map, detector_names, where)
         name = os.fspath(spec) if short else path.stem
-        return cls(session, layout, detector_names, compiled, name, float(score_threshold))
+        detector = cls(session, layout, detector_names, compiled, name, float(score_threshold))
+        detector._opened_as = (spec, names, class_map, threads, float(score_threshold))
+        return detector
+
+    def __reduce__(self) -> tuple:
+        """Pickled as the arguments it was loaded with (an ONNX Runtime session does not pickle):
+        a Ray worker opens its own copy (a3d.runtime.scale)."""
+        if self._opened_as is None:
+            raise TypeError(f"{self._name}: only a 2D detector opened by Detector2D.load pickles")
+        return _reopen, self._opened_as
 
     @property
     def name(self) -> str:
@@ -153,3 +163,9 @@ def _nms(boxes: np.ndarray, scores: np.ndarray, labels: np.ndarray) -> np.ndarra
     xywh = np.concatenate([boxes[:, :2], boxes[:, 2:] - boxes[:, :2]], axis=1)
     kept = cv2.dnn.NMSBoxesBatched(xywh, scores, labels.astype(np.int32), -np.inf, NMS_IOU)
     return np.asarray(kept, np.int64).reshape(-1)
+
+
+def _reopen(
+    spec: str | Path, names: Path | None, class_map: Path | None, threads: int, threshold: float
+) -> Detector2D:
+    return Detector2D.load(spec, names=names, class_map=class_map, threads=threads, score_threshold=threshold)
