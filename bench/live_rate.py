@@ -13,6 +13,10 @@ is seen beside it. The front end's process CPU time (the prepare stage) is print
 wall time: on a loaded machine it is the steadier measure of the work itself.
 
     .venv/bin/python -m bench.live_rate [--first 910000] [--count 12] [--variants model live s4n300k6p150]
+        [--detector yolox-nano]
+
+``--detector`` adds a 2D detector's boxes to the RoIs (a3d.runtime.detector2d, the ``real``
+pipeline's): its time is the stage ``detector2d``, counted in the front end.
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from a3d.runtime.detector2d import Detector2D
 from a3d.runtime.evaluation.metric import FrameTruth, evaluate
 from a3d.runtime.frontend.proposals import live_proposals
 from a3d.runtime.models import model_path
@@ -67,6 +72,7 @@ def main() -> None:
     parser.add_argument("--count", type=int, default=12)
     parser.add_argument("--model", default=str(model_path("live")))
     parser.add_argument("--variants", nargs="+", default=["model", "live"])
+    parser.add_argument("--detector", help="a 2D detector whose boxes join the RoIs (e.g. yolox-nano)")
     args = parser.parse_args()
     from a3d.synth.scene import SceneConfig, generate_frame
 
@@ -79,8 +85,13 @@ def main() -> None:
     base = PipelineConfig.from_metadata(
         model.metadata, proposal_source="compute", max_proposals=MAX_PROPOSALS
     )
+    front_end = FRONT_END
+    if args.detector:
+        base = replace(base, detector=Detector2D.load(args.detector, threads=2))
+        front_end = (*FRONT_END, "detector2d")
     print(
         f"{args.count} a3d-synth frames at {SIZE[0]} x {SIZE[1]}, seeds {args.first}+, model {args.model}, "
+        f"2D detector {args.detector or 'none'}, "
     )
     print(f"at most {MAX_PROPOSALS} proposals, 2 threads; {cpu_description()}")
     print(f"load average {os.getloadavg()[0]:.1f}")
@@ -108,7 +119,7 @@ def main() -> None:
             detections[frame.name] = det
         result = evaluate(truths, detections)
         med = {stage: float(np.median(t)) for stage, t in times.items()}
-        front = float(np.median(np.sum([times[s] for s in FRONT_END], axis=0)))
+        front = float(np.median(np.sum([times[s] for s in front_end], axis=0)))
         stages = ", ".join(f"{s} {med[s]:.0f}" for s in STAGES if s in med)
         print(
             f"{name:7s} front end {front:5.0f} ms (target <= 40; CPU {np.median(cpu):4.0f} ms), "

@@ -11,7 +11,7 @@ import pytest
 from a3d.runtime import Detector
 from a3d.runtime.cli import run as run_cli
 from a3d.runtime.io.detections_io import read_detections
-from a3d.runtime.models import DEFAULT_MODEL, MODELS, is_model_name, model_path
+from a3d.runtime.models import DEFAULT_MODEL, MODELS, PIPELINE_DETECTORS, is_model_name, model_path
 from a3d.runtime.network.model import DetectorModel
 from tests.helpers.samples import SAMPLES
 
@@ -35,7 +35,13 @@ def test_model_info_prints_the_card(name: str, capsys: pytest.CaptureFixture[str
     assert lines[0].startswith(f"model: {model_path(name)} (")
     assert any(line.startswith("network: colour trunk VGG16 x ") for line in lines)
     assert any(line.startswith("scores: calibrated on ") for line in lines)
-    assert lines[-1].startswith("weights licence: ")
+    licence = next(i for i, line in enumerate(lines) if line.startswith("weights licence: "))
+    detector = PIPELINE_DETECTORS.get(name)
+    if detector is None:
+        assert licence == len(lines) - 1
+    else:  # a pipeline's card ends with its 2D detector's: what it is, its training data, its licence
+        assert lines[licence + 1].startswith(f"2D detector: {detector}: ") and "COCO" in lines[licence + 1]
+        assert lines[licence + 2].startswith("2D detector licence: Apache-2.0")
 
 
 def test_model_info_of_no_model_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -74,7 +74,7 @@ from a3d.runtime.mapping.object_map import ObjectMap
 from a3d.runtime.mapping.world import WORLD_AXES, down_of_up_axis
 from a3d.runtime.models import DEFAULT_MODEL as DEFAULT_NAME
 from a3d.runtime.models import MODELS, NO_DETECTOR, model_path, pipeline_detector
-from a3d.runtime.models.card import model_card
+from a3d.runtime.models.card import detector_card, model_card
 from a3d.runtime.network.model import DetectorModel
 from a3d.runtime.pipeline import (
     FRONT_ENDS,
@@ -275,7 +275,9 @@ class _ModelInfo(argparse.Action):
             metadata = DetectorModel.load(path, threads=1).metadata
         except ModelError as e:
             parser.exit(EXIT_USAGE, f"{PROG}: error: {e}\n")
-        print("\n".join(model_card(path, metadata)))
+        detector = pipeline_detector(str(value))
+        extra = [] if detector is None else detector_card(os.fspath(detector))
+        print("\n".join([*model_card(path, metadata), *extra]))
         parser.exit(0)
 
 
