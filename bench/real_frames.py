@@ -1,8 +1,12 @@
 """What a model finds in real frames that have no 3D ground truth, against hand-drawn 2D boxes.
 
-    .venv/bin/python -m bench.real_frames FOLDER --model runtime/models/live.onnx [--model-name LABEL] \\
-        --boxes bench/data/real_frames_boxes.json [--boxes3d bench/data/real_frames_boxes3d.json | --no-3d] \\
-        [--threshold 0.5] --out DIR
+    .venv/bin/python -m bench.real_frames FOLDER --model live|real|FILE [--detector NAME|FILE|none] \\
+        [--model-name LABEL] --boxes bench/data/real_frames_boxes.json \\
+        [--boxes3d bench/data/real_frames_boxes3d.json | --no-3d] [--threshold 0.5] --out DIR
+    .venv/bin/python -m bench.real_frames FOLDER --detector yolox-nano --detector-alone --out DIR
+
+``--model real`` is the bundled pipeline (the network with its 2D detector, a3d.runtime.models);
+``--detector-alone`` counts a 2D detector's own boxes and scores, its classes mapped to a3d's, in 2D.
 
 mAP needs 3D boxes, and real frames such as the nine the project looked at come without any; what a user
 sees is which boxes a model draws on them. This runs the model on every frame of FOLDER (an a3d
@@ -46,6 +50,7 @@ import cv2
 import numpy as np
 
 from a3d.runtime import Detector
+from a3d.runtime.detector2d import Detector2D
 from a3d.runtime.errors import InputError
 from a3d.runtime.evaluation.metric import FrameTruth
 from a3d.runtime.io.detections_io import FrameDetections, write_detections
@@ -370,15 +375,31 @@ def check_frames(source: FolderSource, boxes: BoxesFile) -> None:
         raise InputError(f"{boxes.path}: no entry for frame {unboxed[0]!r} of {source.folder}")
 
 
-def detect_all(source: FolderSource, model: Path, threads: int) -> list[tuple[FrameDetections, np.ndarray]]:
+def detect_all(
+    source: FolderSource, model: Path, threads: int, detector: str | None = None
+) -> list[tuple[FrameDetections, np.ndarray]]:
     """Each frame's detections and colour image (BGR), in folder order; a frame that fails stops
-    the benchmark (its totals would be wrong)."""
-    detector = Detector.load(model, threads=threads)
+    the benchmark (its totals would be wrong). ``detector``: Detector.load's (None: the model's)."""
+    detector = Detector.load(model, threads=threads, detector=detector)
     results = []
     for outcome in detector.detect_frames(source, score_threshold=0):  # all: the count applies its own
         if outcome.detections is None or outcome.prepared is None:
             raise InputError(outcome.problem)
         results.append((outcome.detections, outcome.prepared.frame.color))
+    return results
+
+
+def detector_alone(source: FolderSource, name: str, threads: int) -> list[tuple[FrameDetections, np.ndarray]]:
+    """The 2D detector's own boxes and scores of each frame, its classes mapped to a3d's (the first
+    candidate), without the network: 2D only (the boxes3d are placeholders, never counted)."""
+    detector = Detector2D.load(name, threads=threads)
+    results = []
+    for loader in source:
+        frame = loader.load()
+        found = detector.detect(np.ascontiguousarray(frame.color[..., ::-1]))
+        det = FrameDetections(frame.name, np.eye(3), found.class_ids, found.scores, found.boxes,
+                              np.zeros((len(found.scores), 7)), color=frame.color_file)  # fmt: skip
+        results.append((det, frame.color))
     return results
 
 
@@ -397,11 +418,16 @@ def run(args: argparse.Namespace) -> int:
     if not args.folder.is_dir():
         raise InputError(f"{args.folder}: no such frame folder")
     boxes = read_boxes(args.boxes)
-    boxes3d = None if args.no_3d else read_boxes3d(args.boxes3d, boxes)
+    alone = args.detector_alone
+    boxes3d = None if args.no_3d or alone else read_boxes3d(args.boxes3d, boxes)
     source = FolderSource(args.folder)
     check_frames(source, boxes)
-    label = args.model_name or args.model.stem
-    results = detect_all(source, args.model, args.threads)
+    if alone:
+        label = args.model_name or f"{args.detector} alone"
+        results = detector_alone(source, args.detector, args.threads)
+    else:
+        label = args.model_name or args.model.stem
+        results = detect_all(source, args.model, args.threads, args.detector)
     counts, reports, tiles = {}, {}, []
     for det, color in results:
         truth = boxes.frames[det.frame]
@@ -428,7 +454,8 @@ def run(args: argparse.Namespace) -> int:
         f"dashed grey: hand-drawn objects"
     )
     cv2.imwrite(str(args.out / "contact_sheet.png"), contact_sheet(tiles, columns=3, header=header))
-    write_detections(args.out / "detections.jsonl", [det for det, _ in results])
+    if not alone:
+        write_detections(args.out / "detections.jsonl", [det for det, _ in results])
     summary = {
         "model": str(args.model), "model_name": label, "boxes": str(args.boxes), "threshold": args.threshold,
         "iou": IOU, "box": args.box, "frames": reports, "total": total.as_dict(),
@@ -452,7 +479,11 @@ def run(args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("folder", type=Path, help="an a3d frame folder of real frames")
-    parser.add_argument("--model", type=Path, required=True, help="the ONNX model to run")
+    parser.add_argument("--model", type=Path, help="the model to run: a bundled name (live, real) or file")
+    parser.add_argument("--detector", help="a 2D detector whose boxes join the model's RoIs ('none': none; "
+                        "default: the model's pipeline's)")  # fmt: skip
+    parser.add_argument("--detector-alone", action="store_true",
+                        help="count --detector's own boxes and scores, no network (2D only)")  # fmt: skip
     parser.add_argument(
         "--model-name", help="the model's name on the sheet and in the JSON (default: its stem)"
     )
@@ -466,6 +497,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--out", type=Path, required=True, help="folder for the sheet and the JSON")
     args = parser.parse_args(argv)
+    if (args.model is None) != args.detector_alone or (args.detector_alone and not args.detector):
+        parser.error("give --model, or --detector NAME with --detector-alone")
     try:
         return run(args)
     except (InputError, ValueError, OSError) as e:

@@ -372,3 +372,17 @@ def test_a_missing_folder_and_boxes_for_another_image_size_stop_the_run(tmp_path
     )
     err = capsys.readouterr().err.strip()
     assert rc == 1 and f"the image is {W}x{H}" in err and "are for 640x480" in err
+
+
+def test_a_detector_alone_is_counted_in_2d_and_needs_a_detector(tmp_path: Path, capsys) -> None:
+    folder = write_scene_folder(tmp_path / "frames", ["a", "b"])
+    boxes = _write(tmp_path, _tiny_boxes(a=[{"class": "chair", "box": [10, 10, 40, 60]}], b=[]))
+    out = tmp_path / "out"
+    argv = [str(folder), "--boxes", str(boxes), "--out", str(out), "--detector", "yolox-nano"]
+    assert real_frames.main([*argv, "--detector-alone"]) == 0
+    report = json.loads((out / "real_frames.json").read_text())
+    assert report["model_name"] == "yolox-nano alone" and "3d" not in report
+    assert report["total"]["objects"] == 1 and not (out / "detections.jsonl").exists()
+    with pytest.raises(SystemExit) as usage:
+        real_frames.main([str(folder), "--boxes", str(boxes), "--out", str(out), "--detector-alone"])
+    assert usage.value.code == 2
