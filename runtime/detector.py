@@ -1,7 +1,7 @@
 """The Python API: ``Detector.load(model).detect(color, depth, intrinsics)`` (docs/api.md).
 
     from a3d.runtime import Detector
-    det = Detector.load(threads=2)  # the bundled default model; Detector.load("live"), or a file
+    det = Detector.load(threads=2)  # the bundled default, "real"; Detector.load("live"), or a file
     result = det.detect(color_rgb, depth_m, (fx, fy, cx, cy))   # or a 3x3 K, and R_tilt=...
     for d in result: print(d.class_name, d.score, d.box3d)      # the detections scoring >= 0.5
     image = result.draw(color_rgb)                              # boxes drawn, as the viewer shows them
@@ -62,7 +62,7 @@ class Detector:
         detector_names: str | os.PathLike | None = None,
         class_map: str | os.PathLike | None = None,
     ) -> Detector:
-        """Open and check a model: a bundled one by name (``"accurate"``, the default, or ``"live"``;
+        """Open and check a model: a bundled one by name (``"real"``, the default, or ``"live"``;
         a3d.runtime.models) or a model file (ModelError naming it if unusable); the settings default to
         the model's own (its metadata), each overridable as on a3d-run's command line
         (``score_threshold``: what the pipeline keeps, a3d-run's --score-threshold, below what

@@ -67,3 +67,11 @@ def test_a_folder_without_a_model_runs_the_default_and_a_name_picks_one(tmp_path
         direct.model.metadata.content_sha256
         == DetectorModel.load(model_path(), threads=1).metadata.content_sha256
     )
+
+
+def test_the_default_pipeline_brings_its_2d_detector_and_live_runs_alone() -> None:
+    assert DEFAULT_MODEL == "real" and PIPELINE_DETECTORS["real"] == "yolox-nano"
+    default = Detector.load(threads=1)
+    assert default.config.detector is not None and default.config.detector.name == "yolox-nano"
+    assert Detector.load("live", threads=1).config.detector is None
+    assert Detector.load("real", threads=1, detector="none").config.detector is None

@@ -10,7 +10,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from a3d.runtime.cli import run as run_cli
 from a3d.runtime.io.detections_io import read_detections
 from a3d.runtime.postprocess.fuse import NETWORK
 from tests.helpers.detector_files import (
@@ -20,7 +19,10 @@ from tests.helpers.detector_files import (
     nanodet_outputs,
     yolox_grid,
 )
-from tests.helpers.runtime_frames import FakeModel, write_scene_folder
+from tests.helpers.runtime_frames import write_scene_folder
+from tests.test_run_cli import fake_model, run  # noqa: F401 (fake_model: the fake network's fixture)
+
+pytestmark = pytest.mark.usefixtures("fake_model")
 
 EXPECTED = {  # the a3d classes each test file's boxes may take
     "yolox": {"chair", "monitor", "television"},
@@ -34,20 +36,6 @@ NAMES = {
 }
 
 
-def run(argv: list[str]) -> int:
-    try:
-        return run_cli.main(argv)
-    except SystemExit as e:
-        return int(e.code or 0)
-
-
-@pytest.fixture
-def fake_model(monkeypatch: pytest.MonkeyPatch) -> FakeModel:
-    model = FakeModel()
-    monkeypatch.setattr(run_cli, "load_model", lambda path, threads: model)
-    return model
-
-
 def _detector(folder: Path, layout: str, names: list[str] | None = None) -> Path:
     metadata = {"names": json.dumps(names or NAMES[layout])}
     if layout == "yolox":
@@ -58,12 +46,12 @@ def _detector(folder: Path, layout: str, names: list[str] | None = None) -> Path
 
 
 @pytest.mark.parametrize("layout", ["yolox", "nanodet", "boxes"])
-def test_a_detector_of_each_layout_adds_its_boxes_to_the_run(tmp_path: Path, fake_model, layout: str) -> None:
+def test_a_detector_of_each_layout_adds_its_boxes_to_the_run(tmp_path: Path, layout: str) -> None:
     folder = write_scene_folder(tmp_path / "frames", ["a", "b"])
     detector = _detector(tmp_path, layout)
     plain, joined = tmp_path / "plain.jsonl", tmp_path / "joined.jsonl"
     common = [str(folder), "--headless", "--score-threshold", "0"]
-    assert run([*common, "--output", str(plain)]) == 0
+    assert run([*common, "--output", str(plain), "--detector", "none"]) == 0
     assert run([*common, "--output", str(joined), "--detector", str(detector)]) == 0
     for own, both in zip(read_detections(plain), read_detections(joined), strict=True):
         assert own.sources is None  # a run without a detector writes no source
@@ -86,7 +74,7 @@ def test_a_detector_of_each_layout_adds_its_boxes_to_the_run(tmp_path: Path, fak
     ],
 )
 def test_bad_detector_inputs_are_one_line_and_exit_2(
-    tmp_path: Path, fake_model, capsys: pytest.CaptureFixture, problem: str, message: str
+    tmp_path: Path, capsys: pytest.CaptureFixture, problem: str, message: str
 ) -> None:
     folder = write_scene_folder(tmp_path / "frames", ["a"])
     out = tmp_path / "det.jsonl"
@@ -112,20 +100,21 @@ def test_bad_detector_inputs_are_one_line_and_exit_2(
     assert not out.exists()
 
 
-def test_detector_flags_without_a_detector_are_a_usage_error(tmp_path: Path, fake_model) -> None:
+def test_detector_flags_without_a_detector_are_a_usage_error(tmp_path: Path, capsys) -> None:
     folder = write_scene_folder(tmp_path / "frames", ["a"])
     names = tmp_path / "x.names"
     names.write_text("chair\n")
-    assert run([str(folder), "--headless", "--detector-names", str(names)]) == 2
+    assert run([str(folder), "--headless", "--model", "live", "--detector-names", str(names)]) == 2
+    assert "need a 2D detector" in capsys.readouterr().err
 
 
-def test_a_frame_whose_detector_fails_keeps_its_own_detections_and_says_so(tmp_path: Path, fake_model):
+def test_a_frame_whose_detector_fails_keeps_its_own_detections_and_says_so(tmp_path: Path) -> None:
     folder = write_scene_folder(tmp_path / "frames", ["a"])
     # Labels 0..2 with two class names: the third box's class does not exist, found at inference.
     broken = _detector(tmp_path, "boxes", names=["bed", "toilet"])
     plain, joined = tmp_path / "plain.jsonl", tmp_path / "joined.jsonl"
     common = [str(folder), "--headless", "--score-threshold", "0"]
-    assert run([*common, "--output", str(plain)]) == 0
+    assert run([*common, "--output", str(plain), "--detector", "none"]) == 0
     assert run([*common, "--output", str(joined), "--detector", str(broken)]) == 0
     (own,), (kept,) = read_detections(plain), read_detections(joined)
     assert kept.scores.tolist() == own.scores.tolist() and set(kept.sources) == {NETWORK}

@@ -18,7 +18,7 @@ PIPELINE_DETECTORS: dict[str, str] = {"real": "yolox-nano"}
 whose boxes join its RoIs. ``real`` is ``live``'s network with YOLOX-Nano (COCO): on real rooms
 the detector's real-photograph training sees chairs, sofas, tables and monitors that a network
 trained on synthetic rooms alone misses (docs/real-rooms.md)."""
-DEFAULT_MODEL = "live"
+DEFAULT_MODEL = "real"
 HERE = Path(__file__).resolve().parent
 NO_DETECTOR = "none"
 
