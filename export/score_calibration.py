@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from a3d.export.base import ExportError
-from a3d.runtime.evaluation.metric import EvalConfig, evaluate
+from a3d.runtime.evaluation.metric import EvalConfig, EvalResult, evaluate
 from a3d.runtime.evaluation.truth import load_truth
 from a3d.runtime.network.model import DetectorModel
 from a3d.runtime.pipeline import PipelineConfig, detect_frames
@@ -30,11 +30,40 @@ PROGRESS_EVERY = 50  # frames between progress lines
 
 
 def calibrate(model: DetectorModel, folder: Path, prog: str) -> tuple[ScoreCalibration, dict]:
-    """The calibration fitted on ``folder`` and what it was fitted on (for the model's provenance).
+    """The calibration fitted on ``folder`` and what it was fitted on (for the model's provenance),
+    with the model's mAP@0.25 there (the calibration keeps every class's ranking, so its AP).
 
     Raises ExportError naming the folder when a frame fails or the detections hold no right or
     no wrong one.
     """
+    result = score_on(model, folder, prog)
+    scores = np.concatenate([c.scores for c in result.classes])
+    classes = np.concatenate([np.full(c.num_det, CLASSES.index(c.name)) for c in result.classes])
+    correct = np.concatenate([c.true_positives(IOU) for c in result.classes])
+    try:
+        calibration = fit_calibration(scores, classes, correct, NUM_CLASSES, IOU)
+    except ValueError as e:
+        raise ExportError(f"{folder}: cannot fit the score calibration: {e}") from None
+    calibrated = calibration.apply(scores, classes)
+    report = {
+        "folder": str(folder.resolve()),
+        "frames": result.num_frames,
+        "detections": len(scores),
+        "right": int(correct.sum()),
+        "iou": IOU,
+        f"right_share_at_{REPORT_THRESHOLD}": {
+            "softmax": _right_share(scores, correct),
+            "calibrated": _right_share(calibrated, correct),
+        },
+        "map25": result.map_all(IOU),
+        "map25_present": result.map_present(IOU),
+    }
+    return calibration, report
+
+
+def score_on(model: DetectorModel, folder: Path, prog: str) -> EvalResult:
+    """The model's detections (softmax scores) on every annotated frame of ``folder``, scored at
+    3D IoU 0.25 by the evaluator (ExportError naming the folder for a frame that fails)."""
     truth, _ = load_truth(folder)
     config = PipelineConfig.from_metadata(model.metadata, raw_scores=True)
     source = FolderSource(folder)
@@ -47,28 +76,8 @@ def calibrate(model: DetectorModel, folder: Path, prog: str) -> tuple[ScoreCalib
         if outcome.name in truth:
             detections[outcome.name] = outcome.detections
         if done % PROGRESS_EVERY == 0:
-            print(f"{prog}: score calibration: {done}/{len(source)} frames", file=sys.stderr)
-    result = evaluate(truth, detections, EvalConfig(iou_thresholds=(IOU,)))
-    scores = np.concatenate([c.scores for c in result.classes])
-    classes = np.concatenate([np.full(c.num_det, CLASSES.index(c.name)) for c in result.classes])
-    correct = np.concatenate([c.true_positives(IOU) for c in result.classes])
-    try:
-        calibration = fit_calibration(scores, classes, correct, NUM_CLASSES, IOU)
-    except ValueError as e:
-        raise ExportError(f"{folder}: cannot fit the score calibration: {e}") from None
-    calibrated = calibration.apply(scores, classes)
-    report = {
-        "folder": str(folder.resolve()),
-        "frames": len(detections),
-        "detections": len(scores),
-        "right": int(correct.sum()),
-        "iou": IOU,
-        f"right_share_at_{REPORT_THRESHOLD}": {
-            "softmax": _right_share(scores, correct),
-            "calibrated": _right_share(calibrated, correct),
-        },
-    }
-    return calibration, report
+            print(f"{prog}: {folder.name}: {done}/{len(source)} frames", file=sys.stderr)
+    return evaluate(truth, detections, EvalConfig(iou_thresholds=(IOU,)))
 
 
 def _right_share(scores: np.ndarray, correct: np.ndarray) -> dict:

@@ -344,6 +344,8 @@ class _Run:
         elif solver.init and not state:
             load_weights(model, start["model"], solver.init)
         model.freeze_color(solver.freeze_color)
+        if solver.frozen_norms:
+            model.freeze_norms()
         # channels-last convolutions: oneDNN's fast layout on CPUs (1.2x in fp32, and what AMX's bf16 wants)
         model.to(dev, memory_format=torch.channels_last)
         self.bf16 = solver.precision == "bf16"

@@ -83,6 +83,7 @@ class A3DNet(nn.Module):
         # flattened (y, c, x) through it, fc6 permuted to match; None: roi_align, (c, y, x).
         self.pool_product: Callable | None = None
         self.bbox_pred_2d = nn.Linear(config.fc7, NUM_OUTPUTS * BOX2D_SIZE)
+        self.norms_frozen = False  # freeze_norms
         # torchvision's VGG classifier init for fc6/fc7, Fast R-CNN's for the heads.
         for layer, std in ((self.fc6, 0.01), (self.fc7, 0.01), (self.cls_score, 0.01),
                            (self.bbox_pred_3d, 0.001), (self.bbox_pred_2d, 0.001)):  # fmt: skip
@@ -102,6 +103,20 @@ class A3DNet(nn.Module):
                              "(net.color_norm=false)")  # fmt: skip
         for _, conv in trunk_convs[:convs]:
             conv.requires_grad_(False)
+
+    def freeze_norms(self) -> None:
+        """Keep every BatchNorm in eval mode from now on, also in ``train()``: their running
+        statistics stay fixed (SolverConfig.frozen_norms)."""
+        self.norms_frozen = True
+        self.train(self.training)
+
+    def train(self, mode: bool = True) -> A3DNet:
+        super().train(mode)
+        if self.norms_frozen:
+            for module in self.modules():
+                if isinstance(module, nn.modules.batchnorm._BatchNorm):
+                    module.eval()
+        return self
 
     @property
     def color_frozen(self) -> bool:

@@ -1,0 +1,80 @@
+"""a3d-finetune: the bundled model fine-tuned for a few iterations on a tiny posed sequence, end to
+end (split, mix, read-back, training, int8 export, card), and a3d-run loads what it writes; bad
+input is one line and exit 2 with nothing written."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from a3d.runtime.cli.common import EXIT_USAGE
+from a3d.runtime.cli.run import main as run_main
+from a3d.runtime.network.model import DetectorModel
+from a3d.synth.cli import main as synth_main
+from a3d.train.finetune_cli import main
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A 10-frame sequence of one room (a recording with its labels) and 4 synthetic frames to mix in."""
+    root = tmp_path_factory.mktemp("finetune")
+    assert synth_main([str(root / "seq"), "--sequence", "10", "--seed", "3", "--size", "120x160"]) == 0
+    assert synth_main([str(root / "synth"), "--frames", "4", "--seed", "5", "--size", "120x160",
+                       "--split", "test=0"]) == 0  # fmt: skip
+    return root
+
+
+@pytest.mark.slow
+def test_a_fine_tune_of_seconds_end_to_end_writes_a_model_a3d_run_loads(data: Path, tmp_path: Path) -> None:
+    out = tmp_path / "mine.onnx"
+    argv = [str(data / "seq" / "frames"), "--out", str(out), "--minutes", "5", "--iters", "3",
+            "--holdout", "0.3", "--synth", str(data / "synth" / "train")]  # fmt: skip
+    assert main(argv) == 0
+    card = DetectorModel.load(out, threads=1).metadata.provenance["finetune"]
+    assert card["base"]["model"] == "live"
+    assert (card["data"]["train_frames"], card["data"]["holdout_frames"]) == (7, 3)
+    assert card["data"]["objects_per_class"] and set(card["heldout_map25"]) == {
+        "before", "before_present", "after", "after_present"}  # fmt: skip
+    assert card["recipe"]["pooled_layout"] == "y, c, x" and not card["recipe"]["interrupted"]
+    held = sorted(p.name for p in (tmp_path / "mine.finetune" / "holdout").glob("*.gt.json"))
+    assert held == [f"r0_seq_{i:06d}.gt.json" for i in (7, 8, 9)]  # the recording's last stretch
+    detections = tmp_path / "det.jsonl"
+    frames = str(tmp_path / "mine.finetune" / "holdout")
+    assert run_main([frames, "--model", str(out), "--output", str(detections), "--headless"]) == 0
+    assert len(detections.read_text().splitlines()) == 3
+
+
+def _one_line_exit_2(argv: list[str], capsys: pytest.CaptureFixture[str], expected: str) -> None:
+    assert main(argv) == EXIT_USAGE
+    lines = capsys.readouterr().err.strip().splitlines()  # progress lines before it, if any
+    assert lines[-1].startswith("a3d-finetune: error: ") and expected in lines[-1], lines
+    assert sum("error" in line for line in lines) == 1
+
+
+def test_bad_input_is_one_line_and_nothing_is_written(
+    data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    out = tmp_path / "mine.onnx"
+    unlabelled = tmp_path / "unlabelled"
+    shutil.copytree(ROOT / "samples", unlabelled)
+    for path in unlabelled.glob("*.gt.json"):
+        path.unlink()
+    _one_line_exit_2(
+        [str(unlabelled), "--out", str(out)], capsys, f"{unlabelled}: 6 of 6 frames have no ground truth"
+    )
+    odd = tmp_path / "odd"
+    shutil.copytree(data / "seq" / "frames", odd)
+    truth = odd / "seq_000004.gt.json"
+    document = json.loads(truth.read_text())
+    document["objects"][0]["class"] = "robot"
+    truth.write_text(json.dumps(document))
+    _one_line_exit_2([str(odd), "--out", str(out)], capsys, "robot")
+    synth = ["--synth", str(data / "synth" / "train")]
+    _one_line_exit_2([str(data / "seq" / "frames"), "--out", str(out), "--minutes", "0.2", *synth], capsys,
+                     "--minutes 0.2 is too short")  # fmt: skip
+    assert not out.exists()

@@ -1,0 +1,207 @@
+"""a3d-finetune's work: a model fine-tuned on a user's labelled recordings within a time budget.
+
+1. the recordings are read and split (a3d.train.finetune_data: whole stretches at the end held
+   back), synthetic frames of the bundled model's world made (or taken) to mix in, so the classes
+   the user's rooms lack are not forgotten;
+2. the base model is scored on the held-back frames (the "before");
+3. its weights are read back from its file (a3d.export.read_back), the training frames' RoI
+   database built (a3d.train.roidb, cached in the work folder), the heads put in terms of those
+   frames' target statistics and saved as the checkpoint a3d-train fine-tunes (``solver.init``);
+4. a3d-train's own loop (a3d.train.loop.train) runs for what is left of the budget less the
+   export's share (``solver.minutes``): the colour trunk frozen and its features cached, every
+   BatchNorm's statistics fixed (they were folded into the weights), bfloat16 where the CPU has it;
+   Ctrl-C stops it with the last iteration's checkpoint, which is exported as any other;
+5. a3d-export's steps (a3d.export.build.export): int8 calibrated on training frames, verified and
+   its scores calibrated on the held-back frames, which scores the "after";
+6. the model card: ``provenance["finetune"]`` (base model, the user's data, the recipe, mAP@0.25
+   on the held-back frames before and after), the file written atomically.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import logging
+import sys
+import time
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from a3d.export.base import MIN_OPSET
+from a3d.export.build import export
+from a3d.export.onnx_export import save_model
+from a3d.export.read_back import ReadBack, normalise_heads, read_back
+from a3d.export.score_calibration import IOU, score_on
+from a3d.runtime.errors import InputError
+from a3d.runtime.evaluation.metric import EvalResult
+from a3d.runtime.models import is_model_name, model_path
+from a3d.runtime.network.cpu_support import bf16_instructions
+from a3d.runtime.network.model import DetectorModel
+from a3d.runtime.structures.classes import CLASSES
+from a3d.train.checkpoint import file_sha256, save_checkpoint
+from a3d.train.config import apply_overrides
+from a3d.train.dataset import MIN_STD, TargetStats, compute_target_stats
+from a3d.train.finetune_data import Recording, Split, read_recording, split_recordings, synthetic_frames
+from a3d.train.loop import CHECKPOINT_NAME, TrainingInterrupted, train
+from a3d.train.roidb import build_roidb
+
+PROG = "a3d-finetune"
+EXPORT_SECONDS = 60.0  # the export's fixed part: tracing, checks, int8 calibration (2 busy cores)
+SCORE_AGAIN = 1.3  # the after-scoring on the held-back frames, against the before's time
+MIN_TRAIN_SECONDS = 30.0  # less is no fine-tuning (the RoI database and the first steps alone)
+READ_BACK_PROBS = 0.5  # the read-back weights' class probabilities this close to the file's, at most
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Recipe:
+    """The training settings a3d-finetune uses (its --help names them); ``iterations`` is the most
+    it runs, the lr steps down tenfold at 80 % of the run fitted to the budget."""
+
+    lr: float = 0.001
+    iterations: int = 20000
+    images_per_batch: int = 2
+    freeze_color: bool = True
+    seed: int = 0
+
+    def overrides(self, init: Path, minutes: float, cache: Path) -> list[str]:
+        precision = "bf16" if bf16_instructions() else "fp32"
+        return [
+            f"solver.init={init}", f"solver.lr={self.lr}", f"solver.iterations={self.iterations}",
+            f"solver.lr_steps=[{round(0.8 * self.iterations)}]", f"solver.minutes={minutes}",
+            f"solver.precision={precision}", "solver.frozen_norms=true", f"solver.seed={self.seed}",
+            f"solver.freeze_color={13 if self.freeze_color else 0}", "data.bg_iou_low=0",
+            f"data.images_per_batch={self.images_per_batch}", "data.augment=false", f"data.cache_dir={cache}",
+            "log.val_every=0", "log.checkpoint_every=500",
+        ]  # fmt: skip
+
+
+def finetune(args: argparse.Namespace, recipe: Recipe) -> Path:
+    """Steps 1-6 of the module docstring for a3d-finetune's parsed flags; returns the file written."""
+    start = time.monotonic()
+    budget = 60.0 * args.minutes
+    base_file = model_path(args.base)
+    base = DetectorModel.load(base_file, args.threads)  # ModelError: one line before any work
+    recordings = [read_recording(folder) for folder in args.folders]
+    work = args.work or args.out.with_name(f"{args.out.stem}.finetune")
+    split = split_recordings(recordings, args.holdout, work)
+    synth = args.synth or synthetic_frames(work, args.synth_frames or split.train_frames, args.threads)
+    _say(f"{split.train_frames} training frames of {len(recordings)} recording(s) beside {synth}, "
+         f"{split.holdout_frames} held back; scoring {args.base} on them")  # fmt: skip
+    before = score_on(base, split.holdout, PROG)
+    present = sum(c.present for c in before.classes)
+    _say(f"{args.base} on the held-back frames: mAP@0.25 {100 * before.map_present(IOU):.1f} over their "
+         f"{present} classes, {100 * before.map_all(IOU):.1f} over 19")  # fmt: skip
+    scoring = time.monotonic() - start
+    train_seconds = budget - scoring - EXPORT_SECONDS - SCORE_AGAIN * (scoring / 2)
+    if train_seconds < MIN_TRAIN_SECONDS:
+        needs = budget - train_seconds - scoring
+        raise InputError(f"--minutes {args.minutes:g} is too short: {scoring:.0f} s went to the data and the "
+                         f"base model's scores, the export needs about {needs:.0f} s, and less than "
+                         f"{MIN_TRAIN_SECONDS:.0f} s would be left to train")  # fmt: skip
+    weights = read_back(base_file, args.threads)
+    if weights.agreement.probs.max_abs > READ_BACK_PROBS:
+        raise InputError(f"{base_file}: its weights read back answer unlike the file "
+                         f"({weights.agreement.describe()})")  # fmt: skip
+    folders = [*split.train, synth]
+    init = _initial_checkpoint(weights, folders, work)
+    config = apply_overrides(weights.config, recipe.overrides(init, train_seconds / 60, work / "cache"))
+    interrupted = False
+    try:
+        train(folders, work / "run", config, overwrite=True)
+    except TrainingInterrupted as e:
+        interrupted = True
+        _say(f"interrupted: {e}; exporting that checkpoint")
+    exported = work / "exported.onnx"
+    export(argparse.Namespace(
+        checkpoint=work / "run" / CHECKPOINT_NAME, output=exported, verify_frames=split.holdout, svd=None,
+        int8=True, calib=split.train[0], calib_frames=16, opset=MIN_OPSET, score_threshold=None,
+        score_calibration=split.holdout, threads=args.threads,
+    ))  # fmt: skip
+    card = model_card(args, base, recordings, split, synth, recipe, weights, before, interrupted)
+    return _write(exported, args.out, card, time.monotonic() - start)
+
+
+def _initial_checkpoint(weights: ReadBack, folders: list[Path], work: Path) -> Path:
+    """The read-back weights as an a3d-train checkpoint to fine-tune: the training frames' RoI
+    database built (and cached for the run), the heads normalised by its target statistics."""
+    config = weights.config
+    roidb = build_roidb(
+        folders, config, work / "cache", weights.metadata.mean_sizes, progress=config.log.progress
+    )
+    stats = steady_stats(roidb.records, config.data.flip)
+    path = work / "init.pt"
+    save_checkpoint(path, {
+        "iteration": 0, "config": config.to_json(), "model": normalise_heads(weights.weights, stats),
+        "target_stats": stats.to_tensors(), "classes": list(CLASSES),
+        "mean_sizes": torch.tensor(np.asarray(roidb.mean_sizes, np.float64)),
+    })  # fmt: skip
+    return path
+
+
+def steady_stats(records: list, flip: bool) -> TargetStats:
+    """Target statistics of all the training frames' classes together, the same for every class:
+    a room holds one or two objects of a class, so a class's own statistics are degenerate (the size
+    targets of a single object are all the same number: a std at its floor, normalised deltas and a
+    loss hundreds of times too large)."""
+    stats = compute_target_stats(records, flip)
+    counts = np.bincount(np.concatenate([r.labels[: r.num_fg] for r in records]), minlength=len(stats.mean3d))
+    share = (counts * (np.arange(len(counts)) > 0) / max(counts[1:].sum(), 1))[:, None]  # background: none
+    for mean, std in ((stats.mean3d, stats.std3d), (stats.mean2d, stats.std2d)):
+        pooled = (share * mean).sum(axis=0)
+        spread = np.sqrt(np.maximum((share * (std**2 + mean**2)).sum(axis=0) - pooled**2, MIN_STD**2))
+        mean[:], std[:] = pooled, spread
+    return stats
+
+
+def model_card(args: argparse.Namespace, base: DetectorModel, recordings: list[Recording], split: Split,
+               synth: Path, recipe: Recipe, weights: ReadBack, before: EvalResult,
+               interrupted: bool) -> dict:  # fmt: skip
+    """``provenance["finetune"]``: what the model was fine-tuned from, on and how (the "after"
+    is added from the export's score calibration)."""
+    objects: Counter = Counter()
+    for recording in recordings:
+        objects.update(recording.objects)
+    base_file = model_path(args.base)
+    return {
+        "base": {"model": str(args.base) if is_model_name(args.base) else str(base_file.resolve()),
+                 "sha256": file_sha256(base_file), "exported_at": base.metadata.provenance.get("exported_at"),
+                 "training_data": base.metadata.provenance.get("training_data")},
+        "data": {
+            "recordings": [str(r.folder.resolve()) for r in recordings],
+            "frames": sum(len(r.refs) for r in recordings),
+            "train_frames": split.train_frames,
+            "holdout_frames": split.holdout_frames,
+            "holdout": f"the last {args.holdout:g} of each recording's frames",
+            "objects_per_class": dict(sorted(objects.items())),
+            "synthetic": str(synth.resolve()),
+        },
+        "recipe": {**dataclasses.asdict(recipe), "minutes": args.minutes, "pooled_layout": weights.layout,
+                   "read_back_vs_file": weights.agreement.to_dict(), "interrupted": interrupted},
+        "heldout_map25": {"before": before.map_all(IOU), "before_present": before.map_present(IOU)},
+    }  # fmt: skip
+
+
+def _write(exported: Path, out: Path, card: dict, seconds: float) -> Path:
+    """The exported model with the card in its provenance, written atomically to ``out``."""
+    import onnx
+
+    model = DetectorModel.load(exported, threads=1)
+    calibration = model.metadata.provenance["export"]["score_calibration"]
+    scores = card["heldout_map25"]
+    scores.update(after=calibration["map25"], after_present=calibration["map25_present"])
+    card["seconds"] = round(seconds, 1)
+    provenance = {**model.metadata.provenance, "finetune": card}
+    save_model(onnx.load(str(exported)), dataclasses.replace(model.metadata, provenance=provenance), out)
+    DetectorModel.load(out, threads=1)
+    _say(f"held-back frames, mAP@0.25 over their classes: {100 * scores['before_present']:.1f} before, "
+         f"{100 * scores['after_present']:.1f} after ({seconds / 60:.1f} minutes)")  # fmt: skip
+    return out
+
+
+def _say(message: str) -> None:
+    print(f"{PROG}: {message}", file=sys.stderr)
