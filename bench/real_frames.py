@@ -1,6 +1,7 @@
 """What a model finds in real frames that have no 3D ground truth, against hand-drawn 2D boxes.
 
     .venv/bin/python -m bench.real_frames FOLDER --model live|real|FILE [--detector NAME|FILE|none] \\
+        [--classifier NAME|FILE] \\
         [--model-name LABEL] --boxes bench/data/real_frames_boxes.json \\
         [--boxes3d bench/data/real_frames_boxes3d.json | --no-3d] [--threshold 0.5] --out DIR
     .venv/bin/python -m bench.real_frames FOLDER --detector yolox-nano --detector-alone --out DIR
@@ -376,11 +377,13 @@ def check_frames(source: FolderSource, boxes: BoxesFile) -> None:
 
 
 def detect_all(
-    source: FolderSource, model: Path, threads: int, detector: str | None = None
-) -> list[tuple[FrameDetections, np.ndarray]]:
+    source: FolderSource, model: Path, threads: int, detector: str | None = None,
+    classifier: str | None = None,
+) -> list[tuple[FrameDetections, np.ndarray]]:  # fmt: skip
     """Each frame's detections and colour image (BGR), in folder order; a frame that fails stops
-    the benchmark (its totals would be wrong). ``detector``: Detector.load's (None: the model's)."""
-    detector = Detector.load(model, threads=threads, detector=detector)
+    the benchmark (its totals would be wrong). ``detector``, ``classifier``: Detector.load's (None:
+    the model's detector, no classifier)."""
+    detector = Detector.load(model, threads=threads, detector=detector, classifier=classifier)
     results = []
     for outcome in detector.detect_frames(source, score_threshold=0):  # all: the count applies its own
         if outcome.detections is None or outcome.prepared is None:
@@ -427,7 +430,7 @@ def run(args: argparse.Namespace) -> int:
         results = detector_alone(source, args.detector, args.threads)
     else:
         label = args.model_name or args.model.stem
-        results = detect_all(source, args.model, args.threads, args.detector)
+        results = detect_all(source, args.model, args.threads, args.detector, args.classifier)
     counts, reports, tiles = {}, {}, []
     for det, color in results:
         truth = boxes.frames[det.frame]
@@ -482,6 +485,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--model", type=Path, help="the model to run: a bundled name (live, real) or file")
     parser.add_argument("--detector", help="a 2D detector whose boxes join the model's RoIs ('none': none; "
                         "default: the model's pipeline's)")  # fmt: skip
+    parser.add_argument("--classifier", help="an image classifier that rescores the model's own detections "
+                        "(a3d.runtime.classifier2d; default: none)")  # fmt: skip
     parser.add_argument("--detector-alone", action="store_true",
                         help="count --detector's own boxes and scores, no network (2D only)")  # fmt: skip
     parser.add_argument(

@@ -28,6 +28,7 @@ from typing import Any
 
 import numpy as np
 
+from a3d.runtime.classifier2d import Classifier2D
 from a3d.runtime.detector2d import Detector2D
 from a3d.runtime.io.detections_io import FrameDetections
 from a3d.runtime.models import model_path, pipeline_detector
@@ -61,6 +62,7 @@ class Detector:
         detector: str | os.PathLike | None = None,
         detector_names: str | os.PathLike | None = None,
         class_map: str | os.PathLike | None = None,
+        classifier: str | os.PathLike | None = None,
     ) -> Detector:
         """Open and check a model: a bundled one by name (``"real"``, the default, or ``"live"``;
         a3d.runtime.models) or a model file (ModelError naming it if unusable); the settings default to
@@ -71,7 +73,9 @@ class Detector:
         2D detector by name (``"yolox-nano"``) or ONNX file whose boxes join the network's RoIs,
         ``"none"`` for none; by default the one of a bundled pipeline (``"real"``), with its class
         names (``detector_names``) and class map (``class_map``) files where given
-        (a3d.runtime.detector2d)."""
+        (a3d.runtime.detector2d). ``classifier``: an image classifier by name (``"mobilenet-v2"``)
+        or ONNX file whose view of the best own detections rescores them (a3d.runtime.classifier2d;
+        off by default: docs/real-rooms.md has what it does to the scores)."""
         network = DetectorModel.load(model_path(model), threads=threads)
         config = PipelineConfig.from_metadata(
             network.metadata,
@@ -86,6 +90,8 @@ class Detector:
             names, mapping = _path(detector_names), _path(class_map)
             boxes = Detector2D.load(chosen, names=names, class_map=mapping, threads=threads)
             config = replace(config, detector=boxes)
+        if classifier is not None:
+            config = replace(config, classifier=Classifier2D.load(classifier, threads=threads))
         return cls(network, config)
 
     def detect(

@@ -13,12 +13,13 @@ can overlap the network call of another:
    ``input_scale`` and the proposal and context RoIs in the resized image's pixel coordinates;
 2. ``infer``: one ONNX Runtime call per frame (both trunks once, the head over all RoIs at once);
 3. ``finish``: the model's score calibration (postprocess.score_calibration), per-class top-k
-   and 2D NMS, class-specific 3D boxes and amodal 2D boxes
+   and 2D NMS (with a 2D detector, its boxes merged in; with an image classifier, its second
+   opinion on the best own detections: postprocess.fuse), class-specific 3D boxes and amodal 2D boxes
    (a3d.runtime.postprocess.select) bounded to boxes that can exist (postprocess.box_limits),
    corners, and the frame's detections line, with its gravity source and notes.
 
 Every stage adds its wall time (seconds) to the frame's ``timing``: read, depth_fill, gravity,
-proposals, lifting, network_input, network, postprocess, and total (their sum).
+proposals, lifting, detector2d, network_input, network, classifier2d, postprocess, and total (their sum).
 
 ``detect_frames`` runs the frames of a source (``FrameLoader``s, read where the "read" stage is
 timed) and never stops at a bad one: each frame comes back with its result or a one-line problem
@@ -56,7 +57,14 @@ from a3d.runtime.frontend.proposals import ProposalConfig, Proposals, live_propo
 from a3d.runtime.io.detections_io import FrameDetections
 from a3d.runtime.network.network_input import frame_network_inputs
 from a3d.runtime.postprocess.box_limits import bound_boxes, near_range
-from a3d.runtime.postprocess.fuse import NETWORK, Picked, detector_picks, merge
+from a3d.runtime.postprocess.fuse import (
+    NETWORK,
+    Picked,
+    detector_picks,
+    merge,
+    second_opinion,
+    second_opinion_rows,
+)
 from a3d.runtime.postprocess.score_calibration import ScoreCalibration
 from a3d.runtime.postprocess.select import decode_detections, select_detections
 from a3d.runtime.sources.base import FrameLoader
@@ -81,7 +89,7 @@ PROBE_FRAMES = 3  # overlapped frames timed by --overlap auto before it keeps ov
 OVERLAP_NOISE = 1.05  # "never slower": within 5 % of sequential, the spread of runs on a quiet machine
 STAGES = (
     "read", "depth_fill", "gravity", "proposals", "lifting", "detector2d", "network_input", "network",
-    "postprocess",
+    "classifier2d", "postprocess",
 )  # fmt: skip
 FRONT_END_STAGES = STAGES[: STAGES.index("network")]  # what ``load_and_prepare`` times
 
@@ -91,7 +99,21 @@ class BoxDetector(Protocol):
 
     name: str
 
+    @property
+    def classes(self) -> np.ndarray: ...
+
     def detect(self, color_rgb: np.ndarray) -> Detections2D: ...
+
+
+class ImageClassifier(Protocol):
+    """What the pipeline needs of an image classifier: a3d.runtime.classifier2d.Classifier2D."""
+
+    name: str
+
+    @property
+    def classes(self) -> np.ndarray: ...
+
+    def classify(self, color_rgb: np.ndarray, boxes: np.ndarray) -> np.ndarray: ...
 
 
 class NetworkRunner(Protocol):
@@ -117,7 +139,9 @@ class PipelineConfig:
     an explicit ``max_proposals`` overrides either. ``score_calibration`` maps the network's class
     scores before top-k, threshold and NMS (the model's own, a3d.runtime.postprocess.score_calibration;
     None: the softmax as it is). ``detector``: a 2D detector whose boxes join the RoIs
-    (a3d.runtime.postprocess.fuse), None for a3d's own proposals alone.
+    (a3d.runtime.postprocess.fuse), None for a3d's own proposals alone. ``classifier``: an image
+    classifier whose view of the best own detections of the classes ``detector`` does not know
+    rescores them (postprocess.fuse.second_opinion), None for none.
     """
 
     mean_sizes: np.ndarray
@@ -131,6 +155,7 @@ class PipelineConfig:
     min_score: float = 0.0
     score_calibration: ScoreCalibration | None = None
     detector: BoxDetector | None = None
+    classifier: ImageClassifier | None = None
 
     @classmethod
     def from_metadata(
@@ -332,6 +357,10 @@ def finish(prepared: PreparedFrame, out: NetworkOutput, config: PipelineConfig) 
     if config.score_calibration is not None:
         class_scores = config.score_calibration.apply(class_scores)
     picked = _picked(prepared, class_scores, config)
+    if config.classifier is not None:
+        clock.lap("postprocess")
+        picked = _second_opinion(prepared, picked, config)
+        clock.lap("classifier2d")
     rows, class_idx, scores = picked.rows, picked.class_idx, picked.scores
     boxes3d, amodal = decode_detections(
         rows,
@@ -366,7 +395,7 @@ def finish(prepared: PreparedFrame, out: NetworkOutput, config: PipelineConfig) 
         notes=(*prepared.notes, *bounded.notes(scores)),
         intrinsics=frame.intrinsics,
         pose=frame.pose,
-        sources=picked.sources if prepared.detector else None,
+        sources=picked.sources if prepared.detector or config.classifier is not None else None,
     )
 
 
@@ -386,6 +415,26 @@ def _picked(prepared: PreparedFrame, class_scores: np.ndarray, config: PipelineC
     picks = Picked(picks.rows[alive], picks.class_idx[alive], picks.scores[alive],
                    tuple(s for s, a in zip(picks.sources, alive, strict=True) if a))  # fmt: skip
     return merge(own, picks, prepared.boxes)
+
+
+def _second_opinion(prepared: PreparedFrame, picked: Picked, config: PipelineConfig) -> Picked:
+    """``picked`` with the classifier's second opinion on its best own detections of the classes
+    the classifier knows and the 2D detector does not; where it fails, a note and ``picked``."""
+    assert config.classifier is not None
+    classes = config.classifier.classes
+    if config.detector is not None:
+        classes = classes & ~config.detector.classes
+    chosen = second_opinion_rows(picked, classes)
+    if not len(chosen):
+        return picked
+    color = np.ascontiguousarray(prepared.frame.color[..., ::-1])
+    try:
+        probs = config.classifier.classify(color, prepared.boxes[picked.rows[chosen]])
+    except Exception as error:  # a classifier that fails on one frame must not lose the frame
+        prepared.notes.append(f"image classifier {config.classifier.name} failed ({type(error).__name__}: "
+                              f"{error}); scores without its opinion")  # fmt: skip
+        return picked
+    return second_opinion(picked, chosen, probs, config.classifier.name)
 
 
 def detect(frame: Frame, model: NetworkRunner, config: PipelineConfig) -> FrameDetections:

@@ -1,7 +1,7 @@
 """a3d-run: detect the objects in every frame of a source; one JSON line per frame, live rerun view.
 
     a3d-run FOLDER [--model model.onnx] [--output detections.jsonl] [--threads 2]
-            [--detector NAME|FILE|none] [--detector-names FILE] [--class-map FILE]
+            [--detector NAME|FILE|none] [--detector-names FILE] [--class-map FILE] [--classifier NAME|FILE]
             [--proposals auto|compute|precomputed] [--max-proposals N] [--front-end model|live]
             [--score-threshold S] [--raw-scores]
             [--resume] [--overlap [auto|on|off]] [--headless] [--connect] [--url URL] [--serve]
@@ -63,6 +63,7 @@ import cv2
 import numpy as np
 from tqdm import tqdm
 
+from a3d.runtime.classifier2d import CLASSIFIERS, Classifier2D
 from a3d.runtime.cli.common import EXIT_USAGE, command
 from a3d.runtime.cli.common import build_parser as command_parser
 from a3d.runtime.cli.progress import make_progress
@@ -133,6 +134,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="--detector's class names, a line each (default: its metadata, or COCO)")  # fmt: skip
     p.add_argument("--class-map", type=Path, metavar="FILE",
                    help='JSON {"detector class": "a3d class" | [a3d classes]} (default: COCO)')  # fmt: skip
+    p.add_argument("--classifier", metavar="NAME|FILE",
+                   help=f"an image classifier ({', '.join(CLASSIFIERS)}, or an ONNX file) rescoring the "
+                   "best own detections of classes the 2D detector lacks (default: none)")  # fmt: skip
     p.add_argument("--color-topic", metavar="TOPIC", help="bag: the colour topic (default: the only one)")
     p.add_argument("--depth-topic", metavar="TOPIC", help="bag: the depth topic (default: the only one)")
     p.add_argument("--pose-topic", metavar="TOPIC",
@@ -362,6 +366,8 @@ def _job(args: argparse.Namespace) -> _Job:
         boxes = Detector2D.load(args.detector, names=args.detector_names, class_map=args.class_map,
                                 threads=args.threads)  # fmt: skip
         config = replace(config, detector=boxes)
+    if args.classifier is not None:
+        config = replace(config, classifier=Classifier2D.load(args.classifier, threads=args.threads))
     done = completed_frames(Path(args.output)) if args.resume else set()
     return _Job(source, done, model, config)
 

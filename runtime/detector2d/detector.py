@@ -108,6 +108,11 @@ class Detector2D:
         return self._layout.kind
 
     @property
+    def classes(self) -> np.ndarray:
+        """(19,) bool: the a3d classes some class of the detector stands for."""
+        return self._map.candidates[self._map.kept].any(axis=0)
+
+    @property
     def class_names(self) -> tuple[str, ...]:
         """The detector's own class names, by class index."""
         return self._names

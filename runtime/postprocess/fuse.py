@@ -20,8 +20,14 @@ detector's class) and both lists are kept:
   ``SAME_OBJECT_IOU`` (what detection benchmarks call the same object) is reported once, on the
   detector's box (the tighter 2D box), with the better score and both sources.
 
+An image classifier trained on real photographs (a3d.runtime.classifier2d) gives a second opinion on
+the frame's best own detections of the classes the detector does not know (``second_opinion``):
+their score is fused with the classifier's probability of their class in log-odds, as the network's
+with the detector's, by ``CLASSIFIER_WEIGHT`` against ``CLASSIFIER_REFERENCE``.
+
 Each detection's source says where its class came from: the detector's name, "network", or both
-("yolox-nano+network").
+("yolox-nano+network"); the classifier's name joins the source of those it scored
+("network+mobilenet-v2").
 """
 
 from __future__ import annotations
@@ -37,6 +43,9 @@ NETWORK = "network"
 NETWORK_WEIGHT = 0.5
 NETWORK_REFERENCE = 0.05
 SAME_OBJECT_IOU = 0.5
+CLASSIFIER_WEIGHT = 0.5
+CLASSIFIER_REFERENCE = 0.05
+SECOND_OPINIONS = 12  # own detections per frame the classifier looks at: the best, the ones that show
 
 
 @dataclass(frozen=True)
@@ -55,10 +64,15 @@ def _logit(p: np.ndarray) -> np.ndarray:
     return np.log(p) - np.log1p(-p)
 
 
+def _with_evidence(score: np.ndarray, other: np.ndarray, weight: float, reference: float) -> np.ndarray:
+    """``score`` moved in log-odds by ``weight`` x the log-odds of ``other`` against ``reference``."""
+    evidence = weight * (_logit(other) - _logit(np.float64(reference)))
+    return 1.0 / (1.0 + np.exp(-(_logit(score) + evidence)))
+
+
 def fused_score(detector: np.ndarray, network: np.ndarray) -> np.ndarray:
     """The detector's and the network's scores of one object as one (module docstring)."""
-    evidence = NETWORK_WEIGHT * (_logit(network) - _logit(np.float64(NETWORK_REFERENCE)))
-    return 1.0 / (1.0 + np.exp(-(_logit(detector) + evidence)))
+    return _with_evidence(detector, network, NETWORK_WEIGHT, NETWORK_REFERENCE)
 
 
 def detector_picks(
@@ -95,3 +109,26 @@ def merge(own: Picked, found: Picked, boxes2d: np.ndarray) -> Picked:
     all_sources = [s for s, keep in zip(own.sources, alone, strict=True) if keep] + sources
     order = np.argsort(-all_scores, kind="stable")
     return Picked(rows[order], class_idx[order], all_scores[order], tuple(all_sources[i] for i in order))
+
+
+def second_opinion_rows(picked: Picked, classes: np.ndarray, limit: int = SECOND_OPINIONS) -> np.ndarray:
+    """Indices into ``picked`` of its ``limit`` best own detections (source "network") of the
+    ``classes`` ((19,) bool) a classifier may score, best first."""
+    own = np.array([source == NETWORK for source in picked.sources], bool)
+    eligible = np.flatnonzero(own & np.asarray(classes, bool)[picked.class_idx])
+    return eligible[np.argsort(-picked.scores[eligible], kind="stable")][:limit]
+
+
+def second_opinion(picked: Picked, chosen: np.ndarray, class_probs: np.ndarray, name: str) -> Picked:
+    """``picked`` with the ``chosen`` detections' scores fused with the classifier's probability of
+    their class (``class_probs`` (K, 19), a row per chosen one) and ``name`` in their source, by
+    descending score."""
+    scores = picked.scores.astype(np.float64)
+    probs = np.asarray(class_probs)[np.arange(len(chosen)), picked.class_idx[chosen]]
+    scores[chosen] = _with_evidence(scores[chosen], probs, CLASSIFIER_WEIGHT, CLASSIFIER_REFERENCE)
+    sources = list(picked.sources)
+    for i in chosen:
+        sources[i] = f"{sources[i]}+{name}"
+    order = np.argsort(-scores, kind="stable")
+    ordered = tuple(sources[i] for i in order)
+    return Picked(picked.rows[order], picked.class_idx[order], scores[order], ordered)
