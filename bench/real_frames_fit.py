@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -48,7 +47,7 @@ from bench.real_frames import (
     read_boxes,
     read_boxes3d,
 )
-from bench.real_frames_views import draw_frame
+from bench.real_frames_views import FrameCloud, draw_frame
 
 FLOOR_GAP_M = 0.04  # points this close above the floor are floor
 FLOOR_CLASSES = frozenset(
@@ -59,20 +58,6 @@ MIN_OBJECT_POINTS = 200  # fewer depth points show too little of an object to fi
 
 
 # ----------------------------------------------------------------------------- the draft fit
-
-
-@dataclass(frozen=True)
-class FrameCloud:
-    """A frame's depth as tilt-frame points (H, W, 3), which pixels have depth, and its floor."""
-
-    R_tilt: np.ndarray
-    points: np.ndarray
-    valid: np.ndarray
-    floor: np.ndarray  # (a, b, c): the floor is y = a x + b z + c in the tilt frame
-
-    def floor_y(self, x: np.ndarray | float, z: np.ndarray | float) -> np.ndarray:
-        """The floor's height (tilt-frame y, down) under the points (x, z)."""
-        return self.floor[0] * np.asarray(x) + self.floor[1] * np.asarray(z) + self.floor[2]
 
 
 def frame_cloud(frame: Frame, R_tilt: np.ndarray | None = None) -> FrameCloud:

@@ -12,7 +12,6 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -24,13 +23,24 @@ from a3d.runtime.viewer.shapes import projected_box_edges
 from bench.contact_sheet import EXPECTED_COLOR, FONT, dashed_rectangle, titled
 from bench.real_frames import Boxes3D, HandBoxes
 
-if TYPE_CHECKING:  # real_frames_fit draws with this module
-    from bench.real_frames_fit import FrameCloud
-
 VIEW_SIZE = 480  # pixels high of an object's picture (a frame's is the frame's height)
 FRAME_MARGIN_M, OBJECT_MARGIN_M = 0.6, 0.8  # what the views show round the boxes
 FLOOR_BAND_M = 0.04  # points this close above the floor are drawn as floor
 FLOOR_GREY, OTHER_GREY = 70, 55
+
+
+@dataclass(frozen=True)
+class FrameCloud:
+    """A frame's depth as tilt-frame points (H, W, 3), which pixels have depth, and its floor."""
+
+    R_tilt: np.ndarray
+    points: np.ndarray
+    valid: np.ndarray
+    floor: np.ndarray  # (a, b, c): the floor is y = a x + b z + c in the tilt frame
+
+    def floor_y(self, x: np.ndarray | float, z: np.ndarray | float) -> np.ndarray:
+        """The floor's height (tilt-frame y, down) under the points (x, z)."""
+        return self.floor[0] * np.asarray(x) + self.floor[1] * np.asarray(z) + self.floor[2]
 
 
 @dataclass(frozen=True)

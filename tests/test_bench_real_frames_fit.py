@@ -13,7 +13,8 @@ import pytest
 
 from bench import real_frames_fit
 from bench.real_frames import DEFAULT_BOXES3D, read_boxes, read_boxes3d
-from bench.real_frames_fit import FrameCloud, dump, fit_object, floor_plane, largest_cluster
+from bench.real_frames_fit import dump, fit_object, floor_plane, largest_cluster
+from bench.real_frames_views import FrameCloud
 from tests.helpers.runtime_frames import W, write_scene_folder
 
 RNG = np.random.default_rng(0)
