@@ -43,7 +43,7 @@ NETWORK = "network"
 NETWORK_WEIGHT = 0.5
 NETWORK_REFERENCE = 0.05
 SAME_OBJECT_IOU = 0.5
-CLASSIFIER_WEIGHT = 0.5
+CLASSIFIER_WEIGHT = 0.5  # the network's weight and reference again; measured in docs/real-rooms.md
 CLASSIFIER_REFERENCE = 0.05
 SECOND_OPINIONS = 12  # own detections per frame the classifier looks at: the best, the ones that show
 
