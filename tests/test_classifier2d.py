@@ -9,6 +9,7 @@ import pickle
 from dataclasses import replace
 from pathlib import Path
 
+import cv2
 import numpy as np
 import onnxruntime as ort
 import pytest
@@ -252,3 +253,25 @@ def test_a3d_run_classifier_flag(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
     assert run_cli.main([*argv, "--classifier", str(classifier)]) == 0
     (det,) = read_detections(out)
     assert f"{NETWORK}+tiny" in det.sources
+
+
+def test_the_classifier_sees_the_frame_in_rgb_and_the_boxes_it_rescores(tmp_path: Path) -> None:
+    class Recorder:
+        name = "recorder"
+        classes = np.ones(NUM_CLASSES, bool)
+
+        def __init__(self) -> None:
+            self.seen: list[tuple[np.ndarray, np.ndarray]] = []
+
+        def classify(self, color_rgb: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+            self.seen.append((color_rgb.copy(), boxes.copy()))
+            return np.full((len(boxes), NUM_CLASSES), 0.5)
+
+    folder = write_scene_folder(tmp_path / "frames", ["a"])
+    recorder = Recorder()
+    config = replace(PipelineConfig.from_metadata(FakeModel().metadata), classifier=recorder)
+    (det,) = _run(folder, config)
+    ((image, boxes),) = recorder.seen
+    np.testing.assert_array_equal(image, cv2.imread(str(det.color), cv2.IMREAD_COLOR)[..., ::-1])
+    touched = [i for i, s in enumerate(det.sources) if s == f"{NETWORK}+recorder"]
+    assert sorted(map(tuple, boxes)) == sorted(map(tuple, det.boxes2d[touched]))
