@@ -69,3 +69,16 @@ def test_the_floor_round_an_object_is_left_out_and_its_box_stands_on_the_floor()
     fitted = fit_box(points, rough, floor_y=floor_level(points))
     assert box_differences(fitted[None], standing[None])[0] < 0.02
     assert box_differences(fit_box(points, rough)[None], standing[None])[0] > 0.05  # the floor taken in
+
+
+def test_a_wall_the_margin_reaches_into_is_left_out() -> None:
+    rng = np.random.default_rng(2)
+    standing = TRUE.copy()
+    standing[1] = -standing[5] / 2
+    floor = np.column_stack([rng.uniform(-2, 4, 20000), rng.normal(0, 0.005, 20000), rng.uniform(0, 6, 20000)])
+    wall_x = TRUE[0] + 0.75  # 12 cm beyond the box's farthest corner along x
+    wall = np.column_stack([np.full(8000, wall_x), rng.uniform(-2, 0, 8000), rng.uniform(0, 6, 8000)])
+    points = np.vstack([surface_points(standing, 400, rng), floor, wall])
+    rough = standing + np.array([0.06, 0.0, 0.05, 0.1, 0.1, 0.05, 0.1])  # its margin reaches the wall
+    fitted = fit_box(points, rough, floor_y=floor_level(points))
+    assert box_differences(fitted[None], standing[None])[0] < 0.02

@@ -68,7 +68,7 @@ def test_a_first_run_writes_the_template_then_the_rough_boxes_are_fitted(
     centres = np.linalg.norm(fitted.boxes[:, :3] - truth.boxes[:, :3], axis=1)
     # the rough boxes were 5 cm off: objects standing free come back to 2 cm, those beside others
     # or the walls take in some of their points (docs/mapping.md "Your own room")
-    assert (centres < 0.02).sum() >= 3 and centres.max() < 0.2
+    assert (centres < 0.02).sum() >= 3 and centres.max() < 0.3
     checks = sorted((tmp_path / "world_boxes_check").glob("*.png"))
     assert [p.name for p in checks] == [f"seq_{i:06d}.png" for i in (0, 2, 5, 7)]
     assert save.stat().st_size > 0

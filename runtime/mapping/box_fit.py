@@ -17,6 +17,7 @@ import numpy as np
 
 from a3d.runtime.errors import InputError
 from a3d.runtime.mapping.labels import LabelConfig, inside_box
+from a3d.runtime.structures.boxes import L, W
 from a3d.runtime.structures.frame import Frame
 from a3d.runtime.structures.geometry import backproject, boxes_from_corners_tilt
 from a3d.runtime.structures.pose import transform_points
@@ -25,6 +26,7 @@ MIN_POINTS = 20  # fewer points inside a rough box are no object's surface
 FLOOR_SEARCH_M = 0.3  # the floor is looked for this far above the cloud's lowest points
 FLOOR_GAP_M = 0.03  # points this close to the floor are the floor's, not an object's
 FLOOR_SNAP_M = 0.1  # a fitted box whose bottom is this close to the floor stands on it
+CELL_M = 0.02  # footprint cells in which an object's points are told from a neighbour's
 
 
 def world_points(frames: Iterable[Frame], stride: int = 4) -> np.ndarray:
@@ -62,6 +64,28 @@ def floor_level(points: np.ndarray) -> float | None:
     return float(0.5 * (edges[k] + edges[k + 1]))
 
 
+def _connected_to_core(points: np.ndarray, rough: np.ndarray) -> np.ndarray:
+    """Which points lie in footprint cells (``CELL_M``, closed by one cell) connected to the rough
+    box's core (the middle half of its footprint, or where it holds no point, the component with
+    most points inside the rough box): with the floor gone, a wall or a neighbour the margin
+    reaches into stands apart from the object, unless it touches it."""
+    if not len(points):
+        return np.zeros(0, bool)
+    cells = np.floor(points[:, [0, 2]] / CELL_M).astype(np.int64)
+    cells -= cells.min(axis=0)
+    grid = np.zeros(tuple(cells.max(axis=0) + 1), np.uint8)
+    grid[cells[:, 0], cells[:, 1]] = 1
+    grid = cv2.dilate(grid, np.ones((3, 3), np.uint8))  # a gap of one cell is no gap
+    labels = cv2.connectedComponents(grid, connectivity=8)[1][cells[:, 0], cells[:, 1]]
+    core, tight = rough.copy(), LabelConfig(margin_m=0.0, floor_gap_m=0.0)
+    core[[L, W]] /= 2
+    touching = labels[inside_box(points, core, np.eye(3), tight)]
+    if not len(touching):  # a part seen from one side: the fullest component inside the rough box
+        within = labels[inside_box(points, rough, np.eye(3), tight)]
+        touching = [np.bincount(within if len(within) else labels).argmax()]
+    return np.isin(labels, touching)
+
+
 def fit_box(
     points: np.ndarray, rough: np.ndarray, margin_m: float = 0.1, floor_y: float | None = None
 ) -> np.ndarray:
@@ -76,6 +100,8 @@ def fit_box(
     inside = points[inside_box(points, np.asarray(rough, np.float64), np.eye(3), config)]
     if floor_y is not None:
         inside = inside[inside[:, 1] < floor_y - FLOOR_GAP_M]
+        connected = _connected_to_core(inside, np.asarray(rough, np.float64))
+        inside = inside[connected] if connected.sum() >= MIN_POINTS else inside  # else too sparse to tell
     if len(inside) < MIN_POINTS:
         raise InputError(f"rough box {np.round(rough, 3).tolist()}: {len(inside)} points inside, "
                          f"need {MIN_POINTS} (is it where the object is?)")  # fmt: skip
