@@ -64,9 +64,15 @@ def main(argv: list[str] | None = None) -> int:
 
     handler = logging.StreamHandler()  # a3d's own messages (the training plan), not the exporter's
     handler.setFormatter(logging.Formatter(f"{PROG}: %(message)s"))
-    logging.getLogger("a3d").addHandler(handler)
-    logging.getLogger("a3d").setLevel(logging.INFO)
-    path = finetune(args, Recipe(lr=args.lr, iterations=args.iters))
+    root = logging.getLogger("a3d")
+    level = root.level
+    root.addHandler(handler)
+    root.setLevel(logging.INFO)
+    try:
+        path = finetune(args, Recipe(lr=args.lr, iterations=args.iters))
+    finally:  # a caller in the same process (the tests) keeps its own logging
+        root.removeHandler(handler)
+        root.setLevel(level)
     print(f"{PROG}: wrote {path}; run it with:", file=sys.stderr)
     print(f"a3d-run FRAMES --model {path} --output detections.jsonl --headless")
     return 0
