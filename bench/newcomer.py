@@ -170,6 +170,7 @@ EXTRA_ARGS: dict[str, tuple[tuple[str, ...], str]] = {
     "a3d-vgg16-weights": (("vgg16.h5", "--out", "out/vgg16.pt"), "train"),
     "a3d-export": (("checkpoint.pt", "-o", "out/model.onnx"), "train"),
     "a3d-nyuv2": (("release", "out/nyuv2"), "train"),
+    "a3d-finetune": (("frames", "--out", "out/model.onnx"), "train"),
 }
 """The console scripts that need an extra (their NEEDS): an argument list that parses, and the extra."""
 
