@@ -87,7 +87,7 @@ def main() -> None:
     )
     front_end = FRONT_END
     if args.detector:
-        base = replace(base, detector=Detector2D.load(args.detector, threads=2))
+        base = replace(base, detector=Detector2D.load(args.detector))
         front_end = (*FRONT_END, "detector2d")
     print(
         f"{args.count} a3d-synth frames at {SIZE[0]} x {SIZE[1]}, seeds {args.first}+, model {args.model}, "

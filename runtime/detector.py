@@ -88,7 +88,7 @@ class Detector:
         chosen = pipeline_detector(model, detector)
         if chosen is not None:
             names, mapping = _path(detector_names), _path(class_map)
-            boxes = Detector2D.load(chosen, names=names, class_map=mapping, threads=threads)
+            boxes = Detector2D.load(chosen, names=names, class_map=mapping)
             config = replace(config, detector=boxes)
         if classifier is not None:
             config = replace(config, classifier=Classifier2D.load(classifier, threads=threads))

@@ -363,8 +363,7 @@ def _job(args: argparse.Namespace) -> _Job:
         raw_scores=args.raw_scores,
     )
     if args.detector is not None:
-        boxes = Detector2D.load(args.detector, names=args.detector_names, class_map=args.class_map,
-                                threads=args.threads)  # fmt: skip
+        boxes = Detector2D.load(args.detector, names=args.detector_names, class_map=args.class_map)
         config = replace(config, detector=boxes)
     if args.classifier is not None:
         config = replace(config, classifier=Classifier2D.load(args.classifier, threads=args.threads))

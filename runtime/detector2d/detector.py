@@ -25,6 +25,10 @@ from a3d.runtime.errors import InputError
 from a3d.runtime.models import HERE as MODELS_DIR
 from a3d.runtime.network.model import session_options
 
+PIPELINE_THREADS = 1
+"""The detector's threads in a3d's pipeline, whatever the run's: it runs once a frame between
+OpenCV's work and the network's, and on 2 cores a second thread of its own gained less than it
+cost them (bench.live_rate, docs/real-rooms.md "Speed"); its threads never spin after a call."""
 DETECTORS: dict[str, str] = {"yolox-nano": "yolox_nano_coco.onnx"}
 """The detectors that install with a3d (in a3d.runtime.models), by short name."""
 NMS_IOU = 0.45  # YOLOX's demo
@@ -58,7 +62,8 @@ class Detector2D:
 
     @classmethod
     def load(
-        cls, spec: str | Path, *, names: Path | None = None, class_map: Path | None = None, threads: int = 2,
+        cls, spec: str | Path, *, names: Path | None = None, class_map: Path | None = None,
+        threads: int = PIPELINE_THREADS,
         score_threshold: float = 0.05,
     ) -> Detector2D:  # fmt: skip
         """Open ``spec`` (a short name of DETECTORS or an ONNX path). Class names come from
@@ -75,6 +80,7 @@ class Detector2D:
         if not path.is_file():
             raise InputError(f"{where}: no such 2D detector file (short names: {', '.join(DETECTORS)})")
         options = session_options(threads)
+        options.add_session_config_entry("session.intra_op.allow_spinning", "0")  # PIPELINE_THREADS
         options.log_severity_level = 3  # exporters' harmless warnings (initializers listed as inputs)
         try:
             session = ort.InferenceSession(str(path), options, providers=["CPUExecutionProvider"])

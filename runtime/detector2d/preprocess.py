@@ -60,7 +60,9 @@ def network_input(image_rgb: np.ndarray, layout: Layout) -> tuple[np.ndarray, np
     else:
         fitted, r = letterbox(np.ascontiguousarray(image), layout.input_size, convention.pad)
         scale = (r, r)
-    mean, std = (np.asarray(v, np.float32) for v in (convention.mean, convention.std))
-    tensor = ((fitted.astype(np.float32) - mean) / std).transpose(2, 0, 1)
+    tensor = fitted.transpose(2, 0, 1).astype(np.float32)  # channels first while still bytes
+    if convention.mean != (0.0, 0.0, 0.0) or convention.std != (1.0, 1.0, 1.0):
+        mean, std = (np.asarray(v, np.float32)[:, None, None] for v in (convention.mean, convention.std))
+        tensor = (tensor - mean) / std
     tensor = np.ascontiguousarray(tensor[None] if layout.batched else tensor)
     return tensor, np.asarray(scale * 2, np.float64)
