@@ -6,6 +6,10 @@ from __future__ import annotations
 
 import json
 import shutil
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import pytest
@@ -78,3 +82,20 @@ def test_bad_input_is_one_line_and_nothing_is_written(
     _one_line_exit_2([str(data / "seq" / "frames"), "--out", str(out), "--minutes", "0.2", *synth], capsys,
                      "--minutes 0.2 is too short")  # fmt: skip
     assert not out.exists()
+
+
+@pytest.mark.slow
+def test_ctrl_c_stops_the_training_and_the_model_so_far_is_written(data: Path, tmp_path: Path) -> None:
+    out = tmp_path / "stopped.onnx"
+    argv = [sys.executable, "-m", "a3d.train.finetune_cli", str(data / "seq" / "frames"), "--out", str(out),
+            "--minutes", "10", "--holdout", "0.3", "--synth", str(data / "synth" / "train")]  # fmt: skip
+    run = subprocess.Popen(argv, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True, cwd=ROOT)
+    for line in run.stderr:  # the colour features are cached just before the first iteration
+        if "colour trunk's features" in line:
+            time.sleep(3)
+            run.send_signal(signal.SIGINT)
+            break
+    rest = run.communicate(timeout=300)[1]
+    assert run.returncode == 0, rest[-2000:]
+    assert "interrupted: checkpoint of iteration" in rest
+    assert DetectorModel.load(out, threads=1).metadata.provenance["finetune"]["recipe"]["interrupted"]

@@ -21,7 +21,6 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import logging
 import sys
 import time
 from collections import Counter
@@ -50,11 +49,10 @@ from a3d.train.loop import CHECKPOINT_NAME, TrainingInterrupted, train
 from a3d.train.roidb import build_roidb
 
 PROG = "a3d-finetune"
-EXPORT_SECONDS = 60.0  # the export's fixed part: tracing, checks, int8 calibration (2 busy cores)
-SCORE_AGAIN = 1.3  # the after-scoring on the held-back frames, against the before's time
+EXPORT_SECONDS = 90.0  # the export's fixed part: tracing, checks, int8 calibration (2 busy cores)
+SCORE_AGAIN = 1.5  # the after-scoring on the held-back frames (and a busier machine), against the before's
 MIN_TRAIN_SECONDS = 30.0  # less is no fine-tuning (the RoI database and the first steps alone)
 READ_BACK_PROBS = 0.5  # the read-back weights' class probabilities this close to the file's, at most
-logger = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -62,7 +60,7 @@ class Recipe:
     """The training settings a3d-finetune uses (its --help names them); ``iterations`` is the most
     it runs, the lr steps down tenfold at 80 % of the run fitted to the budget."""
 
-    lr: float = 0.001
+    lr: float = 0.0003
     iterations: int = 20000
     images_per_batch: int = 2
     freeze_color: bool = True
@@ -92,23 +90,20 @@ def finetune(args: argparse.Namespace, recipe: Recipe) -> Path:
     synth = args.synth or synthetic_frames(work, args.synth_frames or split.train_frames, args.threads)
     _say(f"{split.train_frames} training frames of {len(recordings)} recording(s) beside {synth}, "
          f"{split.holdout_frames} held back; scoring {args.base} on them")  # fmt: skip
+    scored = time.monotonic()
     before = score_on(base, split.holdout, PROG)
     present = sum(c.present for c in before.classes)
     _say(f"{args.base} on the held-back frames: mAP@0.25 {100 * before.map_present(IOU):.1f} over their "
          f"{present} classes, {100 * before.map_all(IOU):.1f} over 19")  # fmt: skip
-    scoring = time.monotonic() - start
-    train_seconds = budget - scoring - EXPORT_SECONDS - SCORE_AGAIN * (scoring / 2)
-    if train_seconds < MIN_TRAIN_SECONDS:
-        needs = budget - train_seconds - scoring
-        raise InputError(f"--minutes {args.minutes:g} is too short: {scoring:.0f} s went to the data and the "
-                         f"base model's scores, the export needs about {needs:.0f} s, and less than "
-                         f"{MIN_TRAIN_SECONDS:.0f} s would be left to train")  # fmt: skip
+    export_seconds = EXPORT_SECONDS + SCORE_AGAIN * (time.monotonic() - scored)  # the "after" scores again
+    _left_to_train(args.minutes, budget - (time.monotonic() - start), export_seconds)
     weights = read_back(base_file, args.threads)
     if weights.agreement.probs.max_abs > READ_BACK_PROBS:
         raise InputError(f"{base_file}: its weights read back answer unlike the file "
                          f"({weights.agreement.describe()})")  # fmt: skip
     folders = [*split.train, synth]
     init = _initial_checkpoint(weights, folders, work)
+    train_seconds = _left_to_train(args.minutes, budget - (time.monotonic() - start), export_seconds)
     config = apply_overrides(weights.config, recipe.overrides(init, train_seconds / 60, work / "cache"))
     interrupted = False
     try:
@@ -124,6 +119,16 @@ def finetune(args: argparse.Namespace, recipe: Recipe) -> Path:
     ))  # fmt: skip
     card = model_card(args, base, recordings, split, synth, recipe, weights, before, interrupted)
     return _write(exported, args.out, card, time.monotonic() - start)
+
+
+def _left_to_train(minutes: float, left: float, export_seconds: float) -> float:
+    """The seconds the budget leaves to train after ``export_seconds`` for the export; InputError
+    when that is less than ``MIN_TRAIN_SECONDS`` (nothing is written then)."""
+    if left - export_seconds < MIN_TRAIN_SECONDS:
+        raise InputError(f"--minutes {minutes:g} is too short: {max(left, 0):.0f} s are left, the export "
+                         f"needs about {export_seconds:.0f} s, and less than {MIN_TRAIN_SECONDS:.0f} s would "
+                         "be left to train")  # fmt: skip
+    return left - export_seconds
 
 
 def _initial_checkpoint(weights: ReadBack, folders: list[Path], work: Path) -> Path:

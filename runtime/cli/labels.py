@@ -36,7 +36,7 @@ from a3d.runtime.mapping.world_boxes import WorldBoxes, read_world_boxes
 from a3d.runtime.pipeline import frame_problem
 from a3d.runtime.sources.folder import LABELS_FILE, write_frame
 from a3d.runtime.sources.overrides import parse_depth_scale, parse_intrinsics
-from a3d.runtime.sources.registry import SourceOptions, kinds, open_source
+from a3d.runtime.sources.registry import FrameSource, SourceOptions, kinds, open_source
 from a3d.runtime.structures.frame import Frame
 
 PROG = "a3d-labels"
@@ -49,7 +49,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("world_boxes", type=Path, help="world_boxes.json: the objects, once, in the world")
     p.add_argument("source", type=Path, help="a posed frame source whose poses are in that world")
     p.add_argument("--out", type=Path, required=True, help="output frame folder (created)")
-    p.add_argument("--source-format", choices=kinds(), help="the kind of SOURCE (default: recognised)")
     p.add_argument("--min-seen-px", type=int, default=defaults.min_seen_px, help="seen pixels an entry needs")
     p.add_argument(
         "--margin", type=float, default=defaults.margin_m, help="metres the boxes grow for depth noise"
@@ -57,9 +56,26 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--floor-gap", type=float, default=defaults.floor_gap_m, help="metres the boxes' bottoms are raised"
     )
+    add_source_args(p)
+    return p
+
+
+def add_source_args(p: argparse.ArgumentParser) -> None:
+    """How SOURCE is read: its kind, and the intrinsics and depth scale that replace its own
+    (a3d-labels and a3d-world-boxes read posed sources alike)."""
+    p.add_argument("--source-format", choices=kinds(), help="the kind of SOURCE (default: recognised)")
     p.add_argument("--intrinsics", metavar="FX,FY,CX,CY", help="replaces the source's intrinsics")
     p.add_argument("--depth-scale", metavar="S", help="metres per depth unit, replaces the source's")
-    return p
+
+
+def open_posed_source(args: argparse.Namespace) -> FrameSource:
+    """SOURCE as ``add_source_args``' flags say, without proposals (the frames are only read)."""
+    options = SourceOptions(
+        intrinsics=None if args.intrinsics is None else parse_intrinsics(args.intrinsics),
+        depth_scale=None if args.depth_scale is None else parse_depth_scale(args.depth_scale),
+        with_proposals=False,
+    )
+    return open_source(args.source, options, args.source_format)
 
 
 @command(PROG)
@@ -72,12 +88,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--out must not be SOURCE (its frames would be overwritten)")
     config = LabelConfig(args.min_seen_px, args.margin, args.floor_gap)
     world = read_world_boxes(args.world_boxes)
-    options = SourceOptions(
-        intrinsics=None if args.intrinsics is None else parse_intrinsics(args.intrinsics),
-        depth_scale=None if args.depth_scale is None else parse_depth_scale(args.depth_scale),
-        with_proposals=False,
-    )
-    source = open_source(args.source, options, args.source_format)
+    source = open_posed_source(args)
     failures = list(source.incomplete)
     for problem in failures:
         print(f"{PROG}: {problem}", file=sys.stderr)

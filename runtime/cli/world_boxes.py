@@ -25,6 +25,7 @@ import numpy as np
 
 from a3d.runtime.cli.common import build_parser as command_parser
 from a3d.runtime.cli.common import command
+from a3d.runtime.cli.labels import add_source_args, open_posed_source
 from a3d.runtime.errors import InputError
 from a3d.runtime.extras import Needs
 from a3d.runtime.io.atomic import atomic_write_bytes
@@ -33,8 +34,6 @@ from a3d.runtime.mapping.labels import LabelConfig, inside_box
 from a3d.runtime.mapping.rough_boxes import RoughBoxes, read_rough_boxes, write_template
 from a3d.runtime.mapping.world import boxes_to_camera, rtilt_from_pose
 from a3d.runtime.mapping.world_boxes import WORLD_BOXES_FILE, WorldBoxes, write_world_boxes
-from a3d.runtime.sources.overrides import parse_depth_scale, parse_intrinsics
-from a3d.runtime.sources.registry import SourceOptions, kinds, open_source
 from a3d.runtime.structures.classes import CLASS_COLORS_RGB, CLASSES
 from a3d.runtime.structures.frame import Frame
 from a3d.runtime.structures.geometry import BOX_EDGES
@@ -62,9 +61,7 @@ def build_parser() -> argparse.ArgumentParser:
     shown = p.add_mutually_exclusive_group()
     shown.add_argument("--save", type=Path, metavar="FILE.rrd", help="record the view to this .rrd file")
     shown.add_argument("--spawn", action="store_true", help="show the view in a rerun window")
-    p.add_argument("--source-format", choices=kinds(), help="the kind of SOURCE (default: recognised)")
-    p.add_argument("--intrinsics", metavar="FX,FY,CX,CY", help="replaces the source's intrinsics")
-    p.add_argument("--depth-scale", metavar="S", help="metres per depth unit, replaces the source's")
+    add_source_args(p)
     return p
 
 
@@ -77,12 +74,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.save or args.spawn:
         Needs("view", ("rerun",)).check()
     rough = read_rough_boxes(args.rough) if args.rough.exists() else None  # bad rows before any work
-    options = SourceOptions(
-        intrinsics=None if args.intrinsics is None else parse_intrinsics(args.intrinsics),
-        depth_scale=None if args.depth_scale is None else parse_depth_scale(args.depth_scale),
-        with_proposals=False,
-    )
-    loaders = list(open_source(args.source, options, args.source_format))
+    loaders = list(open_posed_source(args))
     fused = loaders[:: args.frame_step]
     points, colours = world_cloud(_loaded(fused), args.stride)
     if not len(points):

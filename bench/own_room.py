@@ -1,0 +1,127 @@
+"""Your own room, measured on a synthetic one: world boxes from rough ones, then a fine-tune.
+
+    .venv/bin/python -m bench.own_room --work /tmp/own [--seed 54] [--frames 200] [--minutes 15]
+        [--h350 /tmp/h350/test] [--skip-finetune]
+
+A room the bundled model did not train on (``a3d-synth --sequence``, ``--world real
+--appearance typical``: class-typical materials, where the bundled model saw only materials drawn
+whatever the class) stands in for a user's recording, its ``world_boxes.json`` for the boxes a
+person would draw. Each step runs the commands a user runs, as subprocesses:
+
+1. the sequence (kept in WORK/seq and reused) and its labels from its world boxes (``a3d-labels``);
+2. ``a3d-world-boxes`` from rough boxes: each world box moved 5 to 8 cm along every axis, its
+   extents scaled by 0.9 to 1.15 and its yaw turned by 7 degrees (seeded), written as a person's
+   rough.csv; the fitted boxes against the room's own: centre distance and size differences;
+3. ``a3d-finetune`` on the labelled recording, the last ``--holdout`` (0.4) held back, within
+   ``--minutes``, the load average before and after (the machine is shared);
+4. ``a3d-run`` + ``a3d-eval`` of the bundled model and the fine-tuned one on the held-back frames
+   and on ``--h350`` (the README's 350 held-out frames of the bundled model's world).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from a3d.runtime.mapping.rough_boxes import COLUMNS
+from a3d.runtime.mapping.world_boxes import read_world_boxes
+
+BIN = Path(sys.executable).parent
+
+
+def sh(*words: str | Path) -> float:
+    """Run one a3d command (its output to this script's stderr); its wall time in seconds."""
+    start = time.perf_counter()
+    subprocess.run([str(BIN / str(words[0])), *map(str, words[1:])], check=True, stdout=sys.stderr)
+    return time.perf_counter() - start
+
+
+def load() -> str:
+    return "load average " + ", ".join(f"{v:.2f}" for v in os.getloadavg())
+
+
+def rough_csv(world_boxes: Path, seed: int = 0) -> str:
+    """The world boxes as a person's rough ones (module docstring, step 2)."""
+    world = read_world_boxes(world_boxes)
+    rng = np.random.default_rng(seed)
+    rows = [",".join(COLUMNS)]
+    for name, box in zip(world.classes, world.boxes, strict=True):
+        centre = box[:3] + rng.choice([-1, 1], 3) * rng.uniform(0.05, 0.08, 3)
+        size = box[3:6] * rng.uniform(0.9, 1.15, 3)
+        yaw = math.degrees(box[6]) + rng.choice([-1, 1]) * 7
+        rows.append(",".join([name, *(f"{v:.3f}" for v in (*centre, *size)), f"{yaw:.1f}"]))
+    return "\n".join(rows) + "\n"
+
+
+def world_boxes_step(seq: Path, work: Path) -> None:
+    boxes = work / "boxes"
+    boxes.mkdir(parents=True, exist_ok=True)
+    (boxes / "rough.csv").write_text(rough_csv(seq / "world_boxes.json"))
+    seconds = sh(
+        "a3d-world-boxes", seq / "frames", "--rough", boxes / "rough.csv", "--save", boxes / "fitted.rrd"
+    )
+    truth, fitted = read_world_boxes(seq / "world_boxes.json"), read_world_boxes(boxes / "world_boxes.json")
+    centres = np.linalg.norm(fitted.boxes[:, :3] - truth.boxes[:, :3], axis=1)
+    sizes = np.abs(fitted.boxes[:, 3:6] - truth.boxes[:, 3:6])
+    print(f"\n## a3d-world-boxes ({seconds:.0f} s, {load()})\n")
+    print("| object | centre off (m) | l, w, h off (m) |\n| --- | --- | --- |")
+    for name, centre, size in zip(truth.classes, centres, sizes, strict=True):
+        print(f"| {name} | {centre:.3f} | {', '.join(f'{v:.3f}' for v in size)} |")
+    median = ", ".join(f"{v:.3f}" for v in np.median(sizes, axis=0))
+    print(f"| **median** | {np.median(centres):.3f} | {median} |")
+    close = ", ".join(f"{(centres < bar).sum()} within {100 * bar:.0f} cm" for bar in (0.02, 0.05, 0.1))
+    print(f"\n{len(centres)} objects: {close}")
+
+
+def scores(model: str | Path, frames: Path, out: Path) -> tuple[float, float]:
+    """mAP@0.25 over the 19 classes and over the frames' classes (a3d-run + a3d-eval)."""
+    sh("a3d-run", frames, "--model", model, "--output", out.with_suffix(".jsonl"), "--headless")
+    sh("a3d-eval", frames, "--detections", out.with_suffix(".jsonl"), "--out", out)
+    result = json.loads((out / "eval.json").read_text())["map"]["0.25"]
+    return result["all_classes"], result["present_classes"]
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--work", type=Path, required=True)
+    p.add_argument("--seed", type=int, default=54, help="the room (54: a living room of 12 classes)")
+    p.add_argument("--frames", type=int, default=200)
+    p.add_argument("--holdout", type=float, default=0.4)
+    p.add_argument("--minutes", type=float, default=15.0)
+    p.add_argument("--h350", type=Path, help="the 350 held-out frames of the bundled model's world")
+    p.add_argument("--skip-finetune", action="store_true", help="score the WORK/ft.onnx made before")
+    args = p.parse_args(argv)
+    seq, labelled, model = args.work / "seq", args.work / "labelled", args.work / "ft.onnx"
+    if not (seq / "world_boxes.json").is_file():
+        sh("a3d-synth", seq, "--sequence", args.frames, "--seed", args.seed, "--world", "real",
+           "--appearance", "typical", "--workers", "2")  # fmt: skip
+    if not labelled.is_dir():
+        sh("a3d-labels", seq / "world_boxes.json", seq / "frames", "--out", labelled)
+    world_boxes_step(seq, args.work)
+    if not args.skip_finetune:
+        before = load()
+        seconds = sh(
+            "a3d-finetune", labelled, "--out", model, "--minutes", args.minutes, "--holdout", args.holdout
+        )
+        print(f"\n## a3d-finetune: {seconds / 60:.1f} minutes; before: {before}; after: {load()}")
+    held = args.work / "ft.finetune" / "holdout"
+    print("\n| frames | bundled `live` | fine-tuned |\n| --- | --- | --- |")
+    sets = [("held-back frames of the room", held)] + ([("--h350", args.h350)] if args.h350 else [])
+    for what, frames in sets:
+        (a, a_present), (b, b_present) = (scores(m, frames, args.work / f"eval_{k}_{frames.name}")
+                                          for k, m in (("live", "live"), ("ft", model)))  # fmt: skip
+        print(f"| {what}: mAP@0.25 (their classes / 19) | {100 * a_present:.1f} / {100 * a:.1f} "
+              f"| {100 * b_present:.1f} / {100 * b:.1f} |")  # fmt: skip
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
