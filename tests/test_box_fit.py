@@ -75,7 +75,8 @@ def test_a_wall_the_margin_reaches_into_is_left_out() -> None:
     rng = np.random.default_rng(2)
     standing = TRUE.copy()
     standing[1] = -standing[5] / 2
-    floor = np.column_stack([rng.uniform(-2, 4, 20000), rng.normal(0, 0.005, 20000), rng.uniform(0, 6, 20000)])
+    n = 20000
+    floor = np.column_stack([rng.uniform(-2, 4, n), rng.normal(0, 0.005, n), rng.uniform(0, 6, n)])
     wall_x = TRUE[0] + 0.75  # 12 cm beyond the box's farthest corner along x
     wall = np.column_stack([np.full(8000, wall_x), rng.uniform(-2, 0, 8000), rng.uniform(0, 6, 8000)])
     points = np.vstack([surface_points(standing, 400, rng), floor, wall])
