@@ -60,7 +60,7 @@ class Recipe:
     """The training settings a3d-finetune uses (its --help names them); ``iterations`` is the most
     it runs, the lr steps down tenfold at 80 % of the run fitted to the budget."""
 
-    lr: float = 0.0003
+    lr: float = 0.0001
     iterations: int = 20000
     images_per_batch: int = 2
     freeze_color: bool = True

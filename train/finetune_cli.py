@@ -45,7 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--work", type=Path, help="working folder: split, caches, run (default: OUT.finetune)")
     p.add_argument("--iters", type=int, default=20000, help="the most iterations the budget may hold")
-    p.add_argument("--lr", type=float, default=0.0003, help="learning rate (x0.1 for the last fifth)")
+    p.add_argument("--lr", type=float, default=0.0001, help="learning rate (x0.1 for the last fifth)")
     p.add_argument("--threads", type=int, default=2, help="ONNX Runtime threads and a3d-synth workers")
     return p
 
