@@ -414,7 +414,7 @@ def _picked(prepared: PreparedFrame, class_scores: np.ndarray, config: PipelineC
     alive = picks.scores >= config.min_score
     picks = Picked(picks.rows[alive], picks.class_idx[alive], picks.scores[alive],
                    tuple(s for s, a in zip(picks.sources, alive, strict=True) if a))  # fmt: skip
-    return merge(own, picks, prepared.boxes)
+    return merge(own, picks, prepared.boxes, found.scores[alive])
 
 
 def _second_opinion(prepared: PreparedFrame, picked: Picked, config: PipelineConfig) -> Picked:

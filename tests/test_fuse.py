@@ -49,7 +49,7 @@ def _picked(rows, classes, scores, source):
     return Picked(np.array(rows), np.array(classes), np.array(scores, float), (source,) * len(rows))
 
 
-def test_an_object_both_find_is_reported_once_on_the_detector_box_with_the_better_score():
+def test_an_object_both_find_is_reported_once_on_the_surer_ones_roi_with_the_better_score():
     boxes = np.array([
         [0, 0, 100, 100],  # 0: own chair
         [300, 0, 400, 100],  # 1: own table, nothing of the detector's near it
@@ -59,17 +59,23 @@ def test_an_object_both_find_is_reported_once_on_the_detector_box_with_the_bette
     ], float)  # fmt: skip
     own = _picked([0, 1, 2], [CHAIR, TABLE, MONITOR], [0.9, 0.4, 0.7], "network")
     found = _picked([3, 4], [CHAIR, CHAIR], [0.6, 0.55], "yolox-nano")
-    merged = merge(own, found, boxes)
+    # The network (0.9) surer than the detector (0.5): its own RoI, row 0, carries the object.
+    merged = merge(own, found, boxes, np.array([0.5, 0.5]))
     assert sorted(zip(merged.rows.tolist(), merged.sources, strict=True)) == [
-        (1, "network"), (2, "network"), (3, "yolox-nano+network"), (4, "yolox-nano"),
+        (0, "yolox-nano+network"), (1, "network"), (2, "network"), (4, "yolox-nano"),
     ]  # fmt: skip
-    assert dict(zip(merged.rows.tolist(), merged.scores.tolist(), strict=True))[3] == pytest.approx(0.9)
+    assert dict(zip(merged.rows.tolist(), merged.scores.tolist(), strict=True))[0] == pytest.approx(0.9)
     assert np.all(np.diff(merged.scores) <= 0)  # by descending score
+    # The detector (0.95) surer: its box, row 3, with the better score of the two.
+    merged = merge(own, found, boxes, np.array([0.95, 0.5]))
+    assert sorted(merged.rows.tolist()) == [1, 2, 3, 4]
+    assert dict(zip(merged.rows.tolist(), merged.scores.tolist(), strict=True))[3] == pytest.approx(0.9)
+    assert merged.sources[merged.rows.tolist().index(3)] == "yolox-nano+network"
 
 
 def test_without_detector_boxes_the_own_detections_are_kept_as_they_are():
     own = _picked([0, 1], [CHAIR, TABLE], [0.9, 0.4], "network")
-    assert merge(own, _picked([], [], [], "yolox-nano"), np.zeros((2, 4))) is own
+    assert merge(own, _picked([], [], [], "yolox-nano"), np.zeros((2, 4)), np.zeros(0)) is own
 
 
 def _scene() -> tuple[np.ndarray, np.ndarray]:

@@ -17,8 +17,12 @@ detector's class) and both lists are kept:
   it counts half as much as the detector's. Both constants were read off the real frames of
   docs/real-rooms.md, where what they give is measured;
 - an own detection of the same class whose 2D box overlaps a detector box by IoU >=
-  ``SAME_OBJECT_IOU`` (what detection benchmarks call the same object) is reported once, on the
-  detector's box (the tighter 2D box), with the better score and both sources.
+  ``SAME_OBJECT_IOU`` (what detection benchmarks call the same object) is reported once, with the
+  better score and both sources, on the RoI of the surer of the two: the detector's box where the
+  detector's own score is at least the network's own detection's, else the network's RoI (its 2D
+  box and the 3D box regressed from it). On real frames the detector is the surer and its box is
+  the better RoI; on rooms like those it was trained on the network is, and its own segment the
+  better RoI (docs/real-rooms.md measures both).
 
 An image classifier trained on real photographs (a3d.runtime.classifier2d) gives a second opinion on
 the frame's best own detections of the classes the detector does not know (``second_opinion``):
@@ -88,27 +92,32 @@ def detector_picks(
     return Picked(rows, class_idx, fused_score(detector_scores, net), (name,) * m)
 
 
-def merge(own: Picked, found: Picked, boxes2d: np.ndarray) -> Picked:
+def merge(own: Picked, found: Picked, boxes2d: np.ndarray, detector_scores: np.ndarray) -> Picked:
     """``own`` (network) and ``found`` (detector) detections as one list by descending score, an
-    object both give counted once (module docstring); ``boxes2d`` (N, 4) the RoIs' boxes."""
+    object both give counted once (module docstring); ``boxes2d`` (N, 4) the RoIs' boxes,
+    ``detector_scores`` (M,) the detector's own scores of ``found``."""
     if not len(found.rows):
         return own
     same = iou_2d(boxes2d[own.rows], boxes2d[found.rows]) >= SAME_OBJECT_IOU
     same &= own.class_idx[:, None] == found.class_idx[None, :]
+    rows = found.rows.copy()
     scores = found.scores.copy()
     sources = list(found.sources)
     for j in range(len(found.rows)):
         matched = np.flatnonzero(same[:, j])
         if len(matched):
-            scores[j] = max(scores[j], float(own.scores[matched].max()))
+            best = matched[np.argmax(own.scores[matched])]
+            if own.scores[best] > detector_scores[j]:
+                rows[j] = own.rows[best]
+            scores[j] = max(scores[j], own.scores[best])
             sources[j] = f"{found.sources[j]}+{NETWORK}"
     alone = ~same.any(axis=1)
-    rows = np.concatenate([own.rows[alone], found.rows])
+    all_rows = np.concatenate([own.rows[alone], rows])
     class_idx = np.concatenate([own.class_idx[alone], found.class_idx])
     all_scores = np.concatenate([own.scores[alone], scores])
     all_sources = [s for s, keep in zip(own.sources, alone, strict=True) if keep] + sources
     order = np.argsort(-all_scores, kind="stable")
-    return Picked(rows[order], class_idx[order], all_scores[order], tuple(all_sources[i] for i in order))
+    return Picked(all_rows[order], class_idx[order], all_scores[order], tuple(all_sources[i] for i in order))
 
 
 def second_opinion_rows(picked: Picked, classes: np.ndarray, limit: int = SECOND_OPINIONS) -> np.ndarray:
