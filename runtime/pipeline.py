@@ -8,7 +8,8 @@ can overlap the network call of another:
 1. ``prepare`` (numpy + OpenCV): fill the depth holes, choose R_tilt (the frame's own, the
    estimate from the depth, or a fallback the line names: frontend.gravity.choose_gravity),
    compute segment proposals (or use the frame's precomputed ones), lift them
-   to initial 3D centres (proposals without any depth are dropped), and build the network
+   to initial 3D centres (proposals without any depth are dropped); with a 2D detector, its boxes
+   (computed on a thread of their own meanwhile) lifted and added as RoIs; and build the network
    inputs: the trunk images at the model's
    ``input_scale`` and the proposal and context RoIs in the resized image's pixel coordinates;
 2. ``infer``: one ONNX Runtime call per frame (both trunks once, the head over all RoIs at once);
@@ -36,10 +37,11 @@ from __future__ import annotations
 
 import itertools
 import logging
+import os
 import time
 import typing
 from collections.abc import Callable, Iterable, Iterator
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Literal, Protocol
 
@@ -87,6 +89,7 @@ MOSTLY_MISSING = 0.5  # a frame with more of its depth missing than this says so
 logger = logging.getLogger(__name__)
 PROBE_FRAMES = 3  # overlapped frames timed by --overlap auto before it keeps overlapping
 OVERLAP_NOISE = 1.05  # "never slower": within 5 % of sequential, the spread of runs on a quiet machine
+_detector_threads: dict[int, ThreadPoolExecutor] = {}  # per process id: see _detector_thread
 STAGES = (
     "read", "depth_fill", "gravity", "proposals", "lifting", "detector2d", "network_input", "network",
     "classifier2d", "postprocess",
@@ -237,6 +240,8 @@ def prepare(frame: Frame, config: PipelineConfig, timing: dict[str, float] | Non
     timing = {} if timing is None else timing
     clock = Clock(timing)
     notes: list[str] = [frame.pose_note] if frame.pose_note else []
+    boxes_of = config.detector
+    detecting = None if boxes_of is None else _detector_thread().submit(_detect, boxes_of, frame.color)
     fill = fill_depth_info(frame.depth)
     filled = fill.depth
     if fill.hole_fraction > MOSTLY_MISSING:
@@ -255,7 +260,7 @@ def prepare(frame: Frame, config: PipelineConfig, timing: dict[str, float] | Non
         if not len(boxes):
             notes.append("no proposals: none has depth to lift it")
     clock.lap("lifting")
-    found = None if config.detector is None else _detector_boxes(frame, filled, config, notes)
+    found = None if detecting is None else _detector_boxes(detecting, config, notes)
     if found is not None and len(found.boxes):
         lifted = lift_boxes(found.boxes, _reach(found.candidates, config.mean_sizes), frame.depth, filled,
                             frame.intrinsics)  # fmt: skip
@@ -275,14 +280,29 @@ def prepare(frame: Frame, config: PipelineConfig, timing: dict[str, float] | Non
     )
 
 
+def _detector_thread() -> ThreadPoolExecutor:
+    """The thread the 2D detector runs on, beside the depth fill, the proposals and the lifting (it
+    needs the colour alone; its stage, detector2d, is what the frame still waits for it after
+    them): one per process, since a forked child has none of its parent's threads."""
+    pid = os.getpid()
+    if pid not in _detector_threads:
+        _detector_threads[pid] = ThreadPoolExecutor(max_workers=1, thread_name_prefix="a3d-detector2d")
+    return _detector_threads[pid]
+
+
+def _detect(detector: BoxDetector, color_bgr: np.ndarray) -> Detections2D:
+    """The 2D detector on a frame's colour (BGR, as frames hold it; the detector takes RGB)."""
+    return detector.detect(np.ascontiguousarray(color_bgr[..., ::-1]))
+
+
 def _detector_boxes(
-    frame: Frame, filled: np.ndarray, config: PipelineConfig, notes: list[str]
+    detecting: Future[Detections2D], config: PipelineConfig, notes: list[str]
 ) -> Detections2D | None:
-    """The 2D detector's boxes of the frame; where it fails, None and a note: the frame keeps
-    a3d's own detections."""
+    """The 2D detector's boxes of the frame, once its thread has them; where it failed, None and a
+    note: the frame keeps a3d's own detections."""
     assert config.detector is not None
     try:
-        return config.detector.detect(np.ascontiguousarray(frame.color[..., ::-1]))
+        return detecting.result()
     except Exception as error:  # a detector that fails on one frame must not lose the frame
         notes.append(f"2D detector {config.detector.name} failed ({type(error).__name__}: {error}); "
                      "a3d's own detections only")  # fmt: skip
