@@ -50,7 +50,7 @@ import numpy as np
 
 from a3d.runtime.clock import Clock
 from a3d.runtime.errors import InputError, ModelError
-from a3d.runtime.frontend.box_pixels import lift_boxes
+from a3d.runtime.frontend.box_pixels import class_reach, lift_boxes
 from a3d.runtime.frontend.depth import fill_depth_info
 from a3d.runtime.frontend.frame_proposals import frame_proposals
 from a3d.runtime.frontend.gravity import choose_gravity
@@ -262,8 +262,8 @@ def prepare(frame: Frame, config: PipelineConfig, timing: dict[str, float] | Non
     clock.lap("lifting")
     found = None if detecting is None else _detector_boxes(detecting, config, notes)
     if found is not None and len(found.boxes):
-        lifted = lift_boxes(found.boxes, _reach(found.candidates, config.mean_sizes), frame.depth, filled,
-                            frame.intrinsics)  # fmt: skip
+        reach = class_reach(found.candidates, config.mean_sizes)
+        lifted = lift_boxes(found.boxes, reach, frame.depth, filled, frame.intrinsics)
         found = _subset(found, lifted.valid)
         boxes = np.concatenate([boxes, found.boxes])
         centers = np.concatenate([centers, lifted.centers[lifted.valid]])
@@ -314,13 +314,6 @@ def _subset(found: Detections2D, keep: np.ndarray) -> Detections2D:
     names = tuple(name for name, kept in zip(found.names, keep, strict=True) if kept)
     return replace(found, boxes=found.boxes[keep], scores=found.scores[keep], class_ids=found.class_ids[keep],
                    candidates=found.candidates[keep], names=names)  # fmt: skip
-
-
-def _reach(candidates: np.ndarray, mean_sizes: np.ndarray) -> np.ndarray:
-    """Per box, how far from its depth mode its object's pixels may lie: half the largest mean
-    size of the classes it may be, and 10 cm for sensor noise (a3d.runtime.frontend.box_pixels)."""
-    half = 0.5 * np.asarray(mean_sizes).max(axis=1)
-    return np.where(candidates, half[None, :], 0.0).max(axis=1) + 0.10
 
 
 def load_and_prepare(loader: FrameLoader, config: PipelineConfig) -> PreparedFrame:

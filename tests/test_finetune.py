@@ -37,9 +37,11 @@ def data(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_a_fine_tune_of_seconds_end_to_end_writes_a_model_a3d_run_loads(data: Path, tmp_path: Path) -> None:
     out = tmp_path / "mine.onnx"
     argv = [str(data / "seq" / "frames"), "--out", str(out), "--minutes", "5", "--iters", "3",
-            "--holdout", "0.3", "--synth", str(data / "synth" / "train")]  # fmt: skip
+            "--holdout", "0.3", "--synth", str(data / "synth" / "train"),
+            "--set", "data.detector_rois=2"]  # fmt: skip
     assert main(argv) == 0
     card = DetectorModel.load(out, threads=1).metadata.provenance["finetune"]
+    assert card["recipe"]["settings"] == ["data.detector_rois=2"]
     assert card["base"]["model"] == "live"
     assert (card["data"]["train_frames"], card["data"]["holdout_frames"]) == (7, 3)
     assert card["data"]["objects_per_class"] and set(card["heldout_map25"]) == {

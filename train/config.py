@@ -48,6 +48,7 @@ class DataConfig:
     rois_per_image: int = 128
     fg_fraction: float = 0.25
     fg_iou: float = 0.5  # foreground: 2D IoU >= fg_iou with a visible (gt2d_sel) box
+    detector_rois: int = 0  # per visible box, RoIs jittered as a 2D detector's (a3d.train.detector_rois)
     bg_iou_low: float = 0.1  # background: IoU in [bg_iou_low, fg_iou)
     depth_truncation_m: float = PipelineConfig.depth_truncation_m  # metres mapped to 255 (depth input)
     workers: int = 1  # DataLoader worker processes (0: load in the training process)

@@ -102,9 +102,10 @@ def finetune(args: argparse.Namespace, recipe: Recipe) -> Path:
         raise InputError(f"{base_file}: its weights read back answer unlike the file "
                          f"({weights.agreement.describe()})")  # fmt: skip
     folders = [*split.train, synth]
-    init = _initial_checkpoint(weights, folders, work)
+    init = _initial_checkpoint(weights, apply_overrides(weights.config, args.overrides), folders, work)
     train_seconds = _left_to_train(args.minutes, budget - (time.monotonic() - start), export_seconds)
-    config = apply_overrides(weights.config, recipe.overrides(init, train_seconds / 60, work / "cache"))
+    settings = [*recipe.overrides(init, train_seconds / 60, work / "cache"), *args.overrides]  # --set last
+    config = apply_overrides(weights.config, settings)
     interrupted = False
     try:
         train(folders, work / "run", config, overwrite=True)
@@ -131,10 +132,10 @@ def _left_to_train(minutes: float, left: float, export_seconds: float) -> float:
     return left - export_seconds
 
 
-def _initial_checkpoint(weights: ReadBack, folders: list[Path], work: Path) -> Path:
+def _initial_checkpoint(weights: ReadBack, config, folders: list[Path], work: Path) -> Path:
     """The read-back weights as an a3d-train checkpoint to fine-tune: the training frames' RoI
-    database built (and cached for the run), the heads normalised by its target statistics."""
-    config = weights.config
+    database built with ``config`` (the read-back one with --set) and cached for the run, the
+    heads normalised by its target statistics."""
     roidb = build_roidb(
         folders, config, work / "cache", weights.metadata.mean_sizes, progress=config.log.progress
     )
@@ -186,7 +187,8 @@ def model_card(args: argparse.Namespace, base: DetectorModel, recordings: list[R
             "synthetic": str(synth.resolve()),
         },
         "recipe": {**dataclasses.asdict(recipe), "minutes": args.minutes, "pooled_layout": weights.layout,
-                   "read_back_vs_file": weights.agreement.to_dict(), "interrupted": interrupted},
+                   "read_back_vs_file": weights.agreement.to_dict(), "interrupted": interrupted,
+                   "settings": list(args.overrides)},
         "heldout_map25": {"before": before.map_all(IOU), "before_present": before.map_present(IOU)},
     }  # fmt: skip
 

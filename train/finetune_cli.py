@@ -1,7 +1,7 @@
 """a3d-finetune: a model fine-tuned on your own labelled recordings in minutes on the CPU.
 
     a3d-finetune FOLDER... --out model.onnx [--base NAME|FILE] [--minutes 15] [--holdout 0.2]
-                 [--synth FOLDER | --synth-frames N] [--work DIR]
+                 [--synth FOLDER | --synth-frames N] [--work DIR] [--set KEY=VALUE ...]
 
 Each FOLDER is one recording as an annotated frame folder (a3d-labels writes one from boxes
 drawn once: docs/mapping.md). The last HOLDOUT of each recording's frames is held back; the rest
@@ -47,6 +47,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--iters", type=int, default=20000, help="the most iterations the budget may hold")
     p.add_argument("--lr", type=float, default=0.0001, help="learning rate (x0.1 for the last fifth)")
     p.add_argument("--threads", type=int, default=2, help="ONNX Runtime threads and a3d-synth workers")
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="a training setting over the recipe's, as a3d-train takes it, e.g. "
+                   "data.detector_rois=2 (repeatable)")  # fmt: skip
     return p
 
 

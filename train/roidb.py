@@ -3,8 +3,9 @@
 Per frame (docs/conventions.md "Proposals and initial 3D boxes", "Training"):
 
 - RoIs are the ground truth's visible boxes (``box2d_visible``, the paper's ``gt2d_sel``), added
-  as in Fast R-CNN, followed by the runtime's class-agnostic segment proposals (or the frame's
-  precomputed ``NAME.proposals.npz``).
+  as in Fast R-CNN, then, with ``data.detector_rois``, boxes jittered from them as a 2D
+  detector's are (a3d.train.detector_rois), followed by the runtime's class-agnostic segment
+  proposals (or the frame's precomputed ``NAME.proposals.npz``).
 - Labels by 2D IoU with the visible boxes: foreground (the best box's class) at IoU >= fg_iou,
   background for IoU in [bg_iou_low, fg_iou); other proposals are dropped.
 - Each RoI's segment (a ground truth's instance mask, a proposal's segment) is lifted to a 3D
@@ -57,6 +58,7 @@ from a3d.runtime.structures.boxes import SIZE, boxes_array, empty_boxes
 from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES, from_softmax, to_softmax
 from a3d.runtime.structures.frame import GroundTruth
 from a3d.runtime.structures.geometry import Intrinsics, iou_2d
+from a3d.train.detector_rois import detector_like_rois
 
 CACHE_VERSION = 3
 FILLED_DEPTH_SUFFIX = ".filled.npy"
@@ -194,14 +196,18 @@ def frame_rois(
     mean_sizes: np.ndarray,
     fg_iou: float,
     bg_iou_low: float,
+    extra: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> FrameRois:
-    """One frame's record from its ground truth and its (cached) front-end results."""
+    """One frame's record from its ground truth and its (cached) front-end results; ``extra``
+    (boxes (M, 4), lifted centres (M, 3)) are more RoIs, after the ground truth's (the
+    detector-like ones of a3d.train.detector_rois)."""
     visible = np.asarray(gt.boxes2d_visible, np.float64)
-    has_pixels = (visible[:, 2] - visible[:, 0]) * (visible[:, 3] - visible[:, 1]) >= MIN_VISIBLE_AREA
-    gt_rows = np.flatnonzero(has_pixels)
-    boxes = np.concatenate([visible[gt_rows], np.asarray(front.proposal_boxes, np.float64)])
-    centers = np.concatenate([front.gt_centers[gt_rows], front.proposal_centers])
-    valid = np.concatenate([front.gt_valid[gt_rows], np.ones(len(front.proposal_boxes), bool)])
+    gt_rows = np.flatnonzero(_has_pixels(visible))
+    extra_boxes, extra_centers = extra if extra is not None else (np.zeros((0, 4)), np.zeros((0, 3)))
+    others = np.concatenate([extra_boxes, np.asarray(front.proposal_boxes, np.float64)])
+    boxes = np.concatenate([visible[gt_rows], others])
+    centers = np.concatenate([front.gt_centers[gt_rows], extra_centers, front.proposal_centers])
+    valid = np.concatenate([front.gt_valid[gt_rows], np.ones(len(others), bool)])
     keep, labels, overlaps, gt_index = label_rois(boxes, gt, fg_iou, bg_iou_low)
     kept = np.flatnonzero(keep)
     order = kept[np.argsort(labels[kept] == 0, kind="stable")]  # foreground first, in RoI order
@@ -226,6 +232,32 @@ def frame_rois(
         gt_boxes2d=np.asarray(gt.boxes2d_amodal, np.float64).reshape(-1, 4)[gt_index[:fg]],
         has_3d=valid[:fg].astype(bool),
     )
+
+
+def _has_pixels(visible: np.ndarray) -> np.ndarray:
+    """(G,) bool: the visible boxes large enough to be an RoI."""
+    return (visible[:, 2] - visible[:, 0]) * (visible[:, 3] - visible[:, 1]) >= MIN_VISIBLE_AREA
+
+
+def _detector_rois(
+    ref: FrameRef,
+    gt: GroundTruth,
+    intrinsics: Intrinsics | None,
+    filled: Path,
+    mean_sizes: np.ndarray,
+    config,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The frame's ``data.detector_rois`` detector-like RoIs per object that have depth (the runtime
+    drops a detector's box without any): (boxes (M, 4), centres (M, 3))."""
+    visible = np.asarray(gt.boxes2d_visible, np.float64)
+    rows = np.flatnonzero(_has_pixels(visible))
+    frame = read_frame(ref, intrinsics)
+    data = config.data
+    boxes, centers, valid = detector_like_rois(
+        ref.name, visible[rows], np.asarray(gt.class_ids)[rows], data.detector_rois, config.solver.seed,
+        frame.depth, np.load(filled), frame.intrinsics, mean_sizes,
+    )  # fmt: skip
+    return boxes[valid], centers[valid]
 
 
 def build_roidb(
@@ -263,7 +295,12 @@ def build_roidb(
         annotated, _front_ends(annotated, config, cache_dir, progress), strict=True
     ):
         filled = _cache_path(ref, config.proposals, cache_dir, FILLED_DEPTH_SUFFIX)
-        record = frame_rois(ref, gt, front, filled, mean_sizes, config.data.fg_iou, config.data.bg_iou_low)
+        extra = None
+        if config.data.detector_rois:
+            extra = _detector_rois(ref, gt, intrinsics, filled, mean_sizes, config)
+        record = frame_rois(
+            ref, gt, front, filled, mean_sizes, config.data.fg_iou, config.data.bg_iou_low, extra
+        )
         record.folder_intrinsics = intrinsics
         if len(record.labels):
             records.append(record)

@@ -20,6 +20,15 @@ from a3d.runtime.structures.geometry import CameraLike, backproject
 BIN_M = 0.05  # depth histogram bin for the mode (a chair's seat is a few bins deep)
 INNER = 0.25  # the inner half: the box shrunk by a quarter of its size on each side
 MIN_PIXELS = 20  # fewer raw pixels than this in the inner half: the filled depth is used
+NOISE_M = 0.10  # the reach's allowance for sensor noise
+
+
+def class_reach(candidates: np.ndarray, mean_sizes: np.ndarray) -> np.ndarray:
+    """Per box, how far from its depth mode its object's pixels may lie: half the largest mean
+    size of the classes it may be (``candidates`` (N, C) bool, ``mean_sizes`` (C, 3)), plus
+    ``NOISE_M``."""
+    half = 0.5 * np.asarray(mean_sizes).max(axis=1)
+    return np.where(candidates, half[None, :], 0.0).max(axis=1) + NOISE_M
 
 
 def object_masks_in_boxes(
