@@ -17,8 +17,10 @@ import pytest
 from a3d.runtime.cli.common import EXIT_USAGE
 from a3d.runtime.cli.run import main as run_main
 from a3d.runtime.network.model import DetectorModel
+from a3d.runtime.sources.folder import FolderSource, read_frame
 from a3d.synth.cli import main as synth_main
 from a3d.train.finetune_cli import main
+from a3d.train.finetune_data import calibration_frames
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -40,8 +42,11 @@ def test_a_fine_tune_of_seconds_end_to_end_writes_a_model_a3d_run_loads(data: Pa
             "--holdout", "0.3", "--synth", str(data / "synth" / "train"),
             "--set", "data.detector_rois=2"]  # fmt: skip
     assert main(argv) == 0
-    card = DetectorModel.load(out, threads=1).metadata.provenance["finetune"]
+    provenance = DetectorModel.load(out, threads=1).metadata.provenance
+    card = provenance["finetune"]
     assert card["recipe"]["settings"] == ["data.detector_rois=2"]
+    calib = provenance["export"]["calibration"]["folder"]  # the user's and the synthetic frames
+    assert calib == str((tmp_path / "mine.finetune" / "calib").resolve())
     assert card["base"]["model"] == "live"
     assert (card["data"]["train_frames"], card["data"]["holdout_frames"]) == (7, 3)
     assert card["data"]["objects_per_class"] and set(card["heldout_map25"]) == {
@@ -101,3 +106,18 @@ def test_ctrl_c_stops_the_training_and_the_model_so_far_is_written(data: Path, t
     assert run.returncode == 0, rest[-2000:]
     assert "interrupted: checkpoint of iteration" in rest
     assert DetectorModel.load(out, threads=1).metadata.provenance["finetune"]["recipe"]["interrupted"]
+
+
+def test_the_int8_calibration_frames_spread_over_the_recordings_and_the_synthetic_ones(
+    data: Path, tmp_path: Path
+) -> None:
+    own, synth = data / "seq" / "frames", data / "synth" / "train"
+    calib = calibration_frames([own], synth, tmp_path, 6)
+    refs = FolderSource(calib).refs  # each frame carries its own intrinsics: the folders' cameras differ
+    assert len(refs) == 6
+    sources = [(ref.color_path.resolve().parent, ref.color_path.resolve().name) for ref in refs]
+    own_names = [p.name for p in sorted(own.glob("*.color.png"))]
+    synth_names = [p.name for p in sorted(synth.glob("*.color.png"))]
+    assert sources[:3] == [(own.resolve(), own_names[i]) for i in (0, 3, 6)]  # spread, not the first three
+    assert sources[3:] == [(synth.resolve(), synth_names[i]) for i in (0, 1, 2)]
+    assert all(read_frame(ref, None).intrinsics is not None for ref in refs)

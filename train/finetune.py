@@ -44,7 +44,14 @@ from a3d.runtime.structures.classes import CLASSES
 from a3d.train.checkpoint import file_sha256, save_checkpoint
 from a3d.train.config import apply_overrides
 from a3d.train.dataset import MIN_STD, TargetStats, compute_target_stats
-from a3d.train.finetune_data import Recording, Split, read_recording, split_recordings, synthetic_frames
+from a3d.train.finetune_data import (
+    Recording,
+    Split,
+    calibration_frames,
+    read_recording,
+    split_recordings,
+    synthetic_frames,
+)
 from a3d.train.loop import CHECKPOINT_NAME, TrainingInterrupted, train
 from a3d.train.roidb import build_roidb
 
@@ -52,6 +59,7 @@ PROG = "a3d-finetune"
 EXPORT_SECONDS = 90.0  # the export's fixed part: tracing, checks, int8 calibration (2 busy cores)
 SCORE_AGAIN = 1.5  # the after-scoring on the held-back frames (and a busier machine), against the before's
 MIN_TRAIN_SECONDS = 30.0  # less is no fine-tuning (the RoI database and the first steps alone)
+CALIB_FRAMES = 16  # int8 calibration frames: half the user's (spread over the recordings), half synthetic
 READ_BACK_PROBS = 0.5  # the read-back weights' class probabilities this close to the file's, at most
 
 
@@ -113,9 +121,10 @@ def finetune(args: argparse.Namespace, recipe: Recipe) -> Path:
         interrupted = True
         _say(f"interrupted: {e}; exporting that checkpoint")
     exported = work / "exported.onnx"
+    calib = calibration_frames(split.train, synth, work, CALIB_FRAMES)
     export(argparse.Namespace(
         checkpoint=work / "run" / CHECKPOINT_NAME, output=exported, verify_frames=split.holdout, svd=None,
-        int8=True, calib=split.train[0], calib_frames=16, opset=MIN_OPSET, score_threshold=None,
+        int8=True, calib=calib, calib_frames=CALIB_FRAMES, opset=MIN_OPSET, score_threshold=None,
         score_calibration=split.holdout, threads=args.threads,
     ))  # fmt: skip
     card = model_card(args, base, recordings, split, synth, recipe, weights, before, interrupted)

@@ -95,6 +95,24 @@ def split_recordings(recordings: list[Recording], share: float, work: Path) -> S
     return Split(train, holdout, *frames)
 
 
+def calibration_frames(train: list[Path], synth: Path, work: Path, count: int) -> Path:
+    """WORK/calib: ``count`` frames for the int8 calibration, half spread evenly over the training
+    frames of the recordings, half over the synthetic ones. The first frames of one recording are
+    a few seconds of one view, and ranges fitted to them alone clip what other rooms and views
+    need (docs/training.md "Your own room")."""
+    calib = work / "calib"
+    shutil.rmtree(calib, ignore_errors=True)
+    calib.mkdir(parents=True)
+    own = [(folder, ref) for folder in train for ref in FolderSource(folder).refs]
+    mixed = [(synth, ref) for ref in FolderSource(synth).refs]
+    for k, (pool, take) in enumerate(((own, count - count // 2), (mixed, count // 2))):
+        for i in range(min(take, len(pool))):
+            folder, ref = pool[i * len(pool) // take]
+            intrinsics = folder / INTRINSICS_FILE
+            _link(ref, calib, f"c{k}_{i:03d}", intrinsics if intrinsics.is_file() else None)
+    return calib
+
+
 def _link(ref: FrameRef, folder: Path, name: str, intrinsics: Path | None = None) -> None:
     """Link a frame's files into ``folder`` as frame ``name``; with ``intrinsics`` its meta.json is
     written instead, with the folder's intrinsics in it."""
