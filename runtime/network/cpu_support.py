@@ -50,8 +50,9 @@ def cpu_flags(cpuinfo: str | None = None) -> frozenset[str]:
 
 def int8_dot_products(flags: frozenset[str] | None = None) -> list[str]:
     """The int8 dot-product instructions among ``flags`` (default: this machine's). Where there is
-    one, ONNX Runtime's int8 kernels add exactly; AVX2's saturate an intermediate 16-bit sum, so an
-    int8 model's scores differ slightly between the two kinds of CPU."""
+    one, ONNX Runtime's int8 kernels add exactly; AVX2's uint8 x int8 kernel saturates an
+    intermediate 16-bit sum, so the runtime asks for its exact, slower uint8 x uint8 one there
+    (a3d.runtime.network.model.session_options)."""
     return _among(INT8_DOT_PRODUCT, flags)
 
 
