@@ -5,9 +5,12 @@
         [--model-name LABEL] --boxes bench/data/real_frames_boxes.json \\
         [--boxes3d bench/data/real_frames_boxes3d.json | --no-3d] [--threshold 0.5] --out DIR
     .venv/bin/python -m bench.real_frames FOLDER --detector yolox-nano --detector-alone --out DIR
+    .venv/bin/python -m bench.real_frames FOLDER --classifier mobilenet-v2 --classifier-alone --out DIR
 
 ``--model real`` is the bundled pipeline (the network with its 2D detector, a3d.runtime.models);
 ``--detector-alone`` counts a 2D detector's own boxes and scores, its classes mapped to a3d's, in 2D.
+``--classifier-alone`` runs an image classifier on the hand-drawn boxes themselves: per class, the
+probability it gives the object's own class, the most it could vouch for in a pipeline.
 
 mAP needs 3D boxes, and real frames such as the nine the project looked at come without any; what a user
 sees is which boxes a model draws on them. This runs the model on every frame of FOLDER (an a3d
@@ -406,6 +409,26 @@ def detector_alone(source: FolderSource, name: str, threads: int) -> list[tuple[
     return results
 
 
+def classifier_alone(source: FolderSource, boxes: BoxesFile, name: str, threads: int) -> str:
+    """Per class of the hand-drawn objects, in markdown: how many, the median probability the
+    classifier gives their own class on their own boxes, and how many it names so at >= 0.5."""
+    from a3d.runtime.classifier2d import Classifier2D
+
+    classifier = Classifier2D.load(name, threads=threads)
+    probs: dict[int, list[float]] = {}
+    for loader in source:
+        frame = loader.load()
+        truth = boxes.frames[frame.name]
+        p = classifier.classify(np.ascontiguousarray(frame.color[..., ::-1]), truth.boxes)
+        for c, row in zip(truth.class_ids, p, strict=True):
+            probs.setdefault(int(c), []).append(float(row[c]))
+    lines = ["| class | objects | median p(own class) | named at >= 0.5 |", "|---|---:|---:|---:|"]
+    for c in sorted(probs, key=lambda c: CLASSES[c]):
+        own = np.array(probs[c])
+        lines.append(f"| {CLASSES[c]} | {len(own)} | {np.median(own):.2f} | {(own >= 0.5).sum()} |")
+    return "\n".join(lines)
+
+
 def _in_3d(
     boxes3d: dict[str, Boxes3D], detections: list[FrameDetections], reports: dict[str, dict], threshold: float
 ) -> Score3D:
@@ -425,6 +448,10 @@ def run(args: argparse.Namespace) -> int:
     boxes3d = None if args.no_3d or alone else read_boxes3d(args.boxes3d, boxes)
     source = FolderSource(args.folder)
     check_frames(source, boxes)
+    if args.classifier_alone:
+        print(f"{args.classifier} on the hand-drawn boxes of {args.folder} (crops as in the pipeline):\n")
+        print(classifier_alone(source, boxes, args.classifier, args.threads))
+        return 0
     if alone:
         label = args.model_name or f"{args.detector} alone"
         results = detector_alone(source, args.detector, args.threads)
@@ -489,6 +516,8 @@ def main(argv: list[str] | None = None) -> int:
                         "(a3d.runtime.classifier2d; default: none)")  # fmt: skip
     parser.add_argument("--detector-alone", action="store_true",
                         help="count --detector's own boxes and scores, no network (2D only)")  # fmt: skip
+    parser.add_argument("--classifier-alone", action="store_true",
+                        help="run --classifier on the hand-drawn boxes (a table, no model)")  # fmt: skip
     parser.add_argument(
         "--model-name", help="the model's name on the sheet and in the JSON (default: its stem)"
     )
@@ -502,7 +531,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--out", type=Path, required=True, help="folder for the sheet and the JSON")
     args = parser.parse_args(argv)
-    if (args.model is None) != args.detector_alone or (args.detector_alone and not args.detector):
+    if args.classifier_alone:
+        if not args.classifier or args.model or args.detector_alone:
+            parser.error("--classifier-alone takes --classifier NAME and no --model or --detector-alone")
+    elif (args.model is None) != args.detector_alone or (args.detector_alone and not args.detector):
         parser.error("give --model, or --detector NAME with --detector-alone")
     try:
         return run(args)
