@@ -45,7 +45,7 @@ def _without_files(line: dict) -> dict:
 
 
 def test_a3d_run_on_samples_is_pinned_to_the_output_before_the_redesign(run_lines: dict[str, dict]) -> None:
-    """tests/data/samples_detections_*.jsonl were written by a3d-run before the runtime was regrouped
+    """tests/data/samples_detections.jsonl was written by a3d-run before the runtime was regrouped
     and made array-first; boxes and scores must stay within 1e-6 of it, detection for detection,
     once its 3D boxes are bounded as a3d-run now bounds them (postprocess.box_limits)."""
     pinned = [json.loads(line) for line in PINNED.read_text().splitlines()]
