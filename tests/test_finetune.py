@@ -13,12 +13,14 @@ import time
 from pathlib import Path
 
 import pytest
+import torch
 
 from a3d.runtime.cli.common import EXIT_USAGE
 from a3d.runtime.cli.run import main as run_main
 from a3d.runtime.network.model import DetectorModel
 from a3d.runtime.sources.folder import FolderSource, read_frame
 from a3d.synth.cli import main as synth_main
+from a3d.train.checkpoint import load_checkpoint
 from a3d.train.finetune_cli import main
 from a3d.train.finetune_data import calibration_frames
 
@@ -52,6 +54,11 @@ def test_a_fine_tune_of_seconds_end_to_end_writes_a_model_a3d_run_loads(data: Pa
     assert card["data"]["objects_per_class"] and set(card["heldout_map25"]) == {
         "before", "before_present", "after", "after_present"}  # fmt: skip
     assert card["recipe"]["pooled_layout"] == "y, c, x" and not card["recipe"]["interrupted"]
+    work = tmp_path / "mine.finetune"
+    init, trained = (load_checkpoint(work / name)["model"] for name in ("init.pt", "run/checkpoint.pt"))
+    assert card["recipe"]["freeze_depth"] == 10  # conv4_3 (features.21) kept, conv5_1 (features.24) learns
+    assert torch.equal(init["depth_trunk.features.21.weight"], trained["depth_trunk.features.21.weight"])
+    assert not torch.equal(init["depth_trunk.features.24.weight"], trained["depth_trunk.features.24.weight"])
     held = sorted(p.name for p in (tmp_path / "mine.finetune" / "holdout").glob("*.gt.json"))
     assert held == [f"r0_seq_{i:06d}.gt.json" for i in (7, 8, 9)]  # the recording's last stretch
     detections = tmp_path / "det.jsonl"

@@ -61,6 +61,22 @@ def test_freezing_leading_convs_and_its_limits() -> None:
         A3DNet(NetConfig(width=0.0625, trunk_norm=True, fuse_channels=8, fc6=16, fc7=16)).freeze_color(1)
 
 
+def test_freezing_the_depth_trunks_leading_convs() -> None:
+    net = A3DNet(NetConfig(width=0.0625, color_width=0.125, fuse_channels=8, fc6=16, fc7=16))
+    net.freeze_depth(10)
+    flags = [conv.weight.requires_grad for _, conv in net.depth_trunk.convs()]
+    assert flags == [False] * 10 + [True] * 3
+    assert all(p.requires_grad for p in net.color_trunk.parameters()) and net.fc6.weight.requires_grad
+    trainable = sum(len(group["params"]) for group in param_groups(net, 0.0005))
+    assert trainable == sum(p.requires_grad for p in net.parameters()) < len(list(net.parameters()))
+    with pytest.raises(ValueError, match=r"solver.freeze_depth=14: expected 0 \.\. 13"):
+        net.freeze_depth(14)
+    with pytest.raises(ValueError, match=r"net\.trunk_norm=false"):
+        A3DNet(NetConfig(width=0.0625, trunk_norm=True, fuse_channels=8, fc6=16, fc7=16)).freeze_depth(1)
+    with pytest.raises(ValueError, match="no depth trunk"):
+        A3DNet(NetConfig(width=0.0625, use_depth=False, fc6=16, fc7=16)).freeze_depth(1)
+
+
 def _fake_imagenet(path: Path) -> Path:
     """A small stand-in for the ImageNet file, He-scaled as trained weights are (activations stay O(1))."""
     vgg = fake_vgg16(0.25, fc6=32, fc7=16, seed=2)

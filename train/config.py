@@ -71,7 +71,9 @@ class SolverConfig:
     ``freeze_color`` keeps the colour trunk's first N convolutions at their initial (ImageNet)
     weights; with all 13 frozen and ``data.augment`` off, the trunk's features are computed once
     per frame and cached (a3d.train.color_features), so training runs the depth trunk and the
-    head alone. ``frozen_norms`` keeps every BatchNorm in eval mode while training (its statistics
+    head alone. ``freeze_depth`` keeps the depth trunk's first N convolutions at the weights the
+    run starts from (``init``): a fine-tune on one room's frames (a3d-finetune) moves the rest.
+    ``frozen_norms`` keeps every BatchNorm in eval mode while training (its statistics
     fixed, its scale and shift still trained): a network read back from a model file, whose
     statistics were folded into the weights (a3d.export.read_back), fine-tunes without them moving.
     """
@@ -91,6 +93,7 @@ class SolverConfig:
     pretrained: str = ""  # torchvision-layout VGG16 ImageNet state dict; "" = random initialisation
     pretrained_trunks: tuple[str, ...] = ("color", "depth")  # the trunks ``pretrained`` initialises
     freeze_color: int = 0  # leading colour-trunk convs kept fixed; 13 = all (features cached, see below)
+    freeze_depth: int = 0  # leading depth-trunk convs kept fixed (a fine-tune from solver.init)
     color_lr_mult: float = 1.0  # lr factor of the colour trunk's trainable convs (fine-tuning ImageNet: 0.1)
     init: str = ""  # a3d-train checkpoint to fine-tune: its weights, target statistics and mean sizes
     frozen_norms: bool = False  # BatchNorms keep their running statistics while training (see below)

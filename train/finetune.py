@@ -8,7 +8,8 @@
    database built (a3d.train.roidb, cached in the work folder), the heads put in terms of those
    frames' target statistics and saved as the checkpoint a3d-train fine-tunes (``solver.init``);
 4. a3d-train's own loop (a3d.train.loop.train) runs for what is left of the budget less the
-   export's share (``solver.minutes``): the colour trunk frozen and its features cached, every
+   export's share (``solver.minutes``): the colour trunk frozen and its features cached, the
+   depth trunk's first ten convolutions frozen (docs/training.md "Your own room"), every
    BatchNorm's statistics fixed (they were folded into the weights), bfloat16 where the CPU has it;
    Ctrl-C stops it with the last iteration's checkpoint, which is exported as any other;
 5. a3d-export's steps (a3d.export.build.export): int8 calibrated on training frames, verified and
@@ -72,6 +73,7 @@ class Recipe:
     iterations: int = 20000
     images_per_batch: int = 2
     freeze_color: bool = True
+    freeze_depth: int = 10  # the depth trunk's conv1-conv4 kept: a room's 100 frames move conv5 and the head
     seed: int = 0
 
     def overrides(self, init: Path, minutes: float, cache: Path) -> list[str]:
@@ -81,6 +83,7 @@ class Recipe:
             f"solver.lr_steps=[{round(0.8 * self.iterations)}]", f"solver.minutes={minutes}",
             f"solver.precision={precision}", "solver.frozen_norms=true", f"solver.seed={self.seed}",
             f"solver.freeze_color={13 if self.freeze_color else 0}", "data.bg_iou_low=0",
+            f"solver.freeze_depth={self.freeze_depth}",
             f"data.images_per_batch={self.images_per_batch}", "data.augment=false", f"data.cache_dir={cache}",
             "log.val_every=0", "log.checkpoint_every=500",
         ]  # fmt: skip

@@ -297,6 +297,9 @@ class _Run:
             raise ValueError(f"solver.minutes={solver.minutes}: expected > 0, or 0 for no time budget")
         if solver.init and solver.pretrained:
             raise ValueError("solver.init and solver.pretrained are both set: a run starts from one of them")
+        if solver.freeze_depth and not (solver.init or state):
+            raise ValueError(f"solver.freeze_depth={solver.freeze_depth} keeps the depth trunk's initial "
+                             "weights: give them with solver.init")  # fmt: skip
         if solver.freeze_color and not (solver.init or solver.pretrained or state):
             raise ValueError(f"solver.freeze_color={solver.freeze_color} keeps the colour trunk's initial "
                              "weights: give them with solver.pretrained=FILE (a3d-vgg16-weights) or "
@@ -344,6 +347,7 @@ class _Run:
         elif solver.init and not state:
             load_weights(model, start["model"], solver.init)
         model.freeze_color(solver.freeze_color)
+        model.freeze_depth(solver.freeze_depth)
         if solver.frozen_norms:
             model.freeze_norms()
         # channels-last convolutions: oneDNN's fast layout on CPUs (1.2x in fp32, and what AMX's bf16 wants)

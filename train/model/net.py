@@ -95,14 +95,17 @@ class A3DNet(nn.Module):
 
         A frozen layer must be plain (no BatchNorm, whose statistics train mode would still update).
         """
-        trunk_convs = self.color_trunk.convs()
-        if not 0 <= convs <= len(trunk_convs):
-            raise ValueError(f"solver.freeze_color={convs}: expected 0 .. {len(trunk_convs)} convolutions")
-        if convs and self.config.color_trunk_norm:
-            raise ValueError("solver.freeze_color: a frozen colour trunk must be plain "
-                             "(net.color_norm=false)")  # fmt: skip
-        for _, conv in trunk_convs[:convs]:
-            conv.requires_grad_(False)
+        norm = self.config.color_trunk_norm
+        _freeze(self.color_trunk, convs, norm, "solver.freeze_color", "net.color_norm")
+
+    def freeze_depth(self, convs: int) -> None:
+        """The same for the depth trunk's first ``convs``: a fine-tune on a few hundred frames of
+        one room moves the late layers only (SolverConfig.freeze_depth)."""
+        if self.depth_trunk is None:
+            if convs:
+                raise ValueError("solver.freeze_depth: the network has no depth trunk (net.use_depth=false)")
+            return
+        _freeze(self.depth_trunk, convs, self.config.trunk_norm, "solver.freeze_depth", "net.trunk_norm")
 
     def freeze_norms(self) -> None:
         """Keep every BatchNorm in eval mode from now on, also in ``train()``: their running
@@ -198,3 +201,15 @@ class A3DNet(nn.Module):
         color_map: torch.Tensor | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         return self.head(self.trunk_features(color, depth, color_map), rois, context_rois)
+
+
+def _freeze(trunk: VGG16Trunk, convs: int, norm: bool, setting: str, norm_setting: str) -> None:
+    """``trunk``'s first ``convs`` convolutions without gradients; ValueError naming ``setting``
+    for a count out of range or a trunk with BatchNorms."""
+    trunk_convs = trunk.convs()
+    if not 0 <= convs <= len(trunk_convs):
+        raise ValueError(f"{setting}={convs}: expected 0 .. {len(trunk_convs)} convolutions")
+    if convs and norm:
+        raise ValueError(f"{setting}: a frozen trunk must be plain ({norm_setting}=false)")
+    for _, conv in trunk_convs[:convs]:
+        conv.requires_grad_(False)
