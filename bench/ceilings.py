@@ -26,6 +26,8 @@ import onnx
 import onnxruntime as ort
 from onnx import TensorProto, helper, numpy_helper
 
+from a3d.runtime.network.model import session_options
+
 GEMM = (512, 4096, 4096)  # M (RoIs), K, N
 CONV = (256, 256, 112, 140)  # in channels, out channels, height, width; 3 x 3, padding 1
 OPSET = 17
@@ -127,10 +129,9 @@ def _model(node, constants, x: str, x_type: int, shape, y: str, y_type: int, out
 def macs_per_second(model: onnx.ModelProto, feeds: dict[str, np.ndarray], macs: int, threads: int,
                     repeats: int = 5) -> float:  # fmt: skip
     """The median MAC/s of ``repeats`` calls after one warm-up, with the runtime's session settings
-    (a3d.runtime.network.model.DetectorModel: ``threads`` intra-op threads, one inter-op)."""
-    options = ort.SessionOptions()
-    options.intra_op_num_threads = threads
-    options.inter_op_num_threads = 1
+    (a3d.runtime.network.model.session_options: ``threads`` intra-op threads, one inter-op, and on
+    a CPU with AVX2 alone ONNX Runtime's exact int8 kernel, the one the runtime's model runs on)."""
+    options = session_options(threads)
     session = ort.InferenceSession(model.SerializeToString(), options, providers=["CPUExecutionProvider"])
     session.run(None, feeds)
     seconds = []
