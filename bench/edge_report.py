@@ -28,6 +28,8 @@ STAGE_LABELS = {
     "gravity": "gravity",
     "proposals": "proposals",
     "lifting": "lifting",
+    "detector2d": "2D detector (waited for)",
+    "classifier2d": "image classifier",
     "network_input": "network input",
     "network": "ORT network",
     "postprocess": "NMS + decoding",

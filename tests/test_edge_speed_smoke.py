@@ -58,7 +58,7 @@ def test_breakdown_accounts_for_the_whole_frame(tiny: Tiny, tmp_path: Path) -> N
     rrd = tmp_path / "run.rrd"
     run = edge_speed.measure_run(tiny.model, tiny.frames, max_proposals=40, threads=1, rrd=rrd)
     assert run.frames == 3 and 0 < run.rois <= 40 and rrd.stat().st_size > 0
-    assert set(run.stages) == set(edge_report.RUN_STAGES)
+    assert set(run.stages) == set(edge_report.RUN_STAGES) == set(edge_report.STAGE_LABELS)  # each a row
     assert all(seconds >= 0 for seconds in run.stages.values())
     assert run.stages["network"] > 0 and run.stages["output"] > 0 and run.stages["rerun"] > 0
     # Sequential: the frame period is the stages plus a little loop overhead (progress bar, generator).
