@@ -444,14 +444,14 @@ def run(args: argparse.Namespace) -> int:
     if not args.folder.is_dir():
         raise InputError(f"{args.folder}: no such frame folder")
     boxes = read_boxes(args.boxes)
-    alone = args.detector_alone
-    boxes3d = None if args.no_3d or alone else read_boxes3d(args.boxes3d, boxes)
     source = FolderSource(args.folder)
     check_frames(source, boxes)
-    if args.classifier_alone:
+    if args.classifier_alone:  # the hand-drawn boxes alone: no 3D boxes file is read
         print(f"{args.classifier} on the hand-drawn boxes of {args.folder} (crops as in the pipeline):\n")
         print(classifier_alone(source, boxes, args.classifier, args.threads))
         return 0
+    alone = args.detector_alone
+    boxes3d = None if args.no_3d or alone else read_boxes3d(args.boxes3d, boxes)
     if alone:
         label = args.model_name or f"{args.detector} alone"
         results = detector_alone(source, args.detector, args.threads)
