@@ -85,7 +85,7 @@ class Detector:
             front_end=front_end,
             raw_scores=raw_scores,
         )
-        chosen = pipeline_detector(model, detector)
+        chosen = pipeline_detector(model, detector, network.metadata.detector)
         if chosen is not None:
             names, mapping = _path(detector_names), _path(class_map)
             boxes = Detector2D.load(chosen, names=names, class_map=mapping)

@@ -276,7 +276,7 @@ def test_a_score_calibration_round_trips_and_schema_2_files_have_none(tmp_path: 
     np.testing.assert_array_equal(got.intercept, CALIBRATION.intercept)
     assert got.iou == 0.25
     schema_2 = json.loads(_metadata(content_sha256="0" * 64).to_json())
-    del schema_2["score_calibration"], schema_2["pool_chunks"]
+    del schema_2["score_calibration"], schema_2["pool_chunks"], schema_2["detector"]
     schema_2["schema_version"] = 2
     assert ModelMetadata.from_json(json.dumps(schema_2), "v2").score_calibration is None
     schema_2["score_calibration"] = None  # a key schema 2 did not have
@@ -284,17 +284,29 @@ def test_a_score_calibration_round_trips_and_schema_2_files_have_none(tmp_path: 
         ModelMetadata.from_json(json.dumps(schema_2), "v2")
 
 
-def test_pool_chunks_round_trip_and_older_files_do_not_say() -> None:
-    saved = json.loads(_metadata(content_sha256="0" * 64, pool_chunks=32).to_json())
-    assert ModelMetadata.from_json(json.dumps(saved), "v4").pool_chunks == 32
-    saved["pool_chunks"] = 0
-    with pytest.raises(ModelError, match="pool_chunks"):
-        ModelMetadata.from_json(json.dumps(saved), "v4")
-    del saved["pool_chunks"]
-    with pytest.raises(ModelError, match=r"missing \['pool_chunks'\]"):
-        ModelMetadata.from_json(json.dumps(saved), "v4")
-    saved["schema_version"] = 3
-    assert ModelMetadata.from_json(json.dumps(saved), "v3").pool_chunks is None
+@pytest.mark.parametrize(
+    ("key", "value", "bad", "refusal", "since"),
+    [
+        ("pool_chunks", 32, 0, "pool_chunks", 4),
+        ("detector", "yolox-nano", " ", "detector must be a name or null", 5),
+    ],
+)
+def test_a_newer_field_round_trips_and_older_files_do_not_say(
+    key: str, value: object, bad: object, refusal: str, since: int
+) -> None:
+    saved = json.loads(_metadata(content_sha256="0" * 64, **{key: value}).to_json())
+    assert getattr(ModelMetadata.from_json(json.dumps(saved), "new"), key) == value
+    saved[key] = bad
+    with pytest.raises(ModelError, match=refusal):
+        ModelMetadata.from_json(json.dumps(saved), "new")
+    del saved[key]
+    with pytest.raises(ModelError, match=rf"missing \['{key}'\]"):
+        ModelMetadata.from_json(json.dumps(saved), "new")
+    saved["schema_version"] = since - 1
+    for later, first in (("pool_chunks", 4), ("detector", 5)):  # nor fields of later schemas
+        if first >= since:
+            saved.pop(later, None)
+    assert getattr(ModelMetadata.from_json(json.dumps(saved), "old"), key) is None
 
 
 @pytest.mark.parametrize(

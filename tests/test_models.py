@@ -75,3 +75,24 @@ def test_the_default_pipeline_brings_its_2d_detector_and_live_runs_alone() -> No
     assert default.config.detector is not None and default.config.detector.name == "yolox-nano"
     assert Detector.load("live", threads=1).config.detector is None
     assert Detector.load("real", threads=1, detector="none").config.detector is None
+
+
+def test_a_model_file_that_names_its_2d_detector_runs_with_it(tmp_path: Path) -> None:
+    """a3d-finetune's models name their base pipeline's detector (metadata ``detector``, schema 5):
+    running the file runs that pipeline, "none" still turns it off; a bundled schema-4 file names none."""
+    import dataclasses
+
+    import onnx
+
+    from a3d.export.onnx_export import save_model
+    from a3d.runtime.models import pipeline_detector
+
+    live = DetectorModel.load(model_path("live"), threads=1).metadata
+    assert live.detector is None and pipeline_detector("live", None, live.detector) is None
+    mine = tmp_path / "mine.onnx"
+    save_model(onnx.load(str(model_path("live"))), dataclasses.replace(live, detector="yolox-nano"), mine)
+    assert DetectorModel.load(mine, threads=1).metadata.detector == "yolox-nano"
+    assert Detector.load(mine, threads=1).config.detector.name == "yolox-nano"
+    assert Detector.load(mine, threads=1, detector="none").config.detector is None
+    assert pipeline_detector("real", None, None) == "yolox-nano"  # a bundled pipeline's own comes first
+    assert pipeline_detector(mine, "my.onnx", "yolox-nano") == "my.onnx"  # and --detector before both

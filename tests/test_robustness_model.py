@@ -107,6 +107,10 @@ CASES = {
         _edited_metadata(_proposal_setting("max_proposals", 10**30)),
         "a3d metadata proposals.max_proposals must be an integer in [1, 10000000]",
     ),
+    "detector_not_a_name": (
+        _edited_metadata(lambda meta: json.dumps({**meta, "detector": 3})),
+        "a3d metadata detector must be a name or null, got 3",
+    ),
     "proposal_weights_short": (
         _edited_metadata(_proposal_setting("edge_weights", [1.0, 2.0])),
         "a3d metadata proposals.edge_weights must be a list of 3 values",

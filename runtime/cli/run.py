@@ -263,9 +263,8 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
         parser.error("--map needs every frame in order: it excludes --resume and --shard")
     beside = args.source / DEFAULT_MODEL
     named = args.model if args.model is not None or not beside.is_file() else beside
+    args.model_detector = args.detector is None  # no --detector: a model file may name its pipeline's
     args.detector = pipeline_detector(named, args.detector)
-    if args.detector is None and (args.detector_names is not None or args.class_map is not None):
-        parser.error("--detector-names and --class-map need a 2D detector (--detector or --model real)")
     args.model = model_path(named)
     return args
 
@@ -279,7 +278,7 @@ class _ModelInfo(argparse.Action):
             metadata = DetectorModel.load(path, threads=1).metadata
         except ModelError as e:
             parser.exit(EXIT_USAGE, f"{PROG}: error: {e}\n")
-        detector = pipeline_detector(str(value))
+        detector = pipeline_detector(str(value), named=metadata.detector)
         extra = [] if detector is None else detector_card(os.fspath(detector))
         print("\n".join([*model_card(path, metadata), *extra]))
         parser.exit(0)
@@ -362,8 +361,11 @@ def _job(args: argparse.Namespace) -> _Job:
         front_end=front_end,
         raw_scores=args.raw_scores,
     )
-    if args.detector is not None:
-        boxes = Detector2D.load(args.detector, names=args.detector_names, class_map=args.class_map)
+    detector = args.detector or (model.metadata.detector if args.model_detector else None)
+    if detector is None and (args.detector_names is not None or args.class_map is not None):
+        raise InputError("--detector-names and --class-map need a 2D detector (--detector or --model real)")
+    if detector is not None:
+        boxes = Detector2D.load(detector, names=args.detector_names, class_map=args.class_map)
         config = replace(config, detector=boxes)
     if args.classifier is not None:
         config = replace(config, classifier=Classifier2D.load(args.classifier, threads=args.threads))

@@ -38,11 +38,12 @@ def is_model_name(model: str | os.PathLike | None) -> bool:
 
 
 def pipeline_detector(
-    model: str | os.PathLike | None, detector: str | os.PathLike | None = None
+    model: str | os.PathLike | None, detector: str | os.PathLike | None = None, named: str | None = None
 ) -> str | os.PathLike | None:
     """The 2D detector a run uses: ``detector`` where given ("none": no detector), else the one of
-    the model's bundled pipeline (None for a network alone)."""
+    the model's bundled pipeline, else ``named``, the one the model file names (its metadata's
+    ``detector``: a fine-tuned pipeline's); None for a network alone."""
     if detector is not None:
         return None if os.fspath(detector) == NO_DETECTOR else detector
     name = DEFAULT_MODEL if model is None else os.fspath(model)
-    return PIPELINE_DETECTORS.get(name)
+    return PIPELINE_DETECTORS.get(name, named)

@@ -33,7 +33,7 @@ def _finetune(card: dict[str, Any]) -> str:
     return (
         f"fine-tuned: from {card.get('base', {}).get('model', '?')} on {data.get('train_frames', '?')} "
         f"frames of {len(data.get('recordings', []))} recording(s) with synthetic ones; mAP@0.25 on their "
-        f"{data.get('holdout_frames', '?')} held-back frames (their classes) {change}"
+        f"{data.get('holdout_frames', '?')} held-back frames (their classes; the network alone) {change}"
     )
 
 

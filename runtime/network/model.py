@@ -51,7 +51,7 @@ from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES, NUM_OUTPUTS
 
 # 2: min_score (was score_threshold), max_proposals only inside proposals; 3: score_calibration;
 # 4: pool_chunks
-SCHEMA_VERSION = 4
+SCHEMA_VERSION = 5
 METADATA_KEY = "a3d"
 INPUT_NAMES = ("color", "depth", "rois", "context_rois")
 OUTPUT_NAMES = ("class_probs", "deltas3d", "deltas2d")
@@ -77,7 +77,10 @@ class ModelMetadata:
     None for a model that reports the softmax score as it is. pool_chunks: how many chunks of
     consecutive RoIs the graph pools apart, each on the union of its RoIs' windows, so that their
     order sets the speed (a3d.runtime.network.roi_order); 1 where the order does not matter, None
-    where the file does not say (schema 1 to 3). content_sha256: the integrity digest
+    where the file does not say (schema 1 to 3). detector: the bundled 2D detector
+    (a3d.runtime.detector2d, by short name) whose boxes join this network's RoIs where a run names
+    none: a fine-tuned model keeps its base pipeline's (a3d-finetune), so that running it is running
+    that pipeline; None for a network alone (and schema 1 to 4). content_sha256: the integrity digest
     (module docstring). provenance: free-form (package version, training config, checkpoint hash,
     export options, verification numbers).
 
@@ -100,6 +103,7 @@ class ModelMetadata:
     proposals: ProposalConfig = field(default_factory=ProposalConfig)
     score_calibration: ScoreCalibration | None = None
     pool_chunks: int | None = None
+    detector: str | None = None
     content_sha256: str = ""
     provenance: dict[str, Any] = field(default_factory=dict)
 
@@ -135,6 +139,8 @@ class ModelMetadata:
             names.remove("score_calibration")
         if version < 4:
             names.remove("pool_chunks")
+        if version < 5:
+            names.remove("detector")
         missing = [n for n in names if n not in data]
         unknown = sorted(set(data) - set(names))
         if missing or unknown:
@@ -162,6 +168,7 @@ class ModelMetadata:
             proposals=check.proposals(data["proposals"], "proposals"),
             score_calibration=check.calibration(data.get("score_calibration"), "score_calibration"),
             pool_chunks=check.optional_count(data.get("pool_chunks"), "pool_chunks"),
+            detector=check.optional_name(data.get("detector"), "detector"),
             content_sha256=check.digest(data["content_sha256"], "content_sha256"),
             provenance=check.mapping(data["provenance"], "provenance"),
         )
@@ -422,6 +429,11 @@ class _Checker:
 
     def optional_count(self, value: Any, key: str) -> int | None:
         return None if value is None else self.count(value, key)
+
+    def optional_name(self, value: Any, key: str) -> str | None:
+        if value is None or (isinstance(value, str) and value.strip()):
+            return value
+        raise self.fail(key, "a name or null", value)
 
     def strings(self, value: Any, key: str) -> list[str]:
         if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
