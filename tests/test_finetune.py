@@ -44,18 +44,22 @@ def test_a_fine_tune_of_seconds_end_to_end_writes_a_model_a3d_run_loads(data: Pa
             "--holdout", "0.3", "--synth", str(data / "synth" / "train"),
             "--set", "data.detector_rois=2"]  # fmt: skip
     assert main(argv) == 0
-    provenance = DetectorModel.load(out, threads=1).metadata.provenance
+    metadata = DetectorModel.load(out, threads=1).metadata
+    provenance = metadata.provenance
     card = provenance["finetune"]
     assert card["recipe"]["settings"] == ["data.detector_rois=2"]
     calib = provenance["export"]["calibration"]["folder"]  # the user's and the synthetic frames
     assert calib == str((tmp_path / "mine.finetune" / "calib").resolve())
-    assert card["base"]["model"] == "live"
+    assert card["base"]["model"] == "real"  # the default pipeline: its network fine-tuned, its detector kept
+    assert metadata.detector == card["base"]["detector"] == "yolox-nano"
     assert (card["data"]["train_frames"], card["data"]["holdout_frames"]) == (7, 3)
     assert card["data"]["objects_per_class"] and set(card["heldout_map25"]) == {
         "before", "before_present", "after", "after_present"}  # fmt: skip
     assert card["recipe"]["pooled_layout"] == "y, c, x" and not card["recipe"]["interrupted"]
     work = tmp_path / "mine.finetune"
     init, trained = (load_checkpoint(work / name)["model"] for name in ("init.pt", "run/checkpoint.pt"))
+    config = load_checkpoint(work / "run" / "checkpoint.pt")["config"]  # trained as exported: no dropout
+    assert card["recipe"]["dropout"] == 0 and json.loads(config)["net"]["dropout"] == 0
     assert card["recipe"]["freeze_depth"] == 10  # conv4_3 (features.21) kept, conv5_1 (features.24) learns
     assert torch.equal(init["depth_trunk.features.21.weight"], trained["depth_trunk.features.21.weight"])
     assert not torch.equal(init["depth_trunk.features.24.weight"], trained["depth_trunk.features.24.weight"])
@@ -64,7 +68,14 @@ def test_a_fine_tune_of_seconds_end_to_end_writes_a_model_a3d_run_loads(data: Pa
     detections = tmp_path / "det.jsonl"
     frames = str(tmp_path / "mine.finetune" / "holdout")
     assert run_main([frames, "--model", str(out), "--output", str(detections), "--headless"]) == 0
-    assert len(detections.read_text().splitlines()) == 3
+    lines = [json.loads(line) for line in detections.read_text().splitlines()]
+    assert len(lines) == 3  # and the model ran as the pipeline it names: the detector's lines carry sources
+    assert all("source" in d for line in lines for d in line["detections"]) and lines[0]["detections"]
+    alone = tmp_path / "alone.jsonl"
+    argv = [frames, "--model", str(out), "--detector", "none", "--output", str(alone), "--headless"]
+    assert run_main(argv) == 0
+    alone_lines = [json.loads(line) for line in alone.read_text().splitlines()]
+    assert not any("source" in d for line in alone_lines for d in line["detections"])
 
 
 def _one_line_exit_2(argv: list[str], capsys: pytest.CaptureFixture[str], expected: str) -> None:
@@ -96,6 +107,27 @@ def test_bad_input_is_one_line_and_nothing_is_written(
     _one_line_exit_2([str(data / "seq" / "frames"), "--out", str(out), "--minutes", "0.2", *synth], capsys,
                      "--minutes 0.2 is too short")  # fmt: skip
     assert not out.exists()
+
+
+def test_the_recipe_counts_its_iterations_and_the_flags_take_it_over(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    import a3d.train.finetune as finetune_module
+
+    recipes = []
+    monkeypatch.setattr(finetune_module, "finetune", lambda args, recipe: recipes.append(recipe) or args.out)
+    out = str(tmp_path / "m.onnx")
+    assert main([str(tmp_path), "--out", out]) == 0
+    assert main([str(tmp_path), "--out", out, "--iters", "7", "--lr", "0.001"]) == 0
+    assert recipes == [finetune_module.Recipe(), finetune_module.Recipe(lr=0.001, iterations=7)]
+    # the budget alone no longer sets the count: a fast machine runs the same recipe as a slow one
+    assert f"solver.iterations={recipes[0].iterations}" in recipes[0].overrides(tmp_path, 15.0, tmp_path)
+    assert recipes[0].iterations < 5000
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as stop:
+        main([str(tmp_path), "--out", out, "--iters", "0"])
+    assert stop.value.code == EXIT_USAGE and "--iters" in capsys.readouterr().err
+    assert len(recipes) == 2
 
 
 @pytest.mark.slow
