@@ -50,7 +50,7 @@ from a3d.runtime.structures.boxes import BOX_DIM
 from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES, NUM_OUTPUTS
 
 # 2: min_score (was score_threshold), max_proposals only inside proposals; 3: score_calibration;
-# 4: pool_chunks
+# 4: pool_chunks; 5: detector
 SCHEMA_VERSION = 5
 METADATA_KEY = "a3d"
 INPUT_NAMES = ("color", "depth", "rois", "context_rois")
