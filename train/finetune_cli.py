@@ -3,16 +3,16 @@
     a3d-finetune FOLDER... --out model.onnx [--base NAME|FILE] [--minutes 15] [--holdout 0.2]
                  [--synth FOLDER | --synth-frames N] [--work DIR] [--set KEY=VALUE ...]
 
-Each FOLDER is one recording as an annotated frame folder (a3d-labels writes one from boxes
-drawn once: docs/mapping.md). The last HOLDOUT of each recording's frames is held back; the rest
-is mixed with synthetic frames of the bundled model's world and fine-tunes the base model
-(bundled by name, or a model file; by default the bundled pipeline's network) for the recipe's
-iterations or what the budget leaves, whichever is less; a pipeline's 2D detector is left as it
-is and named in the new model, which runs with it. The result is exported int8, its scores calibrated on the held-back frames, and its card (base
-model, data, recipe, mAP@0.25 on the held-back frames before and after) written into its metadata
-(a3d-run --model-info shows it).
-Ctrl-C stops the training and exports what it has. Bad input (a folder without ground truth, a
-class outside the 19, a budget too short to train) is one line and exit 2, with nothing written.
+Each FOLDER is one recording as an annotated frame folder (a3d-labels writes one from boxes drawn
+once: docs/mapping.md). The last HOLDOUT of each recording's frames is held back; the rest is mixed
+with synthetic frames of the bundled model's world and fine-tunes the base model (bundled by name,
+or a model file; by default the bundled pipeline's network) for the recipe's iterations or what the
+budget leaves, whichever is less; a pipeline's 2D detector is left as it is and named in the new
+model, which runs with it. The result is exported int8, its scores calibrated on the held-back
+frames, and its card (base model, data, recipe, mAP@0.25 on the held-back frames before and after)
+written into its metadata (a3d-run --model-info shows it). Ctrl-C stops the training and exports
+what it has. Bad input (a folder without ground truth, a class outside the 19, a budget too short
+to train) is one line and exit 2, with nothing written.
 docs/training.md "Your own room" has the steps and a measured run.
 """
 
