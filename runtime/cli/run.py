@@ -263,8 +263,7 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
         parser.error("--map needs every frame in order: it excludes --resume and --shard")
     beside = args.source / DEFAULT_MODEL
     named = args.model if args.model is not None or not beside.is_file() else beside
-    args.model_detector = args.detector is None  # no --detector: a model file may name its pipeline's
-    args.detector = pipeline_detector(named, args.detector)
+    args.model_name = named  # its pipeline's detector is chosen once the file (which may name one) is read
     args.model = model_path(named)
     return args
 
@@ -361,7 +360,7 @@ def _job(args: argparse.Namespace) -> _Job:
         front_end=front_end,
         raw_scores=args.raw_scores,
     )
-    detector = args.detector or (model.metadata.detector if args.model_detector else None)
+    detector = pipeline_detector(args.model_name, args.detector, model.metadata.detector)
     if detector is None and (args.detector_names is not None or args.class_map is not None):
         raise InputError("--detector-names and --class-map need a 2D detector (--detector or --model real)")
     if detector is not None:
