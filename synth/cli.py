@@ -3,7 +3,8 @@
     a3d-synth OUT --frames N --seed S [--split test=0.3] [--workers K] [--size HxW] [--sensor kinect-v1]
         [--appearance typical] [--world real] [--clutter N] [--camera-mix all|NAME,...] [--camera-scale S]
         [--real-light | --no-real-light] [--empty-share F]
-    a3d-synth OUT --sequence N --seed S [--size HxW] [--sensor ...] [--world ...] [--workers K]
+    a3d-synth OUT --sequence N --seed S [--size HxW] [--sensor ...] [--camera-mix NAME] [--world ...]
+        [--workers K]
     a3d-synth --stats OUT
 
 Frame i of a run is rendered from ``frame_seed(S, i)``, so a set is the same whatever the number
@@ -20,7 +21,9 @@ rooms without any class object; each setting can be changed on its own. The defa
 ``--sequence N`` renders one room (that of seed S) seen from N poses of a camera moving round it
 (a3d.synth.sequence): OUT/frames holds ``seq_NNNNNN`` frames with their camera-to-world ``"pose"``
 in meta.json and the usual ground truth, OUT/world_boxes.json the room's objects in its
-gravity-aligned world (docs/mapping.md). One camera (``--size``), so no camera mix, and no split.
+gravity-aligned world (docs/mapping.md). One camera, so no split and no mix: ``--size`` and
+``--sensor``, or one preset (``--camera-mix realsense-d435``: a user's RealSense, its size,
+intrinsics and depth model in every frame).
 """
 
 from __future__ import annotations
@@ -167,13 +170,17 @@ def frame_configs(
     for i in range(frames):
         frame_config = replace(config, labelled=False) if i in empty else config
         if camera_mix:
-            device = DEVICES[frame_device(seed, i, camera_mix)]
-            size, K = device.frame(camera_scale)
-            frame_config = replace(
-                frame_config, image_size=size, intrinsics=K, depth_sensor=device.depth, device=device.name
-            )
+            frame_config = device_config(frame_config, frame_device(seed, i, camera_mix), camera_scale)
         configs.append(frame_config)
     return configs
+
+
+def device_config(config: SceneConfig, name: str, scale: float = 1.0) -> SceneConfig:
+    """``config`` seen by camera preset ``name`` (a3d.synth.devices) at ``scale``: its frame size,
+    intrinsics and depth model."""
+    device = DEVICES[name]
+    size, K = device.frame(scale)
+    return replace(config, image_size=size, intrinsics=K, depth_sensor=device.depth, device=device.name)
 
 
 def generate(
@@ -320,7 +327,8 @@ def build_parser() -> argparse.ArgumentParser:
         "--camera-mix",
         type=_parse_mix,
         metavar="all|NAME,...",
-        help=f"camera presets drawn per frame, instead of --size ({', '.join(DEVICES)})",
+        help=f"camera presets drawn per frame, instead of --size ({', '.join(DEVICES)}); "
+        "a --sequence takes one",
     )
     parser.add_argument("--camera-scale", type=float, default=1.0, help="scale of the presets' frame size")
     parser.add_argument(
@@ -351,12 +359,10 @@ def main(argv: list[str] | None = None) -> int:
     world = {k: v if getattr(args, k) is None else getattr(args, k) for k, v in WORLDS[args.world].items()}
     if world["clutter"] < 0 or not 0.0 <= world["empty_share"] <= 1.0 or not 0.05 <= args.camera_scale <= 4:
         parser.error("--clutter must be >= 0, --empty-share in [0, 1] and --camera-scale in [0.05, 4]")
-    if args.sequence is not None and (args.sequence < 1 or args.camera_mix):
-        parser.error(
-            "--sequence must be >= 1 and excludes --camera-mix: a sequence is seen by one camera (--size)"
-        )
+    if args.sequence is not None and (args.sequence < 1 or len(args.camera_mix or ()) > 1):
+        parser.error("--sequence must be >= 1 and is seen by one camera: --size, or one --camera-mix preset")
     if args.sequence is not None:
-        world["camera_mix"] = ()
+        world["camera_mix"] = args.camera_mix or ()
     if world["camera_mix"] and (args.size is not None or args.sensor != "a3d"):
         parser.error(
             "--size and --sensor exclude a camera mix: each preset has its own size and depth model"
@@ -374,6 +380,8 @@ def main(argv: list[str] | None = None) -> int:
         real_light=world["real_light"],
     )
     if args.sequence is not None:
+        if world["camera_mix"]:
+            config = device_config(config, world["camera_mix"][0], args.camera_scale)
         records = generate_sequence(
             args.out, args.sequence, args.seed, args.workers, config, args.depth_format
         )

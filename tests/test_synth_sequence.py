@@ -18,6 +18,7 @@ from a3d.runtime.structures.pose import check_pose
 from a3d.synth.camera import CameraPose
 from a3d.synth.cli import main as synth_main
 from a3d.synth.cli import scaled_intrinsics
+from a3d.synth.devices import DEVICES
 from a3d.synth.scene import SceneConfig, _moved_lights, generate_frame
 from a3d.synth.sequence import orbit, room_of, world_pose
 from a3d.synth.shading import Lights
@@ -100,3 +101,21 @@ def test_lights_stay_where_they_are_in_the_room() -> None:
         new.tilt_to_room(moved.positions), old.tilt_to_room(lights.positions), atol=1e-12
     )
     np.testing.assert_allclose(moved.sun_dir, [0.0, 1.0, 0.0], atol=1e-12)  # straight down stays down
+
+
+def test_a_sequence_seen_by_one_camera_preset(tmp_path: Path) -> None:
+    """``--camera-mix NAME`` with ``--sequence``: every frame of the preset's size, its intrinsics in
+    the folder's intrinsics.json; two presets are refused (one camera)."""
+    out = tmp_path / "rs"
+    args = ["--sequence", "3", "--seed", "3", "--camera-mix", "realsense-d435", "--camera-scale", "0.25"]
+    assert synth_main([str(out), *args]) == 0
+    size, K = DEVICES["realsense-d435"].frame(0.25)
+    source = FolderSource(out / "frames")
+    assert len(source) == 3
+    for frame in (loader.load() for loader in source):
+        assert frame.depth.shape == size and frame.color.shape[:2] == size
+    intrinsics = json.loads((out / "frames" / "intrinsics.json").read_text())
+    assert intrinsics["fx"] == pytest.approx(K.fx) and intrinsics["cx"] == pytest.approx(K.cx)
+    with pytest.raises(SystemExit) as refused:
+        synth_main([str(tmp_path / "two"), *args[:-3], "realsense-d435,kinect-v1"])
+    assert refused.value.code == 2 and not (tmp_path / "two").exists()
