@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -158,13 +159,16 @@ def test_clip_segments_known_answers() -> None:
             [[-100.5, 50.0], [99.5, 50.0]],  # enters at the left border, halfway along
             [[100.0, 50.0], [100.0, 400.5]],  # leaves at the bottom
             [[-50.0, -50.0], [-10.0, 300.0]],  # wholly left of the image
+            [[-50.0, 10.0], [-50.0, 60.0]],  # vertical, wholly left: no inf * 0 warning
         ]
     )
-    out = shapes.clip_segments(seg, size)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        out = shapes.clip_segments(seg, size)
     np.testing.assert_allclose(out[0], seg[0])
     np.testing.assert_allclose(out[1], [[-0.5, 50.0], [99.5, 50.0]])
     np.testing.assert_allclose(out[2], [[100.0, 50.0], [100.0, 100.5]])
-    assert np.isnan(out[3]).all()
+    assert np.isnan(out[3]).all() and np.isnan(out[4]).all()
 
 
 def test_edges_clipped_to_the_image_stay_inside_it() -> None:

@@ -68,6 +68,8 @@ def clip_segments(segments: np.ndarray, image_size: tuple[int, int]) -> np.ndarr
                 lo = np.where(p < 0, np.maximum(lo, t), lo)
                 hi = np.where(p > 0, np.minimum(hi, t), hi)
                 lo = np.where(outside, np.inf, lo)
-    out = np.stack([p0 + lo[:, None] * d, p0 + hi[:, None] * d], axis=1)
-    out[~(lo <= hi)] = np.nan
+    kept = lo <= hi  # inf * 0 (a segment outside, parallel to a border) never reaches the product
+    out = np.full_like(segments, np.nan, dtype=np.float64)
+    p0, d, lo, hi = p0[kept], d[kept], lo[kept, None], hi[kept, None]
+    out[kept] = np.stack([p0 + lo * d, p0 + hi * d], axis=1)
     return out
