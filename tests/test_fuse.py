@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from a3d.runtime.frontend.box_pixels import lift_boxes, object_masks_in_boxes
+from a3d.runtime.frontend.box_pixels import centres_of_masks, lift_boxes, object_masks_in_boxes
 from a3d.runtime.postprocess.fuse import (
     NETWORK_REFERENCE,
     Picked,
@@ -107,3 +107,17 @@ def test_a_box_without_depth_is_not_liftable():
     box = np.array([[5, 5, 20, 20]], float)
     lifted = lift_boxes(box, np.array([0.5]), raw, raw, Intrinsics(50, 50, 25, 25))
     assert lifted.valid.tolist() == [False] and np.all(lifted.centers == 0)
+
+
+def test_voters_pick_the_layer_a_segmenter_marks_instead_of_the_inner_half():
+    """``voters`` (a segmentation network's pixels of the box's class) decide the layer: marking the
+    wall's pixels makes the wall the object, as the inner half made the block; None keeps the rule."""
+    raw, filled = _scene()
+    box = np.array([[50, 30, 120, 110], [50, 30, 120, 110]], float)
+    wall = np.zeros(raw.shape, bool)
+    wall[30:110, 50:60] = True  # a strip of wall at the box's left edge
+    masks = object_masks_in_boxes(box, np.array([0.5, 0.5]), raw, filled, [wall, None])
+    crop = filled[30:110, 50:120]
+    assert np.all(masks[0][1] == (crop == 4.0)) and np.all(masks[1][1] == (crop == 2.0))
+    lifted = centres_of_masks(masks, raw, filled, Intrinsics(100.0, 100.0, 80.0, 60.0))
+    assert lifted.centers[:, 2] == pytest.approx([4.0, 2.0])

@@ -32,22 +32,34 @@ def class_reach(candidates: np.ndarray, mean_sizes: np.ndarray) -> np.ndarray:
 
 
 def object_masks_in_boxes(
-    boxes: np.ndarray, reach: np.ndarray, depth_raw: np.ndarray, depth_filled: np.ndarray
+    boxes: np.ndarray,
+    reach: np.ndarray,
+    depth_raw: np.ndarray,
+    depth_filled: np.ndarray,
+    voters: list[np.ndarray | None] | None = None,
 ) -> list[tuple[tuple[int, int], np.ndarray]]:
     """Per box, (top-left (x0, y0), mask of the box's crop): its object's pixels (module docstring).
 
     ``boxes`` (N, 4) [x1, y1, x2, y2] pixels, ``reach`` (N,) metres; depth maps (H, W) metres,
-    raw 0 where missing."""
+    raw 0 where missing. ``voters``: per box, an (H, W) bool of the pixels whose depth picks the
+    object's layer instead of the box's inner half (a segmentation network's mask of its class,
+    measured in docs/real-rooms.md), or None for the inner half."""
     height, width = depth_raw.shape
     depth = np.where(depth_raw > 0, depth_raw, depth_filled)
     out = []
-    for (x1, y1, x2, y2), r in zip(np.asarray(boxes, np.float64), np.asarray(reach, np.float64), strict=True):
+    voters = voters or [None] * len(boxes)
+    for (x1, y1, x2, y2), r, vote in zip(
+        np.asarray(boxes, np.float64), np.asarray(reach, np.float64), voters, strict=True
+    ):
         x0, y0 = int(np.clip(np.floor(x1), 0, width - 1)), int(np.clip(np.floor(y1), 0, height - 1))
         xe, ye = int(np.clip(np.ceil(x2), x0 + 1, width)), int(np.clip(np.ceil(y2), y0 + 1, height))
         crop = depth[y0:ye, x0:xe]
         h, w = crop.shape
-        inner = crop[int(INNER * h) : max(int((1 - INNER) * h), int(INNER * h) + 1),
-                     int(INNER * w) : max(int((1 - INNER) * w), int(INNER * w) + 1)]  # fmt: skip
+        if vote is None:
+            inner = crop[int(INNER * h) : max(int((1 - INNER) * h), int(INNER * h) + 1),
+                         int(INNER * w) : max(int((1 - INNER) * w), int(INNER * w) + 1)]  # fmt: skip
+        else:
+            inner = crop[vote[y0:ye, x0:xe]]
         mode = _depth_mode(inner, depth_raw[y0:ye, x0:xe])
         mask = (crop > 0) & (np.abs(crop - mode) <= r) if mode > 0 else np.zeros_like(crop, bool)
         out.append(((x0, y0), mask))
@@ -77,7 +89,19 @@ def lift_boxes(
 ) -> LiftedProposals:
     """Initial centres of detector boxes (module docstring), in lifting's form: ``valid`` False
     where a box holds no depth at all."""
-    masks = object_masks_in_boxes(boxes, reach, depth_raw, depth_filled)
+    return centres_of_masks(
+        object_masks_in_boxes(boxes, reach, depth_raw, depth_filled), depth_raw, depth_filled, K
+    )
+
+
+def centres_of_masks(
+    masks: list[tuple[tuple[int, int], np.ndarray]],
+    depth_raw: np.ndarray,
+    depth_filled: np.ndarray,
+    K: CameraLike,
+) -> LiftedProposals:
+    """``object_masks_in_boxes``'s masks as initial centres: the median raw depth of each mask's
+    pixels (the filled depth where none is raw) at the back-projection of their centroid."""
     n = len(masks)
     u, v, z = np.zeros(n), np.zeros(n), np.zeros(n)
     from_filled = np.zeros(n, bool)
