@@ -17,7 +17,9 @@ can overlap the network call of another:
    and 2D NMS (with a 2D detector, its boxes merged in; with an image classifier, its second
    opinion on the best own detections: postprocess.fuse), class-specific 3D boxes and amodal 2D boxes
    (a3d.runtime.postprocess.select) bounded to boxes that can exist (postprocess.box_limits),
-   corners, and the frame's detections line, with its gravity source and notes.
+   with a 2D detector the scores moved by how much of the depth in each 2D box its 3D box
+   holds (postprocess.depth_support), corners, and the frame's detections line, with its
+   gravity source and notes.
 
 Every stage adds its wall time (seconds) to the frame's ``timing``: read, depth_fill, gravity,
 proposals, lifting, detector2d, network_input, network, classifier2d, postprocess, and total (their sum).
@@ -59,6 +61,7 @@ from a3d.runtime.frontend.proposals import ProposalConfig, Proposals, live_propo
 from a3d.runtime.io.detections_io import FrameDetections
 from a3d.runtime.network.network_input import frame_network_inputs
 from a3d.runtime.postprocess.box_limits import bound_boxes, near_range
+from a3d.runtime.postprocess.depth_support import depth_support, supported_scores
 from a3d.runtime.postprocess.fuse import (
     NETWORK,
     Picked,
@@ -386,7 +389,14 @@ def finish(prepared: PreparedFrame, out: NetworkOutput, config: PipelineConfig) 
         prepared.frame.image_size,
     )
     bounded = bound_boxes(boxes3d, class_idx, near_range(prepared.frame.depth))
-    boxes3d = bounded.boxes3d
+    boxes3d, sources = bounded.boxes3d, picked.sources
+    if prepared.found is not None and len(rows):  # depth_support: with the detector's boxes in the frame
+        frame = prepared.frame
+        support = depth_support(frame.depth, frame.intrinsics, prepared.R_tilt, prepared.boxes[rows], boxes3d)
+        scores = supported_scores(scores, support)
+        order = np.argsort(-scores, kind="stable")
+        rows, class_idx, boxes3d, amodal = (a[order] for a in (rows, class_idx, boxes3d, amodal))
+        scores, bounded, sources = scores[order], bounded.reordered(order), tuple(sources[i] for i in order)
     corners = box_corners_camera(boxes3d, prepared.R_tilt) if len(rows) else np.zeros((0, 8, 3))
     clock.lap("postprocess")
     timing = prepared.timing
@@ -408,7 +418,7 @@ def finish(prepared: PreparedFrame, out: NetworkOutput, config: PipelineConfig) 
         notes=(*prepared.notes, *bounded.notes(scores)),
         intrinsics=frame.intrinsics,
         pose=frame.pose,
-        sources=picked.sources if prepared.detector or config.classifier is not None else None,
+        sources=sources if prepared.detector or config.classifier is not None else None,
     )
 
 

@@ -64,6 +64,10 @@ class BoundedBoxes:
     def sizes_clamped(self) -> int:
         return int(self.sizes.sum())
 
+    def reordered(self, order: np.ndarray) -> BoundedBoxes:
+        """The same boxes in ``order`` (the detections re-sorted by a changed score)."""
+        return BoundedBoxes(self.boxes3d[order], self.centres[order], self.sizes[order])
+
     def notes(self, scores: np.ndarray) -> list[str]:
         """The line's notes for what was clamped (module docstring): centres of detections whose
         ``scores`` reach SHOW_THRESHOLD, and every size; none when nothing was."""

@@ -1,0 +1,79 @@
+"""How much of the depth inside a detection's 2D box its 3D box holds: evidence for its score.
+
+Why: a detection's 3D box is inferred from a 2D box, its lifted centre and the class's size;
+where the lifting took the wrong depth layer (a 2D detector's box around a chair, whose middle
+shows the wall through its back; a painting a detector calls a television) the box floats in
+front of or behind the object, and nothing the network scores looks at where it ended up. The
+depth does: of the pixels of the 2D box that have depth, the share whose 3D points lie in the
+3D box (grown by ``MARGIN_M`` for the sensor's noise) is its ``support``. A right detection holds
+its object's pixels, which fill a good part of its 2D box (median about 0.43 on a3d-synth's
+rooms); a misplaced one holds next to none. The support moves the score in log-odds, as the
+detector's and the network's opinions are fused (a3d.runtime.postprocess.fuse):
+``sigmoid(logit(score) + SUPPORT_WEIGHT * (support - SUPPORT_REFERENCE))``.
+
+``SUPPORT_WEIGHT`` was chosen on a3d-synth frames of a seed no benchmark uses (2031, not the
+held-out 2027) and ``SUPPORT_REFERENCE`` on the real frames, so that a detection scoring 0.5
+stays at least as likely right as wrong there (docs/real-rooms.md measures both). It is part of
+the pipelines with a 2D detector (its boxes are the ones lifted from a guessed depth layer), on
+the frames where the detector ran (where it failed, the frame keeps the network's own scores);
+it costs about 20 ms a frame, which the network alone (`live`, the fast choice) does not pay.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from a3d.runtime.postprocess.score_calibration import SCORE_EPS
+from a3d.runtime.structures.boxes import CENTER, THETA, H, L, W
+from a3d.runtime.structures.geometry import CameraLike, backproject
+
+SUPPORT_WEIGHT = 2.0
+SUPPORT_REFERENCE = 0.6
+MARGIN_M = 0.05
+STRIDE = 2  # every 2nd pixel of every 2nd row: the share, at a quarter of the cost
+
+
+def depth_support(
+    depth: np.ndarray, K: CameraLike, R_tilt: np.ndarray, boxes2d: np.ndarray, boxes3d: np.ndarray
+) -> np.ndarray:
+    """(N,) share of the depth pixels in each 2D box (N, 4) [x1, y1, x2, y2] whose points lie in
+    its 3D box (N, 7), camera-frame centre, yaw in the tilt frame of ``R_tilt``; 0 where a 2D box
+    holds no depth. ``depth`` (H, W) metres, 0 where missing."""
+    R_tilt = np.asarray(R_tilt, np.float64)
+    sampled = np.asarray(depth, np.float64)[::STRIDE, ::STRIDE]
+    rows, cols = np.indices(sampled.shape, dtype=np.float64) * STRIDE  # the samples' pixels
+    points = backproject(cols, rows, sampled, K) @ R_tilt.T  # tilt frame
+    valid = sampled > 0
+    height, width = sampled.shape
+    out = np.zeros(len(boxes3d))
+    for i, ((x1, y1, x2, y2), box) in enumerate(zip(np.asarray(boxes2d), np.asarray(boxes3d), strict=True)):
+        window = (slice(_first(y1), _last(y2, height)), slice(_first(x1), _last(x2, width)))
+        inside = valid[window]
+        if not inside.any():
+            continue
+        d = points[window][inside] - R_tilt @ box[CENTER]
+        c, s = np.cos(box[THETA]), np.sin(box[THETA])
+        held = (
+            (np.abs(c * d[:, 0] - s * d[:, 2]) <= box[L] / 2 + MARGIN_M)
+            & (np.abs(s * d[:, 0] + c * d[:, 2]) <= box[W] / 2 + MARGIN_M)
+            & (np.abs(d[:, 1]) <= box[H] / 2 + MARGIN_M)
+        )
+        out[i] = held.mean()
+    return out
+
+
+def supported_scores(scores: np.ndarray, support: np.ndarray) -> np.ndarray:
+    """``scores`` moved in log-odds by the ``support`` (module docstring)."""
+    p = np.clip(np.asarray(scores, np.float64), SCORE_EPS, 1 - SCORE_EPS)
+    logit = np.log(p) - np.log1p(-p) + SUPPORT_WEIGHT * (np.asarray(support) - SUPPORT_REFERENCE)
+    return 1.0 / (1.0 + np.exp(-logit))
+
+
+def _first(low: float) -> int:
+    """The first sampled index whose pixel centre lies at or after ``low`` (README pixel convention)."""
+    return max(int(np.ceil(np.ceil(low) / STRIDE)), 0)
+
+
+def _last(high: float, size: int) -> int:
+    """One past the last sampled index whose pixel centre lies at or before ``high``."""
+    return min(int(np.floor(np.floor(high) / STRIDE)) + 1, size)
