@@ -61,7 +61,7 @@ from a3d.runtime.frontend.proposals import ProposalConfig, Proposals, live_propo
 from a3d.runtime.io.detections_io import FrameDetections
 from a3d.runtime.network.network_input import frame_network_inputs
 from a3d.runtime.postprocess.box_limits import bound_boxes, near_range
-from a3d.runtime.postprocess.depth_support import depth_support, supported_scores
+from a3d.runtime.postprocess.depth_support import rescored
 from a3d.runtime.postprocess.fuse import (
     NETWORK,
     Picked,
@@ -391,9 +391,8 @@ def finish(prepared: PreparedFrame, out: NetworkOutput, config: PipelineConfig) 
     bounded = bound_boxes(boxes3d, class_idx, near_range(prepared.frame.depth))
     boxes3d, sources = bounded.boxes3d, picked.sources
     if prepared.found is not None and len(rows):  # depth_support: with the detector's boxes in the frame
-        frame = prepared.frame
-        support = depth_support(frame.depth, frame.intrinsics, prepared.R_tilt, prepared.boxes[rows], boxes3d)
-        scores = supported_scores(scores, support)
+        frame, boxes2d = prepared.frame, prepared.boxes[rows]
+        scores = rescored(scores, frame.depth, frame.intrinsics, prepared.R_tilt, boxes2d, boxes3d)
         order = np.argsort(-scores, kind="stable")
         rows, class_idx, boxes3d, amodal = (a[order] for a in (rows, class_idx, boxes3d, amodal))
         scores, bounded, sources = scores[order], bounded.reordered(order), tuple(sources[i] for i in order)

@@ -6,7 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from a3d.runtime.postprocess.depth_support import SUPPORT_REFERENCE, depth_support, supported_scores
+from a3d.runtime.postprocess.depth_support import (
+    MIN_SCORE,
+    SUPPORT_REFERENCE,
+    depth_support,
+    rescored,
+    supported_scores,
+)
 from a3d.runtime.structures.geometry import Intrinsics
 
 K = Intrinsics(100.0, 100.0, 80.0, 60.0)
@@ -50,3 +56,11 @@ def test_scores_move_with_support_about_the_reference():
     assert moved[0] < 0.4 < moved[2] and (0 < moved).all() and (moved < 1).all()
     ranked = supported_scores(np.array([0.9, 0.2]), np.array([0.0, 1.0]))
     assert ranked[0] > ranked[1]  # evidence, not a gate: a sure detection stays ahead
+
+
+def test_scores_under_the_floor_keep_their_value_and_the_rest_are_moved():
+    boxes2d = np.array([[60, 40, 109, 99]] * 2, float)
+    behind = [*HELD[:2], 3.0, *HELD[3:]]
+    scores = np.array([MIN_SCORE / 2, 0.3])
+    moved = rescored(scores, _depth(), K, np.eye(3), boxes2d, np.array([behind, behind]))
+    assert moved[0] == pytest.approx(scores[0]) and moved[1] == pytest.approx(supported_scores(0.3, 0.0))
