@@ -11,7 +11,7 @@ The support moves the score in log-odds, as the detector's and the network's opi
 (a3d.runtime.postprocess.fuse):
 ``sigmoid(logit(score) + SUPPORT_WEIGHT * (support - SUPPORT_REFERENCE))``.
 
-``SUPPORT_WEIGHT`` was chosen on a3d-synth frames of a seed no benchmark uses (2031, not the
+``SUPPORT_WEIGHT`` was chosen on a3d-synth frames of a seed no other benchmark uses (2031, not the
 held-out 2027) and ``SUPPORT_REFERENCE`` on the real frames, so that a detection scoring 0.5
 stays at least as likely right as wrong there (docs/real-rooms.md measures both). It is part of
 the pipelines with a 2D detector (its boxes are the ones lifted from a guessed depth layer), on
