@@ -31,13 +31,14 @@ import numpy as np
 from a3d.runtime.frontend.depth import fill_depth
 from a3d.runtime.mapping.world import boxes_to_camera
 from a3d.runtime.mapping.world_boxes import WorldBoxes
-from a3d.runtime.structures.boxes import CENTER, THETA, H, L, W
 from a3d.runtime.structures.frame import GroundTruth
 from a3d.runtime.structures.geometry import (
     Intrinsics,
     backproject_depth,
     box_edges_clipped,
     boxes_from_pixel_bounds,
+    pixel_window,
+    points_in_box,
     project_boxes_to_2d,
     project_points,
 )
@@ -93,7 +94,7 @@ def label_frame(
     masks: dict[int, tuple[np.ndarray, tuple[slice, slice]]] = {}
     seen = np.zeros(len(boxes), np.int64)
     for i in np.flatnonzero(expected > 0):
-        window = _pixel_window(amodal[i], size)
+        window = pixel_window(amodal[i], size)
         inside = valid[window] & inside_box(tilt_points[window], boxes[i], R_tilt, config)
         seen[i] = int(inside.sum())
         if seen[i] >= config.min_seen_px:
@@ -132,24 +133,7 @@ def projected_areas(
 def inside_box(points: np.ndarray, box: np.ndarray, R_tilt: np.ndarray, config: LabelConfig) -> np.ndarray:
     """Which tilt-frame points (..., 3) lie in ``box`` (camera-frame centre) grown by the margin,
     its bottom raised by the floor gap (y is down in the tilt frame)."""
-    d = points - R_tilt @ box[CENTER]
-    c, s = np.cos(box[THETA]), np.sin(box[THETA])
-    along_l, along_w = c * d[..., 0] - s * d[..., 2], s * d[..., 0] + c * d[..., 2]
-    m = config.margin_m
-    return (
-        (np.abs(along_l) <= box[L] / 2 + m)
-        & (np.abs(along_w) <= box[W] / 2 + m)
-        & (d[..., 1] >= -box[H] / 2 - m)
-        & (d[..., 1] <= box[H] / 2 - config.floor_gap_m)
-    )
-
-
-def _pixel_window(box2d: np.ndarray, size: tuple[int, int]) -> tuple[slice, slice]:
-    """The rows and columns of the pixels whose centres lie in a 2D box (README pixel convention)."""
-    x1, y1, x2, y2 = box2d
-    cols = slice(max(int(np.ceil(x1)), 0), min(int(np.floor(x2)), size[1] - 1) + 1)
-    rows = slice(max(int(np.ceil(y1)), 0), min(int(np.floor(y2)), size[0] - 1) + 1)
-    return rows, cols
+    return points_in_box(points, box, R_tilt, config.margin_m, -config.floor_gap_m)
 
 
 def _pixel_box(inside: np.ndarray, window: tuple[slice, slice]) -> np.ndarray:

@@ -24,8 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from a3d.runtime.postprocess.score_calibration import SCORE_EPS
-from a3d.runtime.structures.boxes import CENTER, THETA, H, L, W
-from a3d.runtime.structures.geometry import CameraLike, backproject
+from a3d.runtime.structures.geometry import CameraLike, backproject, pixel_window, points_in_box
 
 SUPPORT_WEIGHT = 2.0
 SUPPORT_REFERENCE = 0.6
@@ -45,21 +44,13 @@ def depth_support(
     rows, cols = np.indices(sampled.shape, dtype=np.float64) * STRIDE  # the samples' pixels
     points = backproject(cols, rows, sampled, K) @ R_tilt.T  # tilt frame
     valid = sampled > 0
-    height, width = sampled.shape
     out = np.zeros(len(boxes3d))
-    for i, ((x1, y1, x2, y2), box) in enumerate(zip(np.asarray(boxes2d), np.asarray(boxes3d), strict=True)):
-        window = (slice(_first(y1), _last(y2, height)), slice(_first(x1), _last(x2, width)))
+    for i, (box2d, box) in enumerate(zip(np.asarray(boxes2d), np.asarray(boxes3d), strict=True)):
+        pixels = pixel_window(box2d, depth.shape)  # its samples: the pixels j * STRIDE among them
+        window = tuple(slice(-(-p.start // STRIDE), -(-p.stop // STRIDE)) for p in pixels)
         inside = valid[window]
-        if not inside.any():
-            continue
-        d = points[window][inside] - R_tilt @ box[CENTER]
-        c, s = np.cos(box[THETA]), np.sin(box[THETA])
-        held = (
-            (np.abs(c * d[:, 0] - s * d[:, 2]) <= box[L] / 2 + MARGIN_M)
-            & (np.abs(s * d[:, 0] + c * d[:, 2]) <= box[W] / 2 + MARGIN_M)
-            & (np.abs(d[:, 1]) <= box[H] / 2 + MARGIN_M)
-        )
-        out[i] = held.mean()
+        if inside.any():
+            out[i] = points_in_box(points[window][inside], box, R_tilt, MARGIN_M, MARGIN_M).mean()
     return out
 
 
@@ -81,13 +72,3 @@ def supported_scores(scores: np.ndarray, support: np.ndarray) -> np.ndarray:
     p = np.clip(np.asarray(scores, np.float64), SCORE_EPS, 1 - SCORE_EPS)
     logit = np.log(p) - np.log1p(-p) + SUPPORT_WEIGHT * (np.asarray(support) - SUPPORT_REFERENCE)
     return 1.0 / (1.0 + np.exp(-logit))
-
-
-def _first(low: float) -> int:
-    """The first sampled index whose pixel centre lies at or after ``low`` (README pixel convention)."""
-    return max(int(np.ceil(np.ceil(low) / STRIDE)), 0)
-
-
-def _last(high: float, size: int) -> int:
-    """One past the last sampled index whose pixel centre lies at or before ``high``."""
-    return min(int(np.floor(np.floor(high) / STRIDE)) + 1, size)

@@ -395,7 +395,34 @@ def project_boxes_to_2d(
     return out
 
 
+def points_in_box(
+    points: np.ndarray, box: np.ndarray, R_tilt: np.ndarray, margin_m: float = 0.0, bottom_m: float = 0.0
+) -> np.ndarray:
+    """Which tilt-frame points (..., 3) lie in ``box`` (camera-frame centre, yaw in the tilt frame of
+    ``R_tilt``) grown by ``margin_m`` on its sides and top, its bottom face moved down by
+    ``bottom_m`` (y is down; a negative one raises it)."""
+    d = points - np.asarray(R_tilt) @ box[CENTER]
+    c, s = np.cos(box[THETA]), np.sin(box[THETA])
+    along_l, along_w = c * d[..., 0] - s * d[..., 2], s * d[..., 0] + c * d[..., 2]
+    return (
+        (np.abs(along_l) <= box[L] / 2 + margin_m)
+        & (np.abs(along_w) <= box[W] / 2 + margin_m)
+        & (d[..., 1] >= -box[H] / 2 - margin_m)
+        & (d[..., 1] <= box[H] / 2 + bottom_m)
+    )
+
+
 # ----------------------------------------------------------------------------- 2D boxes
+
+
+def pixel_window(box2d: np.ndarray, size: tuple[int, int]) -> tuple[slice, slice]:
+    """The rows and columns of the pixels whose centres lie in a 2D box (README pixel convention)."""
+    x1, y1, x2, y2 = box2d
+    cols = slice(max(int(np.ceil(x1)), 0), min(int(np.floor(x2)), size[1] - 1) + 1)
+    rows = slice(max(int(np.ceil(y1)), 0), min(int(np.floor(y2)), size[0] - 1) + 1)
+    return rows, cols
+
+
 
 
 def box_area_2d(boxes: np.ndarray, plus_one: bool = False) -> np.ndarray:
