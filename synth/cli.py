@@ -3,8 +3,8 @@
     a3d-synth OUT --frames N --seed S [--split test=0.3] [--workers K] [--size HxW] [--sensor kinect-v1]
         [--appearance typical] [--world real] [--clutter N] [--camera-mix all|NAME,...] [--camera-scale S]
         [--real-light | --no-real-light] [--empty-share F]
-    a3d-synth OUT --sequence N --seed S [--size HxW] [--sensor ...] [--camera-mix NAME] [--world ...]
-        [--workers K]
+    a3d-synth OUT --sequence N --seed S [--loops 2] [--size HxW] [--sensor ...] [--camera-mix NAME]
+        [--world ...] [--workers K]
     a3d-synth --stats OUT
 
 Frame i of a run is rendered from ``frame_seed(S, i)``, so a set is the same whatever the number
@@ -23,7 +23,8 @@ rooms without any class object; each setting can be changed on its own. The defa
 in meta.json and the usual ground truth, OUT/world_boxes.json the room's objects in its
 gravity-aligned world (docs/mapping.md). One camera, so no split and no mix: ``--size`` and
 ``--sensor``, or one preset (``--camera-mix realsense-d435``: a user's RealSense, its size,
-intrinsics and depth model in every frame).
+intrinsics and depth model in every frame). ``--loops 2`` goes round twice: a hand-held camera's
+loop, then a robot's, lower and on another path (the room seen again by a robot working in it).
 """
 
 from __future__ import annotations
@@ -223,6 +224,7 @@ def generate_sequence(
     config: SceneConfig,
     depth_format: str = "png",
     progress: bool = True,
+    loops: int = 1,
 ) -> list[dict]:
     """Render and write a posed sequence of one room (module docstring); returns its statistics records."""
     _, layout = room_of(seed, config)
@@ -234,7 +236,7 @@ def generate_sequence(
         RenderJob(
             folder, f"seq_{i:06d}", "sequence", seed, config, depth_format, False, camera, frame_seed(seed, i)
         )
-        for i, camera in enumerate(orbit(layout, frames))
+        for i, camera in enumerate(orbit(layout, frames, loops))
     ]
     return _run_jobs(jobs, workers, progress, out / RECORDS_FILE)
 
@@ -274,6 +276,13 @@ def build_parser() -> argparse.ArgumentParser:
         type=int,
         metavar="N",
         help="one room seen from N poses of a moving camera instead (OUT/frames, OUT/world_boxes.json)",
+    )
+    parser.add_argument(
+        "--loops",
+        type=int,
+        choices=(1, 2),
+        default=1,
+        help="a --sequence's loops round the room: 1 hand-held; 2: then a robot's, lower, on another path",
     )
     parser.add_argument("--seed", type=int, default=0, help="run seed")
     parser.add_argument(
@@ -361,6 +370,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--clutter must be >= 0, --empty-share in [0, 1] and --camera-scale in [0.05, 4]")
     if args.sequence is not None and (args.sequence < 1 or len(args.camera_mix or ()) > 1):
         parser.error("--sequence must be >= 1 and is seen by one camera: --size, or one --camera-mix preset")
+    if args.loops != 1 and args.sequence is None:
+        parser.error("--loops is a --sequence's")
     if args.sequence is not None:
         world["camera_mix"] = args.camera_mix or ()
     if world["camera_mix"] and (args.size is not None or args.sensor != "a3d"):
@@ -383,7 +394,7 @@ def main(argv: list[str] | None = None) -> int:
         if world["camera_mix"]:
             config = device_config(config, world["camera_mix"][0], args.camera_scale)
         records = generate_sequence(
-            args.out, args.sequence, args.seed, args.workers, config, args.depth_format
+            args.out, args.sequence, args.seed, args.workers, config, args.depth_format, loops=args.loops
         )
         print(format_summary(summarise(records)))
         return 0

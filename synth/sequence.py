@@ -2,7 +2,9 @@
 
 The room is that of the run's seed (``generate_frame(seed)`` furnishes it: its objects, materials
 and lights), static; only the camera moves, once round an ellipse about the room's centre, looking
-inward, with a gentle swing of heading, height, pitch and roll (``orbit``). Each view is rendered
+inward, with a gentle swing of heading, height, pitch and roll (``orbit``); or twice
+(``--loops 2``): a hand-held camera's loop and then a robot's, lower and on another path, as a
+room recorded once is seen again by a robot working in it. Each view is rendered
 by ``generate_frame(seed, config, camera=pose, noise_seed=...)``, so every frame has its own sensor
 noise and the per-frame ground truth of any a3d-synth frame.
 
@@ -32,6 +34,7 @@ WALL_MARGIN = 0.45  # metres between the path and the walls
 CLEARANCE = 0.35  # metres between the path and any furniture footprint, where the room allows
 PATH_SCALES = (0.75, 0.6, 0.9, 0.45, 0.3)  # of the room's half extents, tried in this order
 HEIGHT_M, HEIGHT_SWING_M = 1.4, 0.2
+ROBOT_HEIGHT_M = 1.0  # a robot's camera, for a sequence's second loop
 PITCH_DEG, PITCH_SWING_DEG, ROLL_SWING_DEG, HEADING_SWING = -20.0, 6.0, 2.0, 0.15
 
 
@@ -40,16 +43,30 @@ def room_of(seed: int, config: SceneConfig) -> tuple[str, Layout]:
     return furnish_world(np.random.default_rng(seed), config.room_type, config.clutter, config.labelled)
 
 
-def orbit(layout: Layout, frames: int) -> list[CameraPose]:
-    """``frames`` camera poses once round the room's centre, looking inward (module docstring).
+def orbit(layout: Layout, frames: int, loops: int = 1) -> list[CameraPose]:
+    """``frames`` camera poses round the room's centre, looking inward (module docstring).
 
-    The ellipse's size is the first of ``PATH_SCALES`` (of the room's half extents, less
-    ``WALL_MARGIN``) on which fewest poses stand within ``CLEARANCE`` of a piece of furniture.
+    One loop: a hand-held camera's, ``HEIGHT_M`` high, on the first of ``PATH_SCALES`` (of the
+    room's half extents, less ``WALL_MARGIN``) on which fewest poses stand within ``CLEARANCE`` of a
+    piece of furniture. Two loops (the second half of the frames): then a robot's, ``ROBOT_HEIGHT_M``
+    high, the other way round on the next clearest path, so that its views are of the same room but
+    none is the hand-held one again.
     """
+    if loops not in (1, 2):
+        raise ValueError(f"loops: expected 1 or 2, got {loops}")
+    first = frames if loops == 1 else frames // 2
+    poses = _loop(layout, 2 * np.pi * np.arange(first) / first, HEIGHT_M, rank=0)
+    if loops == 2:
+        rest = frames - first
+        poses += _loop(layout, -2 * np.pi * (np.arange(rest) + 0.5) / rest, ROBOT_HEIGHT_M, rank=1)
+    return poses
+
+
+def _loop(layout: Layout, angles: np.ndarray, height: float, rank: int) -> list[CameraPose]:
+    """One loop's poses at ``angles`` round the room on the ``rank``-th clearest path (orbit)."""
     room = layout.room
     cx, cz = room.width / 2, room.depth / 2
     half_x, half_z = max(cx - WALL_MARGIN, 0.1), max(cz - WALL_MARGIN, 0.1)
-    angles = 2 * np.pi * np.arange(frames) / frames
     rects = [p.footprint() for p in layout.objects if p.render and p.item.collides]
 
     def blocked(scale: float) -> int:
@@ -58,7 +75,7 @@ def orbit(layout: Layout, frames: int) -> list[CameraPose]:
             any(point_rect_distance(x, z, r) < CLEARANCE for r in rects) for x, z in zip(xs, zs, strict=True)
         )
 
-    scale = min(PATH_SCALES, key=blocked)  # min keeps the first of equals
+    scale = sorted(PATH_SCALES, key=blocked)[rank]  # a stable sort keeps the first of equals
     poses = []
     for a in angles:
         x, z = cx + scale * half_x * math.sin(a), cz + scale * half_z * math.cos(a)
@@ -67,7 +84,7 @@ def orbit(layout: Layout, frames: int) -> list[CameraPose]:
             CameraPose(
                 float(x),
                 float(z),
-                HEIGHT_M + HEIGHT_SWING_M * math.sin(2 * a),
+                height + HEIGHT_SWING_M * math.sin(2 * a),
                 heading,
                 math.radians(PITCH_DEG + PITCH_SWING_DEG * math.sin(3 * a + 1.0)),
                 math.radians(ROLL_SWING_DEG * math.sin(2 * a)),

@@ -3,6 +3,7 @@ and per-frame ground truth that is the world boxes moved into each camera."""
 
 from __future__ import annotations
 
+import itertools
 import json
 from dataclasses import replace
 from pathlib import Path
@@ -20,7 +21,7 @@ from a3d.synth.cli import main as synth_main
 from a3d.synth.cli import scaled_intrinsics
 from a3d.synth.devices import DEVICES
 from a3d.synth.scene import SceneConfig, _moved_lights, generate_frame
-from a3d.synth.sequence import orbit, room_of, world_pose
+from a3d.synth.sequence import WALL_MARGIN, orbit, room_of, world_pose
 from a3d.synth.shading import Lights
 
 SIZE = (120, 160)
@@ -119,3 +120,26 @@ def test_a_sequence_seen_by_one_camera_preset(tmp_path: Path) -> None:
     with pytest.raises(SystemExit) as refused:
         synth_main([str(tmp_path / "two"), *args[:-3], "realsense-d435,kinect-v1"])
     assert refused.value.code == 2 and not (tmp_path / "two").exists()
+
+
+def test_two_loops_the_hand_held_one_and_then_a_robot_s() -> None:
+    """``orbit(..., loops=2)``: the first half is the one-loop orbit of its frames, the second a
+    lower loop the other way round on another path, none of its views a first-loop one again."""
+    config = replace(SceneConfig(), image_size=SIZE, intrinsics=scaled_intrinsics(SIZE))
+    _, layout = room_of(3, config)
+    hand, both = orbit(layout, 6), orbit(layout, 12, loops=2)
+    assert both[:6] == hand
+    robot = both[6:]
+    assert np.mean([p.height for p in robot]) < np.mean([p.height for p in hand]) - 0.3  # lower
+    room = layout.room
+    cx, cz = room.width / 2, room.depth / 2
+    turns = [np.arctan2(p.x - cx, p.z - cz) for p in robot]
+    assert all((b - a) % (2 * np.pi) > np.pi for a, b in itertools.pairwise(turns))  # the other way round
+    half_x, half_z = cx - WALL_MARGIN, cz - WALL_MARGIN
+    def path_scales(loop: list[CameraPose]) -> set[float]:
+        return {round(float(np.hypot((p.x - cx) / half_x, (p.z - cz) / half_z)), 6) for p in loop}
+
+    scales = [path_scales(hand), path_scales(robot)]
+    assert all(len(s) == 1 for s in scales) and scales[0] != scales[1]  # each loop one ellipse, another path
+    with pytest.raises(ValueError, match="loops"):
+        orbit(layout, 6, loops=3)
