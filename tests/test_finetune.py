@@ -122,7 +122,7 @@ def test_the_recipe_counts_its_iterations_and_the_flags_take_it_over(
     assert recipes == [finetune_module.Recipe(), finetune_module.Recipe(lr=0.001, iterations=7)]
     # the budget alone no longer sets the count: a fast machine runs the same recipe as a slow one
     assert f"solver.iterations={recipes[0].iterations}" in recipes[0].overrides(tmp_path, 15.0, tmp_path)
-    assert recipes[0].iterations < 5000
+    assert recipes[0].iterations < 10000  # the 13000 a bfloat16 CPU ran in 15 minutes lost (training.md)
     capsys.readouterr()
     with pytest.raises(SystemExit) as stop:
         main([str(tmp_path), "--out", out, "--iters", "0"])
