@@ -370,8 +370,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--clutter must be >= 0, --empty-share in [0, 1] and --camera-scale in [0.05, 4]")
     if args.sequence is not None and (args.sequence < 1 or len(args.camera_mix or ()) > 1):
         parser.error("--sequence must be >= 1 and is seen by one camera: --size, or one --camera-mix preset")
-    if args.loops != 1 and args.sequence is None:
-        parser.error("--loops is a --sequence's")
+    if args.loops != 1 and (args.sequence is None or args.sequence < args.loops):
+        parser.error("--loops 2 takes a --sequence of 2 or more frames")
     if args.sequence is not None:
         world["camera_mix"] = args.camera_mix or ()
     if world["camera_mix"] and (args.size is not None or args.sensor != "a3d"):

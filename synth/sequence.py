@@ -52,8 +52,8 @@ def orbit(layout: Layout, frames: int, loops: int = 1) -> list[CameraPose]:
     high, the other way round on the next clearest path, so that its views are of the same room but
     none is the hand-held one again.
     """
-    if loops not in (1, 2):
-        raise ValueError(f"loops: expected 1 or 2, got {loops}")
+    if loops not in (1, 2) or frames < loops:
+        raise ValueError(f"loops: expected 1 or 2, and at least as many frames, got {loops} for {frames}")
     first = frames if loops == 1 else frames // 2
     poses = _loop(layout, 2 * np.pi * np.arange(first) / first, HEIGHT_M, rank=0)
     if loops == 2:

@@ -141,5 +141,6 @@ def test_two_loops_the_hand_held_one_and_then_a_robot_s() -> None:
 
     scales = [path_scales(hand), path_scales(robot)]
     assert all(len(s) == 1 for s in scales) and scales[0] != scales[1]  # each loop one ellipse, another path
-    with pytest.raises(ValueError, match="loops"):
-        orbit(layout, 6, loops=3)
+    for loops, frames in ((3, 6), (2, 1)):
+        with pytest.raises(ValueError, match="loops"):
+            orbit(layout, frames, loops=loops)
