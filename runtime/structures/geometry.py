@@ -423,8 +423,6 @@ def pixel_window(box2d: np.ndarray, size: tuple[int, int]) -> tuple[slice, slice
     return rows, cols
 
 
-
-
 def box_area_2d(boxes: np.ndarray, plus_one: bool = False) -> np.ndarray:
     """Areas (N,) of 2D boxes, ``(x2 - x1) * (y2 - y1)``, 0 for empty or inverted boxes.
 
