@@ -3,8 +3,8 @@
     a3d-synth OUT --frames N --seed S [--split test=0.3] [--workers K] [--size HxW] [--sensor kinect-v1]
         [--appearance typical] [--world real] [--clutter N] [--camera-mix all|NAME,...] [--camera-scale S]
         [--real-light | --no-real-light] [--empty-share F]
-    a3d-synth OUT --sequence N --seed S [--loops 2] [--size HxW] [--sensor ...] [--camera-mix NAME]
-        [--world ...] [--workers K]
+    a3d-synth OUT --sequence N --seed S [--loops 2] [--heights H[,H]] [--size HxW] [--sensor ...]
+        [--camera-mix NAME] [--world ...] [--workers K]
     a3d-synth --stats OUT
 
 Frame i of a run is rendered from ``frame_seed(S, i)``, so a set is the same whatever the number
@@ -24,7 +24,9 @@ in meta.json and the usual ground truth, OUT/world_boxes.json the room's objects
 gravity-aligned world (docs/mapping.md). One camera, so no split and no mix: ``--size`` and
 ``--sensor``, or one preset (``--camera-mix realsense-d435``: a user's RealSense, its size,
 intrinsics and depth model in every frame). ``--loops 2`` goes round twice: a hand-held camera's
-loop, then a robot's, lower and on another path (the room seen again by a robot working in it).
+loop, then a robot's, lower and on another path (the room seen again by a robot working in it);
+``--heights`` gives each loop's camera height in metres (``--loops 2 --heights 1.0,1.0``: a robot
+recording its own room, both loops at its camera's height).
 """
 
 from __future__ import annotations
@@ -49,7 +51,7 @@ from a3d.synth.camera import CameraPose
 from a3d.synth.devices import DEVICES
 from a3d.synth.scene import APPEARANCES, SceneConfig, generate_frame
 from a3d.synth.sensor import SENSORS
-from a3d.synth.sequence import orbit, room_of, world_boxes, world_pose
+from a3d.synth.sequence import LOOP_HEIGHTS_M, loop_heights, orbit, room_of, world_boxes, world_pose
 from a3d.synth.stats import RECORDS_FILE, format_summary, frame_record, read_records, summarise
 
 
@@ -105,6 +107,13 @@ def _parse_split(text: str) -> float:
     if name != "test" or not 0.0 <= share <= 1.0:
         raise argparse.ArgumentTypeError(f"--split: expected test=SHARE with SHARE in [0, 1], got {text!r}")
     return share
+
+
+def _parse_heights(text: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected metres as H or H,H, got {text!r}") from None
 
 
 def _parse_size(text: str) -> tuple[int, int]:
@@ -225,6 +234,7 @@ def generate_sequence(
     depth_format: str = "png",
     progress: bool = True,
     loops: int = 1,
+    heights: tuple[float, ...] | None = None,
 ) -> list[dict]:
     """Render and write a posed sequence of one room (module docstring); returns its statistics records."""
     _, layout = room_of(seed, config)
@@ -236,7 +246,7 @@ def generate_sequence(
         RenderJob(
             folder, f"seq_{i:06d}", "sequence", seed, config, depth_format, False, camera, frame_seed(seed, i)
         )
-        for i, camera in enumerate(orbit(layout, frames, loops))
+        for i, camera in enumerate(orbit(layout, frames, loops, heights))
     ]
     return _run_jobs(jobs, workers, progress, out / RECORDS_FILE)
 
@@ -283,6 +293,13 @@ def build_parser() -> argparse.ArgumentParser:
         choices=(1, 2),
         default=1,
         help="a --sequence's loops round the room: 1 hand-held; 2: then a robot's, lower, on another path",
+    )
+    parser.add_argument(
+        "--heights",
+        type=_parse_heights,
+        metavar="H[,H]",
+        help=f"each loop's camera height in metres (default {', then '.join(map(str, LOOP_HEIGHTS_M))});"
+        " a lower camera looks down less",
     )
     parser.add_argument("--seed", type=int, default=0, help="run seed")
     parser.add_argument(
@@ -372,6 +389,13 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--sequence must be >= 1 and is seen by one camera: --size, or one --camera-mix preset")
     if args.loops != 1 and (args.sequence is None or args.sequence < args.loops):
         parser.error("--loops 2 takes a --sequence of 2 or more frames")
+    if args.heights is not None:
+        if args.sequence is None:
+            parser.error("--heights takes a --sequence")
+        try:
+            loop_heights(args.loops, args.heights)
+        except ValueError as e:
+            parser.error(f"--{e} (--loops {args.loops})")
     if args.sequence is not None:
         world["camera_mix"] = args.camera_mix or ()
     if world["camera_mix"] and (args.size is not None or args.sensor != "a3d"):
@@ -394,8 +418,9 @@ def main(argv: list[str] | None = None) -> int:
         if world["camera_mix"]:
             config = device_config(config, world["camera_mix"][0], args.camera_scale)
         records = generate_sequence(
-            args.out, args.sequence, args.seed, args.workers, config, args.depth_format, loops=args.loops
-        )
+            args.out, args.sequence, args.seed, args.workers, config, args.depth_format,
+            loops=args.loops, heights=args.heights,
+        )  # fmt: skip
         print(format_summary(summarise(records)))
         return 0
     records = generate(

@@ -4,7 +4,10 @@ The room is that of the run's seed (``generate_frame(seed)`` furnishes it: its o
 and lights), static; only the camera moves, once round an ellipse about the room's centre, looking
 inward, with a gentle swing of heading, height, pitch and roll (``orbit``); or twice
 (``--loops 2``): a hand-held camera's loop and then a robot's, lower and on another path, as a
-room recorded once is seen again by a robot working in it. Each view is rendered
+room recorded once is seen again by a robot working in it. ``--heights`` sets each loop's camera
+height instead (a robot recording its own room: ``--loops 2 --heights 1.0,1.0``); a camera lower
+than a robot's metre looks down less, at about the floor point a metre-high one's axis meets.
+Each view is rendered
 by ``generate_frame(seed, config, camera=pose, noise_seed=...)``, so every frame has its own sensor
 noise and the per-frame ground truth of any a3d-synth frame.
 
@@ -18,6 +21,7 @@ that a frame's ground-truth boxes are the world boxes moved into its camera.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -35,6 +39,8 @@ CLEARANCE = 0.35  # metres between the path and any furniture footprint, where t
 PATH_SCALES = (0.75, 0.6, 0.9, 0.45, 0.3)  # of the room's half extents, tried in this order
 HEIGHT_M, HEIGHT_SWING_M = 1.4, 0.2
 ROBOT_HEIGHT_M = 1.0  # a robot's camera, for a sequence's second loop
+LOOP_HEIGHTS_M = (HEIGHT_M, ROBOT_HEIGHT_M)  # the loops' camera heights unless given
+HEIGHT_RANGE_M = (0.3, 2.0)  # a loop's camera height, given
 PITCH_DEG, PITCH_SWING_DEG, ROLL_SWING_DEG, HEADING_SWING = -20.0, 6.0, 2.0, 0.15
 
 
@@ -43,27 +49,46 @@ def room_of(seed: int, config: SceneConfig) -> tuple[str, Layout]:
     return furnish_world(np.random.default_rng(seed), config.room_type, config.clutter, config.labelled)
 
 
-def orbit(layout: Layout, frames: int, loops: int = 1) -> list[CameraPose]:
+def orbit(
+    layout: Layout, frames: int, loops: int = 1, heights: Sequence[float] | None = None
+) -> list[CameraPose]:
     """``frames`` camera poses round the room's centre, looking inward (module docstring).
 
     One loop: a hand-held camera's, ``HEIGHT_M`` high, on the first of ``PATH_SCALES`` (of the
     room's half extents, less ``WALL_MARGIN``) on which fewest poses stand within ``CLEARANCE`` of a
     piece of furniture. Two loops (the second half of the frames): then a robot's, ``ROBOT_HEIGHT_M``
     high, the other way round on the next clearest path, so that its views are of the same room but
-    none is the hand-held one again.
+    none is the first loop's again. ``heights`` (one per loop, within ``HEIGHT_RANGE_M``) replaces
+    those heights.
     """
-    if loops not in (1, 2) or frames < loops:
-        raise ValueError(f"loops: expected 1 or 2, and at least as many frames, got {loops} for {frames}")
+    heights = loop_heights(loops, heights)
+    if frames < loops:
+        raise ValueError(f"loops: expected at least as many frames as loops, got {frames} for {loops}")
     first = frames if loops == 1 else frames // 2
-    poses = _loop(layout, 2 * np.pi * np.arange(first) / first, HEIGHT_M, rank=0)
+    poses = _loop(layout, 2 * np.pi * np.arange(first) / first, heights[0], rank=0)
     if loops == 2:
         rest = frames - first
-        poses += _loop(layout, -2 * np.pi * (np.arange(rest) + 0.5) / rest, ROBOT_HEIGHT_M, rank=1)
+        poses += _loop(layout, -2 * np.pi * (np.arange(rest) + 0.5) / rest, heights[1], rank=1)
     return poses
 
 
+def loop_heights(loops: int, heights: Sequence[float] | None = None) -> tuple[float, ...]:
+    """Each loop's camera height: ``heights`` checked (one per loop, within ``HEIGHT_RANGE_M``;
+    ValueError naming what is wrong), or the default ``LOOP_HEIGHTS_M``."""
+    if loops not in (1, 2):
+        raise ValueError(f"loops: expected 1 or 2, got {loops}")
+    if heights is None:
+        return LOOP_HEIGHTS_M[:loops]
+    low, high = HEIGHT_RANGE_M
+    if len(heights) != loops or not all(low <= h <= high for h in heights):
+        shown = ",".join(f"{h:g}" for h in heights)
+        raise ValueError(f"heights: expected {loops} camera height(s) in [{low}, {high}] m, got {shown}")
+    return tuple(heights)
+
+
 def _loop(layout: Layout, angles: np.ndarray, height: float, rank: int) -> list[CameraPose]:
-    """One loop's poses at ``angles`` round the room on the ``rank``-th clearest path (orbit)."""
+    """One loop's poses at ``angles`` round the room on the ``rank``-th clearest path (orbit); under
+    ``ROBOT_HEIGHT_M`` the camera's pitch scales with its height (module docstring)."""
     room = layout.room
     cx, cz = room.width / 2, room.depth / 2
     half_x, half_z = max(cx - WALL_MARGIN, 0.1), max(cz - WALL_MARGIN, 0.1)
@@ -76,6 +101,7 @@ def _loop(layout: Layout, angles: np.ndarray, height: float, rank: int) -> list[
         )
 
     scale = sorted(PATH_SCALES, key=blocked)[rank]  # a stable sort keeps the first of equals
+    pitch = PITCH_DEG * min(1.0, height / ROBOT_HEIGHT_M)
     poses = []
     for a in angles:
         x, z = cx + scale * half_x * math.sin(a), cz + scale * half_z * math.cos(a)
@@ -86,7 +112,7 @@ def _loop(layout: Layout, angles: np.ndarray, height: float, rank: int) -> list[
                 float(z),
                 height + HEIGHT_SWING_M * math.sin(2 * a),
                 heading,
-                math.radians(PITCH_DEG + PITCH_SWING_DEG * math.sin(3 * a + 1.0)),
+                math.radians(pitch + PITCH_SWING_DEG * math.sin(3 * a + 1.0)),
                 math.radians(ROLL_SWING_DEG * math.sin(2 * a)),
             )
         )

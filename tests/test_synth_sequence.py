@@ -144,3 +144,23 @@ def test_two_loops_the_hand_held_one_and_then_a_robot_s() -> None:
     for loops, frames in ((3, 6), (2, 1)):
         with pytest.raises(ValueError, match="loops"):
             orbit(layout, frames, loops=loops)
+
+
+def test_each_loop_s_height_given_a_robot_recording_its_own_room(tmp_path: Path) -> None:
+    """``heights``: a robot's own two loops (``1.0,1.0``) keep the default's paths and turns, the
+    first loop at the robot's height; a camera under a metre looks down less in proportion; a height
+    per loop, each within HEIGHT_RANGE_M, or ValueError (and a3d-synth exits 2, writing nothing)."""
+    config = replace(SceneConfig(), image_size=SIZE, intrinsics=scaled_intrinsics(SIZE))
+    _, layout = room_of(3, config)
+    default, robot, low = (orbit(layout, 12, 2, h) for h in (None, (1.0, 1.0), (0.5, 0.5)))
+    assert [(p.x, p.z, p.heading) for p in robot] == [(p.x, p.z, p.heading) for p in default]
+    assert robot[6:] == default[6:]  # the second loop was the robot's already
+    assert np.mean([p.height for p in robot[:6]]) == pytest.approx(np.mean([p.height for p in default[6:]]))
+    pitch = [np.mean([p.pitch for p in loop]) for loop in (robot, low)]
+    assert pitch[0] < pitch[1] < 0 and pitch[1] == pytest.approx(pitch[0] / 2)
+    for loops, heights in ((2, (1.0,)), (1, (0.1,)), (1, (2.5,))):
+        with pytest.raises(ValueError, match="heights"):
+            orbit(layout, 12, loops, heights)
+    with pytest.raises(SystemExit) as refused:
+        synth_main([str(tmp_path / "bad"), "--sequence", "4", "--loops", "2", "--heights", "1.0"])
+    assert refused.value.code == 2 and not (tmp_path / "bad").exists()
