@@ -15,35 +15,48 @@ detections that are right (bench.real_frames's counts, its JSON under DIR/REF).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 from pathlib import Path
 
 from a3d.runtime import Detector
-from a3d.runtime.evaluation.metric import EvalConfig, evaluate
+from a3d.runtime.evaluation.metric import EvalConfig, EvalResult, evaluate
 from a3d.runtime.evaluation.truth import load_truth
 from a3d.runtime.postprocess import depth_support
 from a3d.runtime.sources.folder import FolderSource
 from bench import real_frames
 
 
-def synthetic_map(folder: Path, weight: float) -> float:
-    """``real``'s mAP@0.25 over the frames' classes with ``SUPPORT_WEIGHT`` = ``weight``."""
-    depth_support.SUPPORT_WEIGHT = weight
+def real_result(folder: Path) -> EvalResult:
+    """The bundled pipeline ``real`` on a3d-synth frames with ground truth, scored (a3d-eval's metric)."""
     detector = Detector.load("real", threads=2)
     truth, _ = load_truth(folder)
     outcomes = detector.detect_frames(FolderSource(folder), score_threshold=0)
     found = {o.detections.frame: o.detections for o in outcomes}
-    return evaluate(truth, found, EvalConfig()).map_present(0.25)
+    return evaluate(truth, found, EvalConfig())
+
+
+def synthetic_map(folder: Path, weight: float) -> float:
+    """``real``'s mAP@0.25 over the frames' classes with ``SUPPORT_WEIGHT`` = ``weight``."""
+    depth_support.SUPPORT_WEIGHT = weight
+    return real_result(folder).map_present(0.25)
+
+
+def real_frames_result(folder: Path, out: Path) -> dict:
+    """bench.real_frames's JSON for ``real`` on the real frames (its files under ``out``, its tables
+    to stderr)."""
+    with contextlib.redirect_stdout(sys.stderr):
+        code = real_frames.main([str(folder), "--model", "real", "--out", str(out)])
+    if code:
+        raise SystemExit(code)
+    return json.loads((out / "real_frames.json").read_text())
 
 
 def real_counts(folder: Path, reference: float, out: Path) -> dict:
     """bench.real_frames's totals for ``real`` with ``SUPPORT_REFERENCE`` = ``reference``."""
     depth_support.SUPPORT_REFERENCE = reference
-    code = real_frames.main([str(folder), "--model", "real", "--out", str(out)])
-    if code:
-        raise SystemExit(code)
-    return json.loads((out / "real_frames.json").read_text())["total"]
+    return real_frames_result(folder, out)["total"]
 
 
 def floats(text: str) -> list[float]:

@@ -17,7 +17,8 @@ can overlap the network call of another:
    and 2D NMS (with a 2D detector, its boxes merged in; with an image classifier, its second
    opinion on the best own detections: postprocess.fuse), class-specific 3D boxes and amodal 2D boxes
    (a3d.runtime.postprocess.select) bounded to boxes that can exist (postprocess.box_limits),
-   with a 2D detector the scores moved by how much of the depth in each 2D box its 3D box
+   with a 2D detector the 3D boxes turned square to the walls the depth shows
+   (postprocess.wall_axes) and the scores moved by how much of the depth in each 2D box its 3D box
    holds (postprocess.depth_support), corners, and the frame's detections line, with its
    gravity source and notes.
 
@@ -72,6 +73,7 @@ from a3d.runtime.postprocess.fuse import (
 )
 from a3d.runtime.postprocess.score_calibration import ScoreCalibration
 from a3d.runtime.postprocess.select import decode_detections, select_detections
+from a3d.runtime.postprocess.wall_axes import NO_WALLS, square_to_walls, wall_direction
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.proposals_file import PrecomputedProposals
 from a3d.runtime.sources.wording import option
@@ -390,8 +392,14 @@ def finish(prepared: PreparedFrame, out: NetworkOutput, config: PipelineConfig) 
     )
     bounded = bound_boxes(boxes3d, class_idx, near_range(prepared.frame.depth))
     boxes3d, sources = bounded.boxes3d, picked.sources
-    if prepared.found is not None and len(rows):  # depth_support: with the detector's boxes in the frame
+    wall_notes: tuple[str, ...] = ()
+    if prepared.found is not None and len(rows):  # wall_axes, depth_support: with the detector's boxes
         frame, boxes2d = prepared.frame, prepared.boxes[rows]
+        direction = wall_direction(frame.depth, frame.intrinsics, prepared.R_tilt)
+        if direction is None:
+            wall_notes = (NO_WALLS,)
+        else:
+            boxes3d = square_to_walls(boxes3d, direction)
         scores = rescored(scores, frame.depth, frame.intrinsics, prepared.R_tilt, boxes2d, boxes3d)
         order = np.argsort(-scores, kind="stable")
         rows, class_idx, boxes3d, amodal = (a[order] for a in (rows, class_idx, boxes3d, amodal))
@@ -414,7 +422,7 @@ def finish(prepared: PreparedFrame, out: NetworkOutput, config: PipelineConfig) 
         timing=dict(timing),
         boxes2d_amodal=amodal,
         gravity=prepared.gravity,
-        notes=(*prepared.notes, *bounded.notes(scores)),
+        notes=(*prepared.notes, *wall_notes, *bounded.notes(scores)),
         intrinsics=frame.intrinsics,
         pose=frame.pose,
         sources=sources if prepared.detector or config.classifier is not None else None,

@@ -12,6 +12,9 @@ import pytest
 
 from a3d.runtime.io.detections_io import read_detections
 from a3d.runtime.postprocess.fuse import NETWORK
+from a3d.runtime.postprocess.wall_axes import NO_WALLS, SNAP_DEG, wall_direction
+from a3d.runtime.sources.folder import FolderSource, write_frame, write_intrinsics
+from a3d.runtime.structures.geometry import rtilt_from_pitch_roll
 from tests.helpers.detector_files import (
     INPUT_HW,
     boxes_outputs,
@@ -21,6 +24,8 @@ from tests.helpers.detector_files import (
 )
 from tests.helpers.runtime_frames import write_scene_folder
 from tests.test_run_cli import fake_model, run  # noqa: F401 (fake_model: the fake network's fixture)
+from tests.test_wall_axes import K as CORNER_K
+from tests.test_wall_axes import room_corner_depth
 
 pytestmark = pytest.mark.usefixtures("fake_model")
 
@@ -120,3 +125,34 @@ def test_a_frame_whose_detector_fails_keeps_its_own_detections_and_says_so(tmp_p
     assert kept.scores.tolist() == own.scores.tolist() and set(kept.sources) == {NETWORK}
     (note,) = [n for n in kept.notes if "2D detector" in n]
     assert note.startswith("2D detector boxes failed (ValueError: ") and "a3d's own detections only" in note
+
+
+def test_with_a_detector_yaws_are_squared_to_the_walls_the_depth_shows_or_the_line_says_none(
+    tmp_path: Path,
+) -> None:
+    """The pipeline's wall step (postprocess.wall_axes) runs where the detector's boxes joined: in
+    a room corner's frame every yaw within SNAP_DEG of its wall direction lies on it; a frame whose
+    depth shows no walls says so; a run without a detector does neither."""
+    folder = write_scene_folder(tmp_path / "frames", ["a"])  # too small a frame for any wall
+    corner = tmp_path / "corner"
+    write_intrinsics(corner, CORNER_K)
+    R_tilt = rtilt_from_pitch_roll(np.radians(-10.0), 0.0)
+    depth = room_corner_depth(17.0, R_tilt)
+    write_frame(corner, "c", np.full((*depth.shape, 3), 128, np.uint8), depth, R_tilt=R_tilt)
+    detector = str(_detector(tmp_path, "yolox"))
+    for frames, walls in ((folder, False), (corner, True)):
+        plain, joined = tmp_path / f"{frames.name}_plain.jsonl", tmp_path / f"{frames.name}_joined.jsonl"
+        common = [str(frames), "--headless", "--score-threshold", "0"]
+        assert run([*common, "--output", str(plain), "--detector", "none"]) == 0
+        assert run([*common, "--output", str(joined), "--detector", detector]) == 0
+        ((own,), (line,)) = read_detections(plain), read_detections(joined)
+        assert NO_WALLS not in own.notes and (NO_WALLS in line.notes) != walls
+        if walls:
+            (loader,) = FolderSource(corner)  # the depth as the run read it (millimetres)
+            frame = loader.load()
+            direction = wall_direction(frame.depth, frame.intrinsics, line.R_tilt)
+            assert direction is not None and np.degrees(direction) == pytest.approx(17.0, abs=0.5)
+            off = np.degrees((line.boxes3d[:, 6] - direction + np.pi / 4) % (np.pi / 2) - np.pi / 4)
+            near = np.abs(off) <= SNAP_DEG + 1e-3
+            assert near.any(), "no yaw near the walls to square"
+            np.testing.assert_allclose(off[near], 0.0, atol=1e-3)  # the file keeps 1e-6 of a radian
