@@ -18,9 +18,10 @@ can overlap the network call of another:
    opinion on the best own detections: postprocess.fuse), class-specific 3D boxes and amodal 2D boxes
    (a3d.runtime.postprocess.select) bounded to boxes that can exist (postprocess.box_limits),
    with a 2D detector the 3D boxes turned square to the walls the depth shows
-   (postprocess.wall_axes) and the scores moved by how much of the depth in each 2D box its 3D box
-   holds (postprocess.depth_support), corners, and the frame's detections line, with its
-   gravity source and notes.
+   (postprocess.wall_axes), doors slid onto the surface it shows (postprocess.depth_fit) and
+   the scores moved by how much of the depth in each 2D box its 3D box holds
+   (postprocess.depth_support), corners, and the frame's detections line, with its gravity
+   source and notes.
 
 Every stage adds its wall time (seconds) to the frame's ``timing``: read, depth_fill, gravity,
 proposals, lifting, detector2d, network_input, network, classifier2d, postprocess, and total (their sum).
@@ -62,6 +63,7 @@ from a3d.runtime.frontend.proposals import ProposalConfig, Proposals, live_propo
 from a3d.runtime.io.detections_io import FrameDetections
 from a3d.runtime.network.network_input import frame_network_inputs
 from a3d.runtime.postprocess.box_limits import bound_boxes, near_range
+from a3d.runtime.postprocess.depth_fit import fit_to_depth
 from a3d.runtime.postprocess.depth_support import rescored
 from a3d.runtime.postprocess.fuse import (
     NETWORK,
@@ -393,13 +395,15 @@ def finish(prepared: PreparedFrame, out: NetworkOutput, config: PipelineConfig) 
     bounded = bound_boxes(boxes3d, class_idx, near_range(prepared.frame.depth))
     boxes3d, sources = bounded.boxes3d, picked.sources
     wall_notes: tuple[str, ...] = ()
-    if prepared.found is not None and len(rows):  # wall_axes, depth_support: with the detector's boxes
+    if prepared.found is not None and len(rows):  # wall_axes, depth_fit, depth_support: with a detector
         frame, boxes2d = prepared.frame, prepared.boxes[rows]
         direction = wall_direction(frame.depth, frame.intrinsics, prepared.R_tilt)
         if direction is None:
             wall_notes = (NO_WALLS,)
         else:
             boxes3d = square_to_walls(boxes3d, direction)
+        K, R_tilt = frame.intrinsics, prepared.R_tilt
+        boxes3d = fit_to_depth(frame.depth, K, R_tilt, boxes2d, boxes3d, class_idx, scores)
         scores = rescored(scores, frame.depth, frame.intrinsics, prepared.R_tilt, boxes2d, boxes3d)
         order = np.argsort(-scores, kind="stable")
         rows, class_idx, boxes3d, amodal = (a[order] for a in (rows, class_idx, boxes3d, amodal))

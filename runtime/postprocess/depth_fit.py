@@ -1,0 +1,107 @@
+"""Doors slid onto the surface the depth shows: a thin box placed where it claims no free space.
+
+Why: a door is a slab a few centimetres thick in a wall. A centre regressed a few tens of
+centimetres off puts the whole box in front of the wall or behind it, and a thin box that far off
+overlaps its door by next to nothing. The depth says where the door is: its box should hold the
+depth points of its 2D box and leave free the space the camera sees through. Each door detection
+scoring ``MIN_SCORE`` or more keeps its size and yaw (after the walls' turn, wall_axes) and is
+moved on a grid of horizontal offsets, ``REACH_M`` either way in ``STEP_M`` steps, to where
+``support - seen_through`` is largest: ``support`` the share of its 2D box's depth points that lie
+in the box grown by ``MARGIN_M`` (as depth_support counts them), ``seen_through`` the share of
+points spread through the box's volume behind which the camera sees (observed depth more than
+``SEE_M`` beyond them). Only doors: chairs, tables and basins are not solid (the camera sees
+between their legs and into them), and boxes, counters and beds lost where it was tried on
+them (docs/real-rooms.md, step 7).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from a3d.runtime.structures.boxes import CENTER, THETA, H, L, W
+from a3d.runtime.structures.classes import CLASSES
+from a3d.runtime.structures.geometry import CameraLike, backproject, pixel_window, project_points
+
+FITTED = ("door",)
+REACH_M, STEP_M = 0.3, 0.05
+MARGIN_M = 0.05
+SEE_M = 0.10
+MIN_SCORE = 0.05
+STRIDE = 2  # depth_support's sampling of a 2D box's pixels
+VOLUME_SAMPLES = 6  # per axis of the box
+NEAR_M = 0.1  # volume samples nearer the camera than this are not looked at
+
+
+def _offsets() -> np.ndarray:
+    steps = np.arange(-REACH_M, REACH_M + STEP_M / 2, STEP_M)
+    dx, dz = np.meshgrid(steps, steps, indexing="ij")
+    return np.stack([dx.ravel(), np.zeros(dx.size), dz.ravel()], axis=1)  # (G, 3) tilt frame
+
+
+STAY = int(np.argmin(np.abs(_offsets()).sum(axis=1)))  # the zero offset's row
+
+
+def fitted_classes() -> np.ndarray:
+    """(19,) bool: the classes whose boxes are fitted."""
+    return np.isin(np.asarray(CLASSES), FITTED)
+
+
+def fit_to_depth(
+    depth: np.ndarray, K: CameraLike, R_tilt: np.ndarray, boxes2d: np.ndarray, boxes3d: np.ndarray,
+    class_idx: np.ndarray, scores: np.ndarray,
+) -> np.ndarray:  # fmt: skip
+    """``boxes3d`` (N, 7; camera-frame centre, yaw in the tilt frame of ``R_tilt``) with the fitted
+    classes' (``class_idx`` 0-based, ``scores``) moved as the module docstring says; ``depth``
+    (H, W) metres, 0 where missing; ``boxes2d`` (N, 4) the detections' 2D boxes."""
+    boxes = np.array(boxes3d, np.float64, copy=True)
+    chosen = np.flatnonzero(fitted_classes()[np.asarray(class_idx)] & (np.asarray(scores) >= MIN_SCORE))
+    if not len(chosen):
+        return boxes
+    R = np.asarray(R_tilt, np.float64)
+    depth = np.asarray(depth, np.float64)
+    sampled = depth[::STRIDE, ::STRIDE]
+    rows, cols = np.indices(sampled.shape, dtype=np.float64) * STRIDE
+    points = backproject(cols, rows, sampled, K) @ R.T  # tilt frame
+    offsets = _offsets()
+    grid = (np.arange(VOLUME_SAMPLES) + 0.5) / VOLUME_SAMPLES - 0.5
+    unit = np.stack(np.meshgrid(grid, grid, grid, indexing="ij"), -1).reshape(-1, 3)  # along l, h, w
+    for i in chosen:
+        pixels = pixel_window(boxes2d[i], depth.shape)  # its samples: the pixels j * STRIDE among them
+        window = tuple(slice(-(-p.start // STRIDE), -(-p.stop // STRIDE)) for p in pixels)
+        inside = sampled[window] > 0
+        if not inside.any():
+            continue
+        box = boxes[i]
+        centres = R @ box[CENTER] + offsets  # (G, 3) tilt frame, offset 0 among them
+        c, s = np.cos(box[THETA]), np.sin(box[THETA])
+        d = points[window][inside][None] - centres[:, None]  # (G, P, 3)
+        along_l, along_w = c * d[..., 0] - s * d[..., 2], s * d[..., 0] + c * d[..., 2]
+        support = (
+            (np.abs(along_l) <= box[L] / 2 + MARGIN_M) & (np.abs(along_w) <= box[W] / 2 + MARGIN_M)
+            & (np.abs(d[..., 1]) <= box[H] / 2 + MARGIN_M)
+        ).mean(axis=1)  # fmt: skip
+        al, ah, aw = unit[:, 0] * box[L], unit[:, 1] * box[H], unit[:, 2] * box[W]
+        volume = np.stack([c * al + s * aw, ah, -s * al + c * aw], axis=-1)  # tilt offsets of the samples
+        camera = (volume[None] + centres[:, None]) @ R  # (G, S, 3): p_cam = R^T p_tilt
+        seen = _seen_through(camera, depth, K)
+        fit = support - seen
+        best = int(np.argmax(fit))
+        if fit[best] > fit[STAY]:  # a tie keeps the regressed centre
+            boxes[i, CENTER] = R.T @ centres[best]
+    return boxes
+
+
+def _seen_through(camera: np.ndarray, depth: np.ndarray, K: CameraLike) -> np.ndarray:
+    """(G,) per candidate, the share of its volume samples (G, S, 3 camera frame) that project onto
+    a depth pixel lying more than ``SEE_M`` beyond them (of those that project onto one)."""
+    z = camera[..., 2]
+    ahead = z > NEAR_M
+    uv = np.full((*z.shape, 2), -1.0)
+    uv[ahead] = project_points(camera[ahead], K)
+    u, v = np.round(uv[..., 0]).astype(np.int64), np.round(uv[..., 1]).astype(np.int64)
+    height, width = depth.shape
+    on = ahead & (u >= 0) & (v >= 0) & (u < width) & (v < height)
+    observed = np.where(on, depth[np.clip(v, 0, height - 1), np.clip(u, 0, width - 1)], 0.0)
+    on &= observed > 0
+    seen = on & (observed > z + SEE_M)
+    return seen.sum(axis=1) / np.maximum(on.sum(axis=1), 1)
