@@ -18,17 +18,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from a3d.runtime.postprocess.depth_support import MARGIN_M, box_points
 from a3d.runtime.structures.boxes import CENTER, THETA, H, L, W
 from a3d.runtime.structures.classes import CLASSES
-from a3d.runtime.structures.geometry import CameraLike, backproject, pixel_window, project_points
+from a3d.runtime.structures.geometry import CameraLike, points_in_box, project_points
 
 FITTED = ("door",)
 REACH_M, STEP_M = 0.3, 0.05
-MARGIN_M = 0.05
 SEE_M = 0.10
 MIN_SCORE = 0.05
-STRIDE = 2  # depth_support's sampling of a 2D box's pixels
-MAX_POINTS = 4000  # of them per door: 169 candidate places x 4000 points, some 16 MB of offsets
+MAX_POINTS = 4000  # of a door's depth points (box_points): x 169 candidate places, some 16 MB of offsets
 VOLUME_SAMPLES = 6  # per axis of the box
 NEAR_M = 0.1  # volume samples nearer the camera than this are not looked at
 
@@ -60,29 +59,18 @@ def fit_to_depth(
         return boxes
     R = np.asarray(R_tilt, np.float64)
     depth = np.asarray(depth, np.float64)
-    sampled = depth[::STRIDE, ::STRIDE]
-    rows, cols = np.indices(sampled.shape, dtype=np.float64) * STRIDE
-    points = backproject(cols, rows, sampled, K) @ R.T  # tilt frame
     offsets = _offsets()
     grid = (np.arange(VOLUME_SAMPLES) + 0.5) / VOLUME_SAMPLES - 0.5
     unit = np.stack(np.meshgrid(grid, grid, grid, indexing="ij"), -1).reshape(-1, 3)  # along l, h, w
-    for i in chosen:
-        pixels = pixel_window(boxes2d[i], depth.shape)  # its samples: the pixels j * STRIDE among them
-        window = tuple(slice(-(-p.start // STRIDE), -(-p.stop // STRIDE)) for p in pixels)
-        inside = sampled[window] > 0
-        if not inside.any():
+    for i, held in zip(chosen, box_points(depth, K, R, np.asarray(boxes2d)[chosen]), strict=True):
+        if not len(held):
             continue
         box = boxes[i]
         centres = R @ box[CENTER] + offsets  # (G, 3) tilt frame, offset 0 among them
-        c, s = np.cos(box[THETA]), np.sin(box[THETA])
-        held = points[window][inside]
         held = held[:: -(-len(held) // MAX_POINTS)]  # at most MAX_POINTS, evenly spread
-        d = held[None] - centres[:, None]  # (G, P, 3)
-        along_l, along_w = c * d[..., 0] - s * d[..., 2], s * d[..., 0] + c * d[..., 2]
-        support = (
-            (np.abs(along_l) <= box[L] / 2 + MARGIN_M) & (np.abs(along_w) <= box[W] / 2 + MARGIN_M)
-            & (np.abs(d[..., 1]) <= box[H] / 2 + MARGIN_M)
-        ).mean(axis=1)  # fmt: skip
+        # The box moved by an offset holds what it held of the points moved back by it.
+        support = points_in_box(held[None] - offsets[:, None], box, R, MARGIN_M, MARGIN_M).mean(axis=1)
+        c, s = np.cos(box[THETA]), np.sin(box[THETA])
         al, ah, aw = unit[:, 0] * box[L], unit[:, 1] * box[H], unit[:, 2] * box[W]
         volume = np.stack([c * al + s * aw, ah, -s * al + c * aw], axis=-1)  # tilt offsets of the samples
         camera = (volume[None] + centres[:, None]) @ R  # (G, S, 3): p_cam = R^T p_tilt

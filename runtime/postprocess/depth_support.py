@@ -40,18 +40,27 @@ def depth_support(
     its 3D box (N, 7), camera-frame centre, yaw in the tilt frame of ``R_tilt``; 0 where a 2D box
     holds no depth. ``depth`` (H, W) metres, 0 where missing."""
     R_tilt = np.asarray(R_tilt, np.float64)
+    out = np.zeros(len(boxes3d))
+    held_points = box_points(depth, K, R_tilt, boxes2d)
+    for i, (held, box) in enumerate(zip(held_points, np.asarray(boxes3d), strict=True)):
+        if len(held):
+            out[i] = points_in_box(held, box, R_tilt, MARGIN_M, MARGIN_M).mean()
+    return out
+
+
+def box_points(depth: np.ndarray, K: CameraLike, R_tilt: np.ndarray, boxes2d: np.ndarray) -> list[np.ndarray]:
+    """Per 2D box (N, 4), the tilt-frame points (P, 3) of its sampled pixels that have depth (every
+    ``STRIDE``-th pixel of every ``STRIDE``-th row): what a box's support is counted over."""
     sampled = np.asarray(depth, np.float64)[::STRIDE, ::STRIDE]
     rows, cols = np.indices(sampled.shape, dtype=np.float64) * STRIDE  # the samples' pixels
-    points = backproject(cols, rows, sampled, K) @ R_tilt.T  # tilt frame
+    points = backproject(cols, rows, sampled, K) @ np.asarray(R_tilt, np.float64).T  # tilt frame
     valid = sampled > 0
-    out = np.zeros(len(boxes3d))
-    for i, (box2d, box) in enumerate(zip(np.asarray(boxes2d), np.asarray(boxes3d), strict=True)):
+    held = []
+    for box2d in np.asarray(boxes2d):
         pixels = pixel_window(box2d, depth.shape)  # its samples: the pixels j * STRIDE among them
         window = tuple(slice(-(-p.start // STRIDE), -(-p.stop // STRIDE)) for p in pixels)
-        inside = valid[window]
-        if inside.any():
-            out[i] = points_in_box(points[window][inside], box, R_tilt, MARGIN_M, MARGIN_M).mean()
-    return out
+        held.append(points[window][valid[window]])
+    return held
 
 
 def rescored(
