@@ -41,6 +41,7 @@ import numpy as np
 
 from a3d.runtime.mapping.rough_boxes import COLUMNS
 from a3d.runtime.mapping.world_boxes import read_world_boxes
+from a3d.runtime.network.model import DetectorModel
 
 BIN = Path(sys.executable).parent
 
@@ -89,12 +90,11 @@ def world_boxes_step(seq: Path, work: Path) -> None:
     print(f"\n{len(centres)} objects: {close}")
 
 
-def scores(model: str | Path, frames: Path, out: Path) -> tuple[float, float]:
-    """mAP@0.25 over the 19 classes and over the frames' classes (a3d-run + a3d-eval)."""
+def scores(model: str | Path, frames: Path, out: Path) -> dict:
+    """a3d-eval's report (its eval.json) of the model's a3d-run on the frames."""
     sh("a3d-run", frames, "--model", model, "--output", out.with_suffix(".jsonl"), "--headless")
     sh("a3d-eval", frames, "--detections", out.with_suffix(".jsonl"), "--out", out)
-    result = json.loads((out / "eval.json").read_text())["map"]["0.25"]
-    return result["all_classes"], result["present_classes"]
+    return json.loads((out / "eval.json").read_text())
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -130,20 +130,26 @@ def main(argv: list[str] | None = None) -> int:
     held = args.work / "ft.finetune" / "holdout"
     print(f"\n| frames | bundled `{args.base}` | fine-tuned |\n| --- | --- | --- |")
     sets = [("held-back frames of the room", held)] + ([("--h350", args.h350)] if args.h350 else [])
+    reports = {}
     for what, frames in sets:
-        (a, a_present), (b, b_present) = (scores(m, frames, args.work / f"eval_{k}_{frames.name}")
-                                          for k, m in (("base", args.base), ("ft", model)))  # fmt: skip
+        reports[frames] = [scores(m, frames, args.work / f"eval_{k}_{frames.name}")
+                           for k, m in (("base", args.base), ("ft", model))]  # fmt: skip
+        maps = [report["map"]["0.25"] for report in reports[frames]]
+        (a, a_present), (b, b_present) = ((m["all_classes"], m["present_classes"]) for m in maps)
         print(f"| {what}: mAP@0.25 (their classes / 19) | {100 * a_present:.1f} / {100 * a:.1f} "
               f"| {100 * b_present:.1f} / {100 * b:.1f} |")  # fmt: skip
-    print(per_class(args.work / f"eval_base_{held.name}", args.work / f"eval_ft_{held.name}"))
+    card = DetectorModel.load(model, threads=1).metadata.provenance["finetune"].get("heldout_map25_pipeline")
+    if card:  # a3d-finetune's own scoring of the same frames, which the first row should repeat
+        print(f"\na3d-finetune's card, the pipeline with {card['detector']} on the held-back frames: "
+              f"{100 * card['before_present']:.1f} -> {100 * card['after_present']:.1f}")  # fmt: skip
+    print(per_class(*reports[held]))
     return 0
 
 
-def per_class(base: Path, tuned: Path) -> str:
-    """The held-back frames' classes: AP@0.25 before and after, and the share of the class's objects
-    that any detection finds at 3D IoU >= 0.25 (where its precision-recall curve ends): no ranking
-    of the detections lifts a class's AP above it."""
-    before, after = (json.loads((d / "eval.json").read_text()) for d in (base, tuned))
+def per_class(before: dict, after: dict) -> str:
+    """The held-back frames' classes (a3d-eval's reports, base and fine-tuned): AP@0.25 before and
+    after, and the share of the class's objects that any detection finds at 3D IoU >= 0.25 (where
+    its precision-recall curve ends): no ranking of the detections lifts a class's AP above it."""
     rows = ["\n| class | objects | AP@0.25 before -> after | found at all, before -> after |",
             "| --- | ---: | ---: | ---: |"]
     for name in before["present_classes"]:

@@ -61,18 +61,22 @@ def calibrate(model: DetectorModel, folder: Path, prog: str) -> tuple[ScoreCalib
     return calibration, report
 
 
-def score_on(model: DetectorModel, folder: Path, prog: str) -> EvalResult:
-    """The model's detections (softmax scores) on every annotated frame of ``folder``, scored at
-    3D IoU 0.25 by the evaluator (ExportError naming the folder for a frame that fails)."""
+def score_on(
+    model: DetectorModel, folder: Path, prog: str, config: PipelineConfig | None = None
+) -> EvalResult:
+    """The model's detections on every annotated frame of ``folder``, scored at 3D IoU 0.25 by the
+    evaluator (ExportError naming the folder for a frame that fails): run with ``config``, by default
+    the model's settings with its softmax scores (the network alone, as calibrating needs it)."""
     truth, _ = load_truth(folder)
-    config = PipelineConfig.from_metadata(model.metadata, raw_scores=True)
+    if config is None:
+        config = PipelineConfig.from_metadata(model.metadata, raw_scores=True)
     source = FolderSource(folder)
     if source.incomplete:
         raise ExportError(f"{folder}: incomplete frame {source.incomplete[0]}")
     detections = {}
     for done, outcome in enumerate(detect_frames(source, model, config), 1):
         if outcome.detections is None:
-            raise ExportError(f"{folder}: score calibration frame failed: {outcome.problem}")
+            raise ExportError(f"{folder}: a frame failed as it was scored: {outcome.problem}")
         if outcome.name in truth:
             detections[outcome.name] = outcome.detections
         if done % PROGRESS_EVERY == 0:

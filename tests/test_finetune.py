@@ -17,6 +17,9 @@ import torch
 
 from a3d.runtime.cli.common import EXIT_USAGE
 from a3d.runtime.cli.run import main as run_main
+from a3d.runtime.evaluation.metric import EvalConfig, evaluate
+from a3d.runtime.evaluation.truth import load_truth
+from a3d.runtime.io.detections_io import read_detections
 from a3d.runtime.network.model import DetectorModel
 from a3d.runtime.sources.folder import FolderSource, read_frame
 from a3d.synth.cli import main as synth_main
@@ -38,12 +41,15 @@ def data(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 @pytest.mark.slow
-def test_a_fine_tune_of_seconds_end_to_end_writes_a_model_a3d_run_loads(data: Path, tmp_path: Path) -> None:
+def test_a_fine_tune_of_seconds_end_to_end_writes_a_model_a3d_run_loads(
+    data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     out = tmp_path / "mine.onnx"
     argv = [str(data / "seq" / "frames"), "--out", str(out), "--minutes", "5", "--iters", "3",
             "--holdout", "0.3", "--synth", str(data / "synth" / "train"),
             "--set", "data.detector_rois=2"]  # fmt: skip
     assert main(argv) == 0
+    said = capsys.readouterr().err
     metadata = DetectorModel.load(out, threads=1).metadata
     provenance = metadata.provenance
     card = provenance["finetune"]
@@ -71,6 +77,16 @@ def test_a_fine_tune_of_seconds_end_to_end_writes_a_model_a3d_run_loads(data: Pa
     lines = [json.loads(line) for line in detections.read_text().splitlines()]
     assert len(lines) == 3  # and the model ran as the pipeline it names: the detector's lines carry sources
     assert all("source" in d for line in lines for d in line["detections"]) and lines[0]["detections"]
+    truth, _ = load_truth(Path(frames))  # the card's pipeline numbers are what a3d-run gives there
+    ran_lines = {d.frame: d for d in read_detections(detections)}
+    ran = evaluate(truth, ran_lines, EvalConfig(iou_thresholds=(0.25,)))
+    pipeline = card["heldout_map25_pipeline"]
+    assert pipeline["detector"] == "yolox-nano"
+    assert pipeline["after_present"] == pytest.approx(ran.map_present(0.25), abs=1e-9)
+    assert pipeline["after"] == pytest.approx(ran.map_all(0.25), abs=1e-9)
+    assert 0 <= pipeline["before_present"] <= 1 and 0 <= pipeline["before"] <= pipeline["before_present"]
+    worse = pipeline["after_present"] < pipeline["before_present"]  # then the run said so
+    assert ("the base model stays the better choice" in said) == worse
     alone = tmp_path / "alone.jsonl"
     argv = [frames, "--model", str(out), "--detector", "none", "--output", str(alone), "--headless"]
     assert run_main(argv) == 0

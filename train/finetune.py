@@ -3,7 +3,9 @@
 1. the recordings are read and split (a3d.train.finetune_data: whole stretches at the end held
    back), synthetic frames of the bundled model's world made (or taken) to mix in, so the classes
    the user's rooms lack are not forgotten;
-2. the base model is scored on the held-back frames (the "before");
+2. the base model is scored on the held-back frames (the "before"): its network alone, and the
+   pipeline a3d-run runs with it (its 2D detector and the steps after the network), where it has
+   a detector;
 3. its weights are read back from its file (a3d.export.read_back), the training frames' RoI
    database built (a3d.train.roidb, cached in the work folder), the heads put in terms of those
    frames' target statistics and saved as the checkpoint a3d-train fine-tunes (``solver.init``);
@@ -17,11 +19,13 @@
    bfloat16 where the CPU has it;
    Ctrl-C stops it with the last iteration's checkpoint, which is exported as any other;
 5. a3d-export's steps (a3d.export.build.export): int8 calibrated on training frames, verified and
-   its scores calibrated on the held-back frames, which scores the "after";
+   its scores calibrated on the held-back frames, which scores the network's "after";
 6. the model card: ``provenance["finetune"]`` (base model, the user's data, the recipe, mAP@0.25
-   of the network on the held-back frames before and after), the base pipeline's 2D detector named
-   in the metadata (the detector is not fine-tuned; a3d-run runs the new network with it), the file
-   written atomically.
+   on the held-back frames before and after: the network's, and the pipeline's, scored again with
+   the new file as a3d-run runs it), the base pipeline's 2D detector named in the metadata (the
+   detector is not fine-tuned; a3d-run runs the new network with it), the file written atomically.
+   Where the fine-tuned pipeline scores lower there than the base's, the run says so: the base
+   stays the better choice for that room.
 """
 
 from __future__ import annotations
@@ -42,6 +46,7 @@ from a3d.export.build import export
 from a3d.export.onnx_export import save_model
 from a3d.export.read_back import ReadBack, normalise_heads, read_back
 from a3d.export.score_calibration import IOU, score_on
+from a3d.runtime.detector import Detector
 from a3d.runtime.errors import InputError
 from a3d.runtime.evaluation.metric import EvalResult
 from a3d.runtime.models import is_model_name, model_path, pipeline_detector
@@ -115,8 +120,12 @@ def finetune(args: argparse.Namespace, recipe: Recipe) -> Path:
     scored = time.monotonic()
     before = score_on(base, split.holdout, PROG)
     present = sum(c.present for c in before.classes)
-    _say(f"{args.base} on the held-back frames: mAP@0.25 {100 * before.map_present(IOU):.1f} over their "
-         f"{present} classes, {100 * before.map_all(IOU):.1f} over 19")  # fmt: skip
+    _say(f"{args.base}'s network on the held-back frames: mAP@0.25 {100 * before.map_present(IOU):.1f} over "
+         f"their {present} classes, {100 * before.map_all(IOU):.1f} over 19")  # fmt: skip
+    before_pipeline = pipeline_score(args.base, split.holdout, args.threads)
+    if before_pipeline is not None:
+        _say(f"{args.base} as a3d-run runs it (with {before_pipeline.detector}): mAP@0.25 "
+             f"{100 * before_pipeline.result.map_present(IOU):.1f} over their classes")  # fmt: skip
     export_seconds = EXPORT_SECONDS + SCORE_AGAIN * (time.monotonic() - scored)  # the "after" scores again
     _left_to_train(args.minutes, budget - (time.monotonic() - start), export_seconds)
     weights = read_back(base_file, args.threads)
@@ -142,7 +151,33 @@ def finetune(args: argparse.Namespace, recipe: Recipe) -> Path:
         score_calibration=split.holdout, threads=args.threads,
     ))  # fmt: skip
     card = model_card(args, base, recordings, split, synth, recipe, weights, before, interrupted)
-    return _write(exported, args.out, card, time.monotonic() - start)
+    if before_pipeline is not None:
+        card["heldout_map25_pipeline"] = {"detector": before_pipeline.detector,
+                                          **_scores("before", before_pipeline.result)}  # fmt: skip
+    return _write(exported, args.out, card, start, split.holdout, args.threads)
+
+
+@dataclass(frozen=True)
+class PipelineScore:
+    """A model's pipeline with its 2D detector, scored on the held-back frames."""
+
+    detector: str
+    result: EvalResult
+
+
+def pipeline_score(model: str | Path, folder: Path, threads: int) -> PipelineScore | None:
+    """The pipeline a3d-run runs with ``model`` (a bundled name or a file: its network, score
+    calibration and 2D detector, every step after the network) scored on ``folder``; None for a
+    network without a 2D detector, whose pipeline is the network alone (score_on)."""
+    pipeline = Detector.load(model, threads=threads)
+    boxes = pipeline.config.detector
+    if boxes is None:
+        return None
+    return PipelineScore(boxes.name, score_on(pipeline.model, folder, PROG, pipeline.config))
+
+
+def _scores(when: str, result: EvalResult) -> dict:
+    return {when: result.map_all(IOU), f"{when}_present": result.map_present(IOU)}
 
 
 def _left_to_train(minutes: float, left: float, export_seconds: float) -> float:
@@ -224,22 +259,39 @@ def _detector(base_name: str, base: DetectorModel) -> str | None:
     return None if chosen is None else str(chosen)
 
 
-def _write(exported: Path, out: Path, card: dict, seconds: float) -> Path:
+def _write(exported: Path, out: Path, card: dict, start: float, holdout: Path, threads: int) -> Path:
     """The exported model with the card in its provenance and the base pipeline's 2D detector
-    (``card["base"]["detector"]``) in its metadata, written atomically to ``out``."""
+    (``card["base"]["detector"]``) in its metadata, written atomically to ``out``; where the base
+    has a detector, the pipeline's "after" is scored with the model as written first (in the work
+    folder), so that the card holds what a3d-run gives."""
     import onnx
 
     model = DetectorModel.load(exported, threads=1)
     calibration = model.metadata.provenance["export"]["score_calibration"]
     scores = card["heldout_map25"]
     scores.update(after=calibration["map25"], after_present=calibration["map25_present"])
+    metadata = dataclasses.replace(model.metadata, detector=card["base"]["detector"])
+    compared = [("network", scores)]
+    if "heldout_map25_pipeline" in card:
+        draft = exported.with_name("with_detector.onnx")
+        save_model(onnx.load(str(exported)), metadata, draft)
+        after = pipeline_score(draft, holdout, threads)
+        assert after is not None  # it names the base's detector
+        card["heldout_map25_pipeline"].update(_scores("after", after.result))
+        compared.insert(0, (f"pipeline with {after.detector}", card["heldout_map25_pipeline"]))
+    seconds = time.monotonic() - start
     card["seconds"] = round(seconds, 1)
-    provenance = {**model.metadata.provenance, "finetune": card}
-    metadata = dataclasses.replace(model.metadata, provenance=provenance, detector=card["base"]["detector"])
+    metadata = dataclasses.replace(metadata, provenance={**model.metadata.provenance, "finetune": card})
     save_model(onnx.load(str(exported)), metadata, out)
     DetectorModel.load(out, threads=1)
-    _say(f"held-back frames, mAP@0.25 over their classes: {100 * scores['before_present']:.1f} before, "
-         f"{100 * scores['after_present']:.1f} after ({seconds / 60:.1f} minutes)")  # fmt: skip
+    for what, pair in compared:
+        _say(f"held-back frames, mAP@0.25 over their classes, {what}: {100 * pair['before_present']:.1f} "
+             f"before, {100 * pair['after_present']:.1f} after")  # fmt: skip
+    what, pair = compared[0]
+    if pair["after_present"] < pair["before_present"]:
+        _say(f"warning: the fine-tuned model scores lower than {card['base']['model']} on the held-back "
+             f"frames ({what}): for this room the base model stays the better choice")  # fmt: skip
+    _say(f"{seconds / 60:.1f} minutes in all")
     return out
 
 
