@@ -64,7 +64,7 @@ from a3d.runtime.io.detections_io import FrameDetections
 from a3d.runtime.network.network_input import frame_network_inputs
 from a3d.runtime.postprocess.box_limits import bound_boxes, near_range
 from a3d.runtime.postprocess.depth_fit import fit_to_depth
-from a3d.runtime.postprocess.depth_support import rescored
+from a3d.runtime.postprocess.depth_support import rescored, sample_depth
 from a3d.runtime.postprocess.fuse import (
     NETWORK,
     Picked,
@@ -402,9 +402,9 @@ def finish(prepared: PreparedFrame, out: NetworkOutput, config: PipelineConfig) 
             wall_notes = (NO_WALLS,)
         else:
             boxes3d = square_to_walls(boxes3d, direction)
-        K, R_tilt = frame.intrinsics, prepared.R_tilt
-        boxes3d = fit_to_depth(frame.depth, K, R_tilt, boxes2d, boxes3d, class_idx, scores)
-        scores = rescored(scores, frame.depth, frame.intrinsics, prepared.R_tilt, boxes2d, boxes3d)
+        sampled = sample_depth(frame.depth, frame.intrinsics, prepared.R_tilt)  # once, for both
+        boxes3d = fit_to_depth(sampled, boxes2d, boxes3d, class_idx, scores)
+        scores = rescored(scores, sampled, boxes2d, boxes3d)
         order = np.argsort(-scores, kind="stable")
         rows, class_idx, boxes3d, amodal = (a[order] for a in (rows, class_idx, boxes3d, amodal))
         scores, bounded, sources = scores[order], bounded.reordered(order), tuple(sources[i] for i in order)

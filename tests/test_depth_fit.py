@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from a3d.runtime.postprocess.depth_fit import MIN_SCORE, REACH_M, fit_to_depth
+from a3d.runtime.postprocess.depth_support import sample_depth
 from a3d.runtime.structures.classes import CLASSES
 from a3d.runtime.structures.geometry import Intrinsics, project_boxes_to_2d
 
@@ -23,7 +24,8 @@ def _depth() -> np.ndarray:
 
 def _fit(boxes: np.ndarray, classes: list[int], scores: list[float]) -> np.ndarray:
     boxes2d = project_boxes_to_2d(DOOR[None].repeat(len(boxes), 0), np.eye(3), K, SIZE)
-    return fit_to_depth(_depth(), K, np.eye(3), boxes2d, boxes, np.array(classes), np.array(scores))
+    sampled = sample_depth(_depth(), K, np.eye(3))
+    return fit_to_depth(sampled, boxes2d, boxes, np.array(classes), np.array(scores))
 
 
 def test_a_door_regressed_in_front_of_its_wall_is_slid_back_onto_it() -> None:

@@ -11,6 +11,7 @@ from a3d.runtime.postprocess.depth_support import (
     SUPPORT_REFERENCE,
     depth_support,
     rescored,
+    sample_depth,
     supported_scores,
 )
 from a3d.runtime.structures.geometry import Intrinsics
@@ -29,14 +30,14 @@ def _depth() -> np.ndarray:
 def test_a_box_that_holds_its_pixels_has_full_support_and_a_misplaced_one_none():
     boxes2d = np.array([[60, 40, 109, 99]] * 2, float)  # the face's pixels exactly
     behind = [*HELD[:2], 3.0, *HELD[3:]]  # the same box a metre further: the wall's gap
-    support = depth_support(_depth(), K, np.eye(3), boxes2d, np.array([HELD, behind]))
+    support = depth_support(sample_depth(_depth(), K, np.eye(3)), boxes2d, np.array([HELD, behind]))
     assert support.tolist() == [1.0, 0.0]
 
 
 def test_support_is_the_share_of_the_box_pixels_in_the_3d_box():
     depth = _depth()
     boxes2d = np.array([[50, 30, 119, 109]], float)  # the face and a margin of wall
-    support = depth_support(depth, K, np.eye(3), boxes2d, np.array([HELD]))[0]
+    support = depth_support(sample_depth(depth, K, np.eye(3)), boxes2d, np.array([HELD]))[0]
     window = depth[30:110:2, 50:120:2]  # STRIDE 2, pixel centres from the box's first on
     assert support == pytest.approx((window == 2.0).mean())
     assert 0.4 < support < 0.7
@@ -46,7 +47,7 @@ def test_a_2d_box_without_depth_has_no_support():
     depth = _depth()
     depth[BLOCK] = 0.0
     boxes2d = np.array([[60, 40, 109, 99]], float)
-    assert depth_support(depth, K, np.eye(3), boxes2d, np.array([HELD])).tolist() == [0.0]
+    assert depth_support(sample_depth(depth, K, np.eye(3)), boxes2d, np.array([HELD])).tolist() == [0.0]
 
 
 def test_scores_move_with_support_about_the_reference():
@@ -62,5 +63,5 @@ def test_scores_under_the_floor_keep_their_value_and_the_rest_are_moved():
     boxes2d = np.array([[60, 40, 109, 99]] * 2, float)
     behind = [*HELD[:2], 3.0, *HELD[3:]]
     scores = np.array([MIN_SCORE / 2, 0.3])
-    moved = rescored(scores, _depth(), K, np.eye(3), boxes2d, np.array([behind, behind]))
+    moved = rescored(scores, sample_depth(_depth(), K, np.eye(3)), boxes2d, np.array([behind, behind]))
     assert moved[0] == pytest.approx(scores[0]) and moved[1] == pytest.approx(supported_scores(0.3, 0.0))

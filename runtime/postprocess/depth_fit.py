@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from a3d.runtime.postprocess.depth_support import MARGIN_M, box_points
+from a3d.runtime.postprocess.depth_support import MARGIN_M, SampledDepth, box_points
 from a3d.runtime.structures.boxes import CENTER, THETA, H, L, W
 from a3d.runtime.structures.classes import CLASSES
 from a3d.runtime.structures.geometry import CameraLike, points_in_box, project_points
@@ -47,22 +47,20 @@ def fitted_classes() -> np.ndarray:
 
 
 def fit_to_depth(
-    depth: np.ndarray, K: CameraLike, R_tilt: np.ndarray, boxes2d: np.ndarray, boxes3d: np.ndarray,
-    class_idx: np.ndarray, scores: np.ndarray,
-) -> np.ndarray:  # fmt: skip
-    """``boxes3d`` (N, 7; camera-frame centre, yaw in the tilt frame of ``R_tilt``) with the fitted
-    classes' (``class_idx`` 0-based, ``scores``) moved as the module docstring says; ``depth``
-    (H, W) metres, 0 where missing; ``boxes2d`` (N, 4) the detections' 2D boxes."""
+    sampled: SampledDepth, boxes2d: np.ndarray, boxes3d: np.ndarray, class_idx: np.ndarray, scores: np.ndarray
+) -> np.ndarray:
+    """``boxes3d`` (N, 7; camera-frame centre, yaw in the tilt frame of ``sampled.R_tilt``) with the
+    fitted classes' (``class_idx`` 0-based, ``scores``) moved as the module docstring says, in the
+    frame's depth (depth_support.sample_depth); ``boxes2d`` (N, 4) the detections' 2D boxes."""
     boxes = np.array(boxes3d, np.float64, copy=True)
     chosen = np.flatnonzero(fitted_classes()[np.asarray(class_idx)] & (np.asarray(scores) >= MIN_SCORE))
     if not len(chosen):
         return boxes
-    R = np.asarray(R_tilt, np.float64)
-    depth = np.asarray(depth, np.float64)
+    R, depth, K = sampled.R_tilt, sampled.depth, sampled.K
     offsets = _offsets()
     grid = (np.arange(VOLUME_SAMPLES) + 0.5) / VOLUME_SAMPLES - 0.5
     unit = np.stack(np.meshgrid(grid, grid, grid, indexing="ij"), -1).reshape(-1, 3)  # along l, h, w
-    for i, held in zip(chosen, box_points(depth, K, R, np.asarray(boxes2d)[chosen]), strict=True):
+    for i, held in zip(chosen, box_points(sampled, np.asarray(boxes2d)[chosen]), strict=True):
         if not len(held):
             continue
         box = boxes[i]

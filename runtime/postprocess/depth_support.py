@@ -21,6 +21,8 @@ it costs about 8 ms a frame, which the network alone (`live`, the fast choice) d
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from a3d.runtime.postprocess.score_calibration import SCORE_EPS
@@ -33,46 +35,61 @@ STRIDE = 2  # every 2nd pixel of every 2nd row: the share, at a quarter of the c
 MIN_SCORE = 0.01  # below it no evidence matters (moved by at most 0.8 in log-odds, it stays under 0.022)
 
 
-def depth_support(
-    depth: np.ndarray, K: CameraLike, R_tilt: np.ndarray, boxes2d: np.ndarray, boxes3d: np.ndarray
-) -> np.ndarray:
-    """(N,) share of the depth pixels in each 2D box (N, 4) [x1, y1, x2, y2] whose points lie in
-    its 3D box (N, 7), camera-frame centre, yaw in the tilt frame of ``R_tilt``; 0 where a 2D box
-    holds no depth. ``depth`` (H, W) metres, 0 where missing."""
+@dataclass(frozen=True, eq=False)
+class SampledDepth:
+    """A frame's depth with its samples (every ``STRIDE``-th pixel of every ``STRIDE``-th row)
+    back-projected to tilt-frame points once: what step 5's supports and step 7's fits
+    (a3d.runtime.postprocess.depth_fit) count over."""
+
+    depth: np.ndarray  # (H, W) metres, 0 where missing
+    K: CameraLike
+    R_tilt: np.ndarray  # (3, 3)
+    points: np.ndarray  # (h, w, 3) the samples' tilt-frame points
+    valid: np.ndarray  # (h, w) bool: the sample has depth
+
+
+def sample_depth(depth: np.ndarray, K: CameraLike, R_tilt: np.ndarray) -> SampledDepth:
+    """``depth`` (H, W) metres (0 where missing) sampled and back-projected (SampledDepth)."""
+    depth = np.asarray(depth, np.float64)
     R_tilt = np.asarray(R_tilt, np.float64)
+    sampled = depth[::STRIDE, ::STRIDE]
+    rows, cols = np.indices(sampled.shape, dtype=np.float64) * STRIDE  # the samples' pixels
+    points = backproject(cols, rows, sampled, K) @ R_tilt.T
+    return SampledDepth(depth, K, R_tilt, points, sampled > 0)
+
+
+def depth_support(sampled: SampledDepth, boxes2d: np.ndarray, boxes3d: np.ndarray) -> np.ndarray:
+    """(N,) share of the depth samples in each 2D box (N, 4) [x1, y1, x2, y2] whose points lie in
+    its 3D box (N, 7), camera-frame centre, yaw in the tilt frame of ``sampled.R_tilt``; 0 where a
+    2D box holds no depth."""
     out = np.zeros(len(boxes3d))
-    held_points = box_points(depth, K, R_tilt, boxes2d)
+    held_points = box_points(sampled, boxes2d)
     for i, (held, box) in enumerate(zip(held_points, np.asarray(boxes3d), strict=True)):
         if len(held):
-            out[i] = points_in_box(held, box, R_tilt, MARGIN_M, MARGIN_M).mean()
+            out[i] = points_in_box(held, box, sampled.R_tilt, MARGIN_M, MARGIN_M).mean()
     return out
 
 
-def box_points(depth: np.ndarray, K: CameraLike, R_tilt: np.ndarray, boxes2d: np.ndarray) -> list[np.ndarray]:
-    """Per 2D box (N, 4), the tilt-frame points (P, 3) of its sampled pixels that have depth (every
-    ``STRIDE``-th pixel of every ``STRIDE``-th row): what a box's support is counted over."""
-    sampled = np.asarray(depth, np.float64)[::STRIDE, ::STRIDE]
-    rows, cols = np.indices(sampled.shape, dtype=np.float64) * STRIDE  # the samples' pixels
-    points = backproject(cols, rows, sampled, K) @ np.asarray(R_tilt, np.float64).T  # tilt frame
-    valid = sampled > 0
+def box_points(sampled: SampledDepth, boxes2d: np.ndarray) -> list[np.ndarray]:
+    """Per 2D box (N, 4), the tilt-frame points (P, 3) of its samples that have depth: what a box's
+    support is counted over."""
     held = []
     for box2d in np.asarray(boxes2d):
-        pixels = pixel_window(box2d, depth.shape)  # its samples: the pixels j * STRIDE among them
+        pixels = pixel_window(box2d, sampled.depth.shape)  # its samples: the pixels j * STRIDE among them
         window = tuple(slice(-(-p.start // STRIDE), -(-p.stop // STRIDE)) for p in pixels)
-        held.append(points[window][valid[window]])
+        held.append(sampled.points[window][sampled.valid[window]])
     return held
 
 
 def rescored(
-    scores: np.ndarray, depth: np.ndarray, K: CameraLike, R_tilt: np.ndarray, boxes2d: np.ndarray,
-    boxes3d: np.ndarray,
-) -> np.ndarray:  # fmt: skip
+    scores: np.ndarray, sampled: SampledDepth, boxes2d: np.ndarray, boxes3d: np.ndarray
+) -> np.ndarray:
     """The detections' ``scores`` moved by their support (``depth_support``'s arguments), those
     under ``MIN_SCORE`` as they are (a frame holds some 240 detections, 50 of them over it)."""
     scores = np.asarray(scores, np.float64)
     support = np.full(len(scores), SUPPORT_REFERENCE)
     some = scores >= MIN_SCORE
-    support[some] = depth_support(depth, K, R_tilt, np.asarray(boxes2d)[some], np.asarray(boxes3d)[some])
+    support[some] = depth_support(sampled, np.asarray(boxes2d)[some], np.asarray(boxes3d)[some])
     return supported_scores(scores, support)
 
 
