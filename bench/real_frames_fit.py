@@ -33,6 +33,7 @@ from a3d.runtime.errors import InputError
 from a3d.runtime.frontend.depth import fill_depth_info
 from a3d.runtime.frontend.gravity import choose_gravity
 from a3d.runtime.mapping.box_fit import fit_box
+from a3d.runtime.postprocess.floor_contact import floor_plane
 from a3d.runtime.sources.folder import FolderSource, read_frame
 from a3d.runtime.structures.classes import CLASSES
 from a3d.runtime.structures.frame import Frame
@@ -68,22 +69,6 @@ def frame_cloud(frame: Frame, R_tilt: np.ndarray | None = None) -> FrameCloud:
     points = backproject_depth(frame.depth, frame.intrinsics) @ R_tilt.T
     valid = frame.depth > 0
     return FrameCloud(R_tilt, points, valid, floor_plane(points[valid]))
-
-
-def floor_plane(points: np.ndarray, bin_m: float = 0.02, share: float = 0.01) -> np.ndarray:
-    """(a, b, c) of the floor y = a x + b z + c. It starts as the lowest horizontal layer (largest
-    y, y is down) holding ``share`` of the points: the floor, however little of it is seen between
-    seats and table tops, which can hold many more. A plane, not a height, because an estimated
-    gravity is off by a degree or so, which tilts a floor seen over 5 m by several centimetres."""
-    y = points[:, 1]
-    counts, edges = np.histogram(y, bins=np.arange(y.min(), y.max() + bin_m, bin_m))
-    low = np.flatnonzero(counts >= share * len(y))[-1]
-    plane, band = np.array([0.0, 0.0, (edges[low] + edges[low + 1]) / 2]), 0.15
-    for _ in range(6):  # least squares on the points near the plane, the band narrowing
-        near = points[np.abs(y - points[:, [0, 2]] @ plane[:2] - plane[2]) < band]
-        plane = np.linalg.lstsq(np.c_[near[:, [0, 2]], np.ones(len(near))], near[:, 1], rcond=None)[0]
-        band = max(0.6 * band, 0.03)
-    return plane
 
 
 def box_points(cloud: FrameCloud, box2d: np.ndarray) -> np.ndarray:

@@ -18,10 +18,10 @@ can overlap the network call of another:
    opinion on the best own detections: postprocess.fuse), class-specific 3D boxes and amodal 2D boxes
    (a3d.runtime.postprocess.select) bounded to boxes that can exist (postprocess.box_limits),
    with a 2D detector the 3D boxes turned square to the walls the depth shows
-   (postprocess.wall_axes), doors slid onto the surface it shows (postprocess.depth_fit) and
-   the scores moved by how much of the depth in each 2D box its 3D box holds
-   (postprocess.depth_support), corners, and the frame's detections line, with its gravity
-   source and notes.
+   (postprocess.wall_axes), doors slid onto the surface it shows (postprocess.depth_fit), what
+   stands on the floor reaching down to it (postprocess.floor_contact) and the scores moved by
+   how much of the depth in each 2D box its 3D box holds (postprocess.depth_support), corners,
+   and the frame's detections line, with its gravity source and notes.
 
 Every stage adds its wall time (seconds) to the frame's ``timing``: read, depth_fill, gravity,
 proposals, lifting, detector2d, network_input, network, classifier2d, postprocess, and total (their sum).
@@ -65,6 +65,7 @@ from a3d.runtime.network.network_input import frame_network_inputs
 from a3d.runtime.postprocess.box_limits import bound_boxes, near_range
 from a3d.runtime.postprocess.depth_fit import fit_to_depth
 from a3d.runtime.postprocess.depth_support import rescored, sample_depth
+from a3d.runtime.postprocess.floor_contact import NO_FLOOR, frame_floor, stand_on_floor
 from a3d.runtime.postprocess.fuse import (
     NETWORK,
     Picked,
@@ -394,16 +395,21 @@ def finish(prepared: PreparedFrame, out: NetworkOutput, config: PipelineConfig) 
     )
     bounded = bound_boxes(boxes3d, class_idx, near_range(prepared.frame.depth))
     boxes3d, sources = bounded.boxes3d, picked.sources
-    wall_notes: tuple[str, ...] = ()
-    if prepared.found is not None and len(rows):  # wall_axes, depth_fit, depth_support: with a detector
+    depth_notes: list[str] = []
+    if prepared.found is not None and len(rows):  # steps 6, 7, 8 and 5 (docs/real-rooms.md): with a detector
         frame, boxes2d = prepared.frame, prepared.boxes[rows]
         direction = wall_direction(frame.depth, frame.intrinsics, prepared.R_tilt)
         if direction is None:
-            wall_notes = (NO_WALLS,)
+            depth_notes.append(NO_WALLS)
         else:
             boxes3d = square_to_walls(boxes3d, direction)
-        sampled = sample_depth(frame.depth, frame.intrinsics, prepared.R_tilt)  # once, for both
+        sampled = sample_depth(frame.depth, frame.intrinsics, prepared.R_tilt)  # once, for all three
         boxes3d = fit_to_depth(sampled, boxes2d, boxes3d, class_idx, scores)
+        plane = frame_floor(sampled)
+        if plane is None:
+            depth_notes.append(NO_FLOOR)
+        else:
+            boxes3d = stand_on_floor(boxes3d, class_idx, plane, prepared.R_tilt)
         scores = rescored(scores, sampled, boxes2d, boxes3d)
         order = np.argsort(-scores, kind="stable")
         rows, class_idx, boxes3d, amodal = (a[order] for a in (rows, class_idx, boxes3d, amodal))
@@ -426,7 +432,7 @@ def finish(prepared: PreparedFrame, out: NetworkOutput, config: PipelineConfig) 
         timing=dict(timing),
         boxes2d_amodal=amodal,
         gravity=prepared.gravity,
-        notes=(*prepared.notes, *wall_notes, *bounded.notes(scores)),
+        notes=(*prepared.notes, *depth_notes, *bounded.notes(scores)),
         intrinsics=frame.intrinsics,
         pose=frame.pose,
         sources=sources if prepared.detector or config.classifier is not None else None,

@@ -1,4 +1,4 @@
-"""bench/real_frames_fit.py: the floor plane under a fuller table layer, the object's cluster, the
+"""bench/real_frames_fit.py: the object's cluster (the floor plane: tests/test_floor_contact.py), the
 fitted box down to the floor for a floor class, the file format the committed 3D boxes keep, and
 both modes on a tiny frame folder (the draft validates; the pictures are written)."""
 
@@ -13,28 +13,17 @@ import pytest
 
 from bench import real_frames_fit
 from bench.real_frames import DEFAULT_BOXES3D, read_boxes, read_boxes3d
-from bench.real_frames_fit import dump, fit_object, floor_plane, largest_cluster
+from bench.real_frames_fit import dump, fit_object, largest_cluster
 from bench.real_frames_views import FrameCloud
+from tests.helpers.point_layers import point_layer
 from tests.helpers.runtime_frames import W, write_scene_folder
 
 RNG = np.random.default_rng(0)
 
 
-def _layer(n: int, y: float | np.ndarray, x: tuple[float, float], z: tuple[float, float]) -> np.ndarray:
-    xs, zs = RNG.uniform(*x, n), RNG.uniform(*z, n)
-    return np.column_stack([xs, y(xs, zs) if callable(y) else np.full(n, y), zs])
-
-
-def test_the_floor_is_the_lowest_layer_with_a_share_of_the_points_as_a_tilted_plane() -> None:
-    floor = _layer(3000, lambda x, z: 0.01 * x + 0.02 * z + 1.4, (-2, 2), (1, 5))
-    tables = _layer(30000, 0.7, (-1, 1), (2, 3))  # ten times the floor's points, higher up
-    noise = _layer(20, 1.9, (-1, 1), (2, 3))  # a few wrong points below the floor
-    np.testing.assert_allclose(floor_plane(np.vstack([floor, tables, noise])), [0.01, 0.02, 1.4], atol=1e-6)
-
-
 def test_the_object_is_the_largest_cluster_by_distance() -> None:
-    chair = _layer(500, 0.8, (-0.2, 0.2), (2.0, 2.3))
-    wall = _layer(300, 0.8, (-0.2, 0.2), (3.5, 3.6))
+    chair = point_layer(RNG, 500, 0.8, (-0.2, 0.2), (2.0, 2.3))
+    wall = point_layer(RNG, 300, 0.8, (-0.2, 0.2), (3.5, 3.6))
     assert (
         len(largest_cluster(np.vstack([wall, chair]))) == 500 and len(largest_cluster(np.zeros((0, 3)))) == 0
     )
@@ -43,7 +32,7 @@ def test_the_object_is_the_largest_cluster_by_distance() -> None:
 @pytest.mark.parametrize(("name", "height"), [("chair", 0.9), ("box", 0.5)])
 def test_a_floor_class_reaches_down_to_the_floor_and_another_does_not(name: str, height: float) -> None:
     cloud = FrameCloud(np.eye(3), np.zeros((1, 1, 3)), np.ones((1, 1), bool), np.array([0.0, 0.0, 1.4]))
-    points = np.vstack([_layer(400, y, (0.0, 0.5), (2.0, 2.4)) for y in np.linspace(0.5, 1.0, 11)])
+    points = np.vstack([point_layer(RNG, 400, y, (0.0, 0.5), (2.0, 2.4)) for y in np.linspace(0.5, 1.0, 11)])
     box = fit_object(points, name, cloud)
     assert box[5] == pytest.approx(height, abs=0.02) and box[1] + box[5] / 2 == pytest.approx(
         0.5 + height, abs=0.02

@@ -11,6 +11,8 @@ import numpy as np
 import pytest
 
 from a3d.runtime.io.detections_io import read_detections
+from a3d.runtime.postprocess.depth_support import sample_depth
+from a3d.runtime.postprocess.floor_contact import NO_FLOOR, REACH_M, frame_floor, standing_classes
 from a3d.runtime.postprocess.fuse import NETWORK
 from a3d.runtime.postprocess.wall_axes import NO_WALLS, SNAP_DEG, wall_direction
 from a3d.runtime.sources.folder import FolderSource, write_frame, write_intrinsics
@@ -127,12 +129,14 @@ def test_a_frame_whose_detector_fails_keeps_its_own_detections_and_says_so(tmp_p
     assert note.startswith("2D detector boxes failed (ValueError: ") and "a3d's own detections only" in note
 
 
-def test_with_a_detector_yaws_are_squared_to_the_walls_the_depth_shows_or_the_line_says_none(
+def test_with_a_detector_boxes_are_squared_to_the_walls_and_set_on_the_floor_or_the_line_says_none(
     tmp_path: Path,
 ) -> None:
-    """The pipeline's wall step (postprocess.wall_axes) runs where the detector's boxes joined: in
-    a room corner's frame every yaw within SNAP_DEG of its wall direction lies on it; a frame whose
-    depth shows no walls says so; a run without a detector does neither."""
+    """The pipeline's wall and floor steps (postprocess.wall_axes, floor_contact) run where the
+    detector's boxes joined: in a room corner's frame every yaw within SNAP_DEG of its wall
+    direction lies on it, and every box of a standing class ends on the floor or further from it
+    than REACH_M; a frame whose depth shows no walls or floor says so; a run without a detector
+    does neither."""
     folder = write_scene_folder(tmp_path / "frames", ["a"])  # too small a frame for any wall
     corner = tmp_path / "corner"
     write_intrinsics(corner, CORNER_K)
@@ -147,9 +151,17 @@ def test_with_a_detector_yaws_are_squared_to_the_walls_the_depth_shows_or_the_li
         assert run([*common, "--output", str(joined), "--detector", detector]) == 0
         ((own,), (line,)) = read_detections(plain), read_detections(joined)
         assert NO_WALLS not in own.notes and (NO_WALLS in line.notes) != walls
+        assert NO_FLOOR not in own.notes and (NO_FLOOR in line.notes) != walls
         if walls:
             (loader,) = FolderSource(corner)  # the depth as the run read it (millimetres)
             frame = loader.load()
+            plane = frame_floor(sample_depth(frame.depth, frame.intrinsics, line.R_tilt))
+            standing = standing_classes()[line.class_ids]
+            centres = line.boxes3d[standing, :3] @ line.R_tilt.T  # tilt frame
+            floor = centres[:, 0] * plane[0] + centres[:, 2] * plane[1] + plane[2]
+            gap = np.abs(floor - centres[:, 1] - line.boxes3d[standing, 5] / 2)
+            assert (gap < 1e-4).any(), "no standing box set on the floor"
+            assert ((gap < 1e-4) | (gap > REACH_M)).all()  # the file keeps a micrometre
             direction = wall_direction(frame.depth, frame.intrinsics, line.R_tilt)
             assert direction is not None and np.degrees(direction) == pytest.approx(17.0, abs=0.5)
             off = np.degrees((line.boxes3d[:, 6] - direction + np.pi / 4) % (np.pi / 2) - np.pi / 4)

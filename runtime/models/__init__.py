@@ -15,8 +15,9 @@ from pathlib import Path
 MODELS: dict[str, str] = {"live": "live.onnx", "real": "live.onnx"}
 PIPELINE_DETECTORS: dict[str, str] = {"real": "yolox-nano"}
 """The bundled pipelines: a network by its short name with the 2D detector (a3d.runtime.detector2d)
-whose boxes join its RoIs (and, with them, the 3D boxes are squared to the walls and doors fitted
-to the depth, a3d.runtime.postprocess.wall_axes and depth_fit, and the depth support of
+whose boxes join its RoIs (and, with them, the 3D boxes are squared to the walls, doors fitted to
+the depth and what stands on the floor set down on it, a3d.runtime.postprocess.wall_axes,
+depth_fit and floor_contact, and the depth support of
 a3d.runtime.postprocess.depth_support weighs every score). ``real`` is ``live``'s network with
 YOLOX-Nano (COCO): on real rooms the detector's real-photograph training sees chairs, sofas,
 tables and monitors that a network trained on synthetic rooms alone misses (docs/real-rooms.md)."""
