@@ -20,8 +20,8 @@ import numpy as np
 
 from a3d.runtime.postprocess.depth_support import MARGIN_M, SampledDepth, box_points
 from a3d.runtime.structures.boxes import CENTER, THETA, H, L, W
-from a3d.runtime.structures.classes import CLASSES
-from a3d.runtime.structures.geometry import CameraLike, points_in_box, project_points
+from a3d.runtime.structures.classes import class_mask
+from a3d.runtime.structures.geometry import CameraLike, points_in_box, project_points, turned_by_yaw
 
 FITTED = ("door",)
 REACH_M, STEP_M = 0.3, 0.05
@@ -43,7 +43,7 @@ STAY = int(np.argmin(np.abs(_offsets()).sum(axis=1)))  # the zero offset's row
 
 def fitted_classes() -> np.ndarray:
     """(19,) bool: the classes whose boxes are fitted."""
-    return np.isin(np.asarray(CLASSES), FITTED)
+    return class_mask(FITTED)
 
 
 def fit_to_depth(
@@ -68,9 +68,7 @@ def fit_to_depth(
         held = held[:: -(-len(held) // MAX_POINTS)]  # at most MAX_POINTS, evenly spread
         # The box moved by an offset holds what it held of the points moved back by it.
         support = points_in_box(held[None] - offsets[:, None], box, R, MARGIN_M, MARGIN_M).mean(axis=1)
-        c, s = np.cos(box[THETA]), np.sin(box[THETA])
-        al, ah, aw = unit[:, 0] * box[L], unit[:, 1] * box[H], unit[:, 2] * box[W]
-        volume = np.stack([c * al + s * aw, ah, -s * al + c * aw], axis=-1)  # tilt offsets of the samples
+        volume = turned_by_yaw(unit * box[[L, H, W]], box[THETA])  # tilt offsets of the samples
         camera = (volume[None] + centres[:, None]) @ R  # (G, S, 3): p_cam = R^T p_tilt
         seen = _seen_through(camera, depth, K)
         fit = support - seen

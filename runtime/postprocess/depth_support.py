@@ -38,8 +38,8 @@ MIN_SCORE = 0.01  # below it no evidence matters (moved by at most 0.8 in log-od
 @dataclass(frozen=True, eq=False)
 class SampledDepth:
     """A frame's depth with its samples (every ``STRIDE``-th pixel of every ``STRIDE``-th row)
-    back-projected to tilt-frame points once: what step 5's supports and step 7's fits
-    (a3d.runtime.postprocess.depth_fit) count over."""
+    back-projected to tilt-frame points once: what step 5's supports, step 7's fits
+    (a3d.runtime.postprocess.depth_fit) and step 8's floor (floor_contact) are counted over."""
 
     depth: np.ndarray  # (H, W) metres, 0 where missing
     K: CameraLike

@@ -28,7 +28,7 @@ import numpy as np
 
 from a3d.runtime.postprocess.depth_support import SampledDepth
 from a3d.runtime.structures.boxes import CENTER, H
-from a3d.runtime.structures.classes import CLASSES
+from a3d.runtime.structures.classes import class_mask
 
 STANDING = frozenset({
     "bathtub", "bed", "bookshelf", "chair", "counter", "desk", "door", "dresser", "garbage bin",
@@ -73,7 +73,7 @@ def frame_floor(sampled: SampledDepth) -> np.ndarray | None:
 
 def standing_classes() -> np.ndarray:
     """(19,) bool: the classes whose boxes reach down to the floor."""
-    return np.isin(np.asarray(CLASSES), sorted(STANDING))
+    return class_mask(STANDING)
 
 
 def stand_on_floor(
@@ -89,10 +89,9 @@ def stand_on_floor(
     R = np.asarray(R_tilt, np.float64)
     centres = boxes[chosen][:, CENTER] @ R.T  # tilt frame
     floor = centres[:, 0] * plane[0] + centres[:, 2] * plane[1] + plane[2]
-    gap = floor - (centres[:, 1] + boxes[chosen, H] / 2)  # > 0: the box floats above the floor
     top = centres[:, 1] - boxes[chosen, H] / 2
-    near = (np.abs(gap) <= REACH_M) & (floor - top >= MIN_HEIGHT_M)
-    height = floor - top
+    height = floor - top  # the box's height were it to reach the floor; its gap is the difference
+    near = (np.abs(height - boxes[chosen, H]) <= REACH_M) & (height >= MIN_HEIGHT_M)
     boxes[chosen[near], H] = height[near]
     centres[near, 1] = top[near] + height[near] / 2
     boxes[chosen[near], CENTER] = centres[near] @ R  # back to the camera frame: p_cam = R^T p_tilt

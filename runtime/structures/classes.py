@@ -7,6 +7,7 @@ softmax index ``i + 1``.
 from __future__ import annotations
 
 import re
+from collections.abc import Iterable
 
 import numpy as np
 
@@ -46,6 +47,13 @@ def to_softmax(class_ids: np.ndarray | int) -> np.ndarray:
 def from_softmax(labels: np.ndarray | int) -> np.ndarray:
     """0-based CLASSES indices of softmax indices > 0 (background has none)."""
     return np.asarray(labels) - 1
+
+
+def class_mask(names: Iterable[str]) -> np.ndarray:
+    """(NUM_CLASSES,) bool, True at the classes named (each one of CLASSES; ValueError otherwise)."""
+    mask = np.zeros(NUM_CLASSES, bool)
+    mask[[class_index(name) for name in names]] = True
+    return mask
 
 
 def class_index(name: str) -> int:

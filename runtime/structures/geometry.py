@@ -258,10 +258,15 @@ def box_corners_tilt(boxes: np.ndarray, R_tilt: np.ndarray) -> np.ndarray:
     b = _boxes3d(boxes)
     R = check_rotation(R_tilt, "R_tilt")
     local = _CORNER_SIGNS[None] * local_half_sizes(b)[:, None, :]  # (N, 8, 3): (x, y, z) = (l, h, w) / 2
-    c, s = np.cos(b[:, THETA])[:, None], np.sin(b[:, THETA])[:, None]
+    return turned_by_yaw(local, b[:, THETA, None]) + (b[:, CENTER] @ R.T)[:, None, :]
+
+
+def turned_by_yaw(local: np.ndarray, theta: np.ndarray | float) -> np.ndarray:
+    """Offsets (..., 3) in a box's own axes (along l, h, w) as tilt-frame offsets for yaw ``theta``
+    (broadcast against ``local[..., 0]``): the box's rotation about gravity."""
+    c, s = np.cos(theta), np.sin(theta)
     x, y, z = local[..., 0], local[..., 1], local[..., 2]
-    rotated = np.stack([c * x + s * z, y, -s * x + c * z], axis=-1)
-    return rotated + (b[:, CENTER] @ R.T)[:, None, :]
+    return np.stack([c * x + s * z, y, -s * x + c * z], axis=-1)
 
 
 def box_corners_camera(boxes: np.ndarray, R_tilt: np.ndarray) -> np.ndarray:
