@@ -165,11 +165,14 @@ class PipelineScore:
     result: EvalResult
 
 
-def pipeline_score(model: str | Path, folder: Path, threads: int) -> PipelineScore | None:
+def pipeline_score(
+    model: str | Path, folder: Path, threads: int, detector: str | None = None
+) -> PipelineScore | None:
     """The pipeline a3d-run runs with ``model`` (a bundled name or a file: its network, score
-    calibration and 2D detector, every step after the network) scored on ``folder``; None for a
-    network without a 2D detector, whose pipeline is the network alone (score_on)."""
-    pipeline = Detector.load(model, threads=threads)
+    calibration and 2D detector, or ``detector`` where given, every step after the network) scored
+    on ``folder``; None for a network without a 2D detector, whose pipeline is the network alone
+    (score_on)."""
+    pipeline = Detector.load(model, threads=threads, detector=detector)
     boxes = pipeline.config.detector
     if boxes is None:
         return None
@@ -262,8 +265,8 @@ def _detector(base_name: str, base: DetectorModel) -> str | None:
 def _write(exported: Path, out: Path, card: dict, start: float, holdout: Path, threads: int) -> Path:
     """The exported model with the card in its provenance and the base pipeline's 2D detector
     (``card["base"]["detector"]``) in its metadata, written atomically to ``out``; where the base
-    has a detector, the pipeline's "after" is scored with the model as written first (in the work
-    folder), so that the card holds what a3d-run gives."""
+    has a detector, the pipeline's "after" is scored with the exported network and that detector,
+    the pipeline a3d-run runs with ``out``, so that the card holds what a3d-run gives."""
     import onnx
 
     model = DetectorModel.load(exported, threads=1)
@@ -273,10 +276,8 @@ def _write(exported: Path, out: Path, card: dict, start: float, holdout: Path, t
     metadata = dataclasses.replace(model.metadata, detector=card["base"]["detector"])
     compared = [("network", scores)]
     if "heldout_map25_pipeline" in card:
-        draft = exported.with_name("with_detector.onnx")
-        save_model(onnx.load(str(exported)), metadata, draft)
-        after = pipeline_score(draft, holdout, threads)
-        assert after is not None  # it names the base's detector
+        after = pipeline_score(exported, holdout, threads, detector=card["base"]["detector"])
+        assert after is not None  # the base's detector
         card["heldout_map25_pipeline"].update(_scores("after", after.result))
         compared.insert(0, (f"pipeline with {after.detector}", card["heldout_map25_pipeline"]))
     seconds = time.monotonic() - start
