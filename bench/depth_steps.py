@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from types import ModuleType
@@ -27,6 +28,15 @@ from a3d.runtime.postprocess import floor_contact, wall_axes
 from bench.depth_support import floats, real_frames_result, real_result
 
 
+def doors_ap(result: EvalResult) -> str:
+    doors = next((c for c in result.classes if c.name == "door" and c.num_gt), None)
+    return f"{100 * doors.ap[0.25]:.1f}" if doors else "-"
+
+
+def map_at_half(result: EvalResult) -> str:
+    return f"{100 * result.map_present(0.5):.2f}"
+
+
 @dataclass(frozen=True)
 class Step:
     """A depth step's constant, and the synthetic column that shows what the step is for."""
@@ -34,17 +44,12 @@ class Step:
     module: ModuleType
     constant: str
     column: str
-
-    def measure(self, result: EvalResult) -> str:
-        if self.column == "mAP@0.5":
-            return f"{100 * result.map_present(0.5):.2f}"
-        doors = next((c for c in result.classes if c.name == "door" and c.num_gt), None)
-        return f"{100 * doors.ap[0.25]:.1f}" if doors else "-"
+    measure: Callable[[EvalResult], str]
 
 
 STEPS = {
-    "walls": Step(wall_axes, "SNAP_DEG", "doors AP@0.25"),
-    "floor": Step(floor_contact, "REACH_M", "mAP@0.5"),
+    "walls": Step(wall_axes, "SNAP_DEG", "doors AP@0.25", doors_ap),
+    "floor": Step(floor_contact, "REACH_M", "mAP@0.5", map_at_half),
 }
 
 
