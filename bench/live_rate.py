@@ -111,7 +111,7 @@ def main() -> None:
                 for stage, seconds in det.timing.items():
                     times.setdefault(stage, []).append(1e3 * seconds)
             if len(gt):
-                boxes = prepared.boxes.reshape(-1, 4)
+                boxes = prepared.native_boxes.reshape(-1, 4)
                 best = iou_2d(gt.boxes2d_visible, boxes).max(axis=1) if len(boxes) else np.zeros(len(gt))
                 matched += int((best >= 0.5).sum())
                 total += len(gt)

@@ -30,6 +30,7 @@ import numpy as np
 
 from a3d.runtime.classifier2d import Classifier2D
 from a3d.runtime.detector2d import Detector2D
+from a3d.runtime.frontend.working_size import WORKING_SIDE
 from a3d.runtime.io.detections_io import FrameDetections
 from a3d.runtime.models import model_path, pipeline_detector
 from a3d.runtime.network.model import DetectorModel
@@ -63,6 +64,7 @@ class Detector:
         detector_names: str | os.PathLike | None = None,
         class_map: str | os.PathLike | None = None,
         classifier: str | os.PathLike | None = None,
+        working_side: int | None = WORKING_SIDE,
     ) -> Detector:
         """Open and check a model: a bundled one by name (``"real"``, the default, or ``"live"``;
         a3d.runtime.models) or a model file (ModelError naming it if unusable); the settings default to
@@ -75,7 +77,9 @@ class Detector:
         names (``detector_names``) and class map (``class_map``) files where given
         (a3d.runtime.detector2d). ``classifier``: an image classifier by name (``"mobilenet-v2"``)
         or ONNX file whose view of the best own detections rescores them (a3d.runtime.classifier2d;
-        off by default: docs/real-rooms.md has what it does to the scores)."""
+        off by default: docs/real-rooms.md has what it does to the scores). ``working_side``: a
+        frame whose longer side is over it is brought down to it first, as the networks were trained
+        (a3d.runtime.frontend.working_size); None: every frame as it comes."""
         network = DetectorModel.load(model_path(model), threads=threads)
         config = PipelineConfig.from_metadata(
             network.metadata,
@@ -85,6 +89,7 @@ class Detector:
             front_end=front_end,
             raw_scores=raw_scores,
         )
+        config = replace(config, working_side=working_side)
         chosen = pipeline_detector(model, detector, network.metadata.detector)
         if chosen is not None:
             names, mapping = _path(detector_names), _path(class_map)

@@ -5,8 +5,10 @@ optional R_tilt and precomputed proposals), whatever source it came from; readin
 frame source's job (a3d.runtime.sources). Three stages, so that the CPU front end of one frame
 can overlap the network call of another:
 
-1. ``prepare`` (numpy + OpenCV): fill the depth holes, choose R_tilt (the frame's own, the
-   estimate from the depth, or a fallback the line names: frontend.gravity.choose_gravity),
+1. ``prepare`` (numpy + OpenCV): bring a frame larger than the networks' working size down to it
+   (frontend.working_size; its detections' 2D boxes go back to its own pixels), fill the depth
+   holes, choose R_tilt (the frame's own, the estimate from the depth, or a fallback the line
+   names: frontend.gravity.choose_gravity),
    compute segment proposals (or use the frame's precomputed ones), lift them
    to initial 3D centres (proposals without any depth are dropped); with a 2D detector, its boxes
    (computed on a thread of their own meanwhile) lifted and added as RoIs; and build the network
@@ -60,6 +62,7 @@ from a3d.runtime.frontend.frame_proposals import frame_proposals
 from a3d.runtime.frontend.gravity import choose_gravity
 from a3d.runtime.frontend.lifting import lift
 from a3d.runtime.frontend.proposals import ProposalConfig, Proposals, live_proposals
+from a3d.runtime.frontend.working_size import WORKING_SIDE, WorkingFrame, working_frame
 from a3d.runtime.io.detections_io import FrameDetections
 from a3d.runtime.network.network_input import frame_network_inputs
 from a3d.runtime.postprocess.box_limits import bound_boxes, near_range
@@ -152,7 +155,9 @@ class PipelineConfig:
     None: the softmax as it is). ``detector``: a 2D detector whose boxes join the RoIs
     (a3d.runtime.postprocess.fuse), None for a3d's own proposals alone. ``classifier``: an image
     classifier whose view of the best own detections of the classes ``detector`` does not know
-    rescores them (postprocess.fuse.second_opinion), None for none.
+    rescores them (postprocess.fuse.second_opinion), None for none. ``working_side``: a frame whose
+    longer side is over it is brought down to it first (frontend.working_size), None: every frame
+    as it comes.
     """
 
     mean_sizes: np.ndarray
@@ -167,6 +172,7 @@ class PipelineConfig:
     score_calibration: ScoreCalibration | None = None
     detector: BoxDetector | None = None
     classifier: ImageClassifier | None = None
+    working_side: int | None = WORKING_SIDE
 
     @classmethod
     def from_metadata(
@@ -207,10 +213,11 @@ class PipelineConfig:
 class PreparedFrame:
     """A frame after the CPU front end, ready for the network.
 
-    ``boxes`` (N, 4) proposal boxes in native pixels and ``centers`` (N, 3) their lifted centres
-    (liftable proposals only); ``color_input`` / ``depth_input`` (1, 3, h, w) float32 trunk
-    inputs; ``rois`` / ``context_rois`` (N, 4) float32 in the resized image's pixels. ``found``:
-    the 2D detector's liftable boxes, the last ``len(found.boxes)`` rows of ``boxes``.
+    ``frame`` as it came and ``working`` the same at the working size (frontend.working_size), which
+    everything after is computed on: ``boxes`` (N, 4) proposal boxes in its pixels and ``centers``
+    (N, 3) their lifted centres (liftable proposals only); ``color_input`` / ``depth_input`` (1, 3,
+    h, w) float32 trunk inputs; ``rois`` / ``context_rois`` (N, 4) float32 in the trunk image's
+    pixels. ``found``: the 2D detector's liftable boxes, the last ``len(found.boxes)`` rows of ``boxes``.
     """
 
     frame: Frame
@@ -226,6 +233,23 @@ class PreparedFrame:
     notes: list[str] = field(default_factory=list)
     found: Detections2D | None = None
     detector: str = ""
+    working: WorkingFrame | None = None  # None: the frame as it came
+
+    def __post_init__(self) -> None:
+        if self.working is None:
+            self.working = WorkingFrame(self.frame)
+
+    @property
+    def work(self) -> Frame:
+        """The frame at the working size."""
+        assert self.working is not None
+        return self.working.frame
+
+    @property
+    def native_boxes(self) -> np.ndarray:
+        """``boxes`` in the pixels of ``frame`` as it came (what a viewer draws on it)."""
+        assert self.working is not None
+        return self.working.to_native(self.boxes)
 
     @property
     def own_rows(self) -> int:
@@ -248,6 +272,10 @@ def prepare(frame: Frame, config: PipelineConfig, timing: dict[str, float] | Non
     timing = {} if timing is None else timing
     clock = Clock(timing)
     notes: list[str] = [frame.pose_note] if frame.pose_note else []
+    keeps_size = frame.proposals is not None and config.proposal_source != "compute"  # cut for its size
+    native, working = frame, working_frame(frame, None if keeps_size else config.working_side)
+    frame = working.frame
+    clock.lap("read")  # bringing it to the working size is part of reading it
     boxes_of = config.detector
     detecting = None if boxes_of is None else _detector_thread().submit(_detect, boxes_of, frame.color)
     fill = fill_depth_info(frame.depth)
@@ -284,7 +312,7 @@ def prepare(frame: Frame, config: PipelineConfig, timing: dict[str, float] | Non
     inputs = (color[None], depth[None], rois, context_rois)
     detector = "" if config.detector is None else config.detector.name
     return PreparedFrame(
-        frame, R_tilt, boxes, centers, *inputs, timing, gravity.source, notes, found, detector
+        native, R_tilt, boxes, centers, *inputs, timing, gravity.source, notes, found, detector, working
     )
 
 
@@ -391,13 +419,13 @@ def finish(prepared: PreparedFrame, out: NetworkOutput, config: PipelineConfig) 
         prepared.boxes,
         out.deltas3d,
         out.deltas2d,
-        prepared.frame.image_size,
+        prepared.work.image_size,
     )
-    bounded = bound_boxes(boxes3d, class_idx, near_range(prepared.frame.depth))
+    bounded = bound_boxes(boxes3d, class_idx, near_range(prepared.work.depth))
     boxes3d, sources = bounded.boxes3d, picked.sources
     depth_notes: list[str] = []
     if prepared.found is not None and len(rows):  # steps 6, 7, 8 and 5 (docs/real-rooms.md): with a detector
-        frame, boxes2d = prepared.frame, prepared.boxes[rows]
+        frame, boxes2d = prepared.work, prepared.boxes[rows]
         direction = wall_direction(frame.depth, frame.intrinsics, prepared.R_tilt)
         if direction is None:
             depth_notes.append(NO_WALLS)
@@ -418,19 +446,20 @@ def finish(prepared: PreparedFrame, out: NetworkOutput, config: PipelineConfig) 
     clock.lap("postprocess")
     timing = prepared.timing
     timing["total"] = sum(timing[stage] for stage in STAGES if stage in timing)
-    frame = prepared.frame
+    frame, working = prepared.frame, prepared.working
+    assert working is not None
     return FrameDetections(
         frame=frame.name,
         R_tilt=prepared.R_tilt,
         class_ids=class_idx,
         scores=scores,
-        boxes2d=prepared.boxes[rows],
+        boxes2d=working.to_native(prepared.boxes[rows]),
         boxes3d=boxes3d,
         corners=corners,
         color=frame.color_file,
         depth=frame.depth_file,
         timing=dict(timing),
-        boxes2d_amodal=amodal,
+        boxes2d_amodal=working.to_native(amodal),
         gravity=prepared.gravity,
         notes=(*prepared.notes, *depth_notes, *bounded.notes(scores)),
         intrinsics=frame.intrinsics,
@@ -467,7 +496,7 @@ def _second_opinion(prepared: PreparedFrame, picked: Picked, config: PipelineCon
     chosen = second_opinion_rows(picked, classes)
     if not len(chosen):
         return picked
-    color = np.ascontiguousarray(prepared.frame.color[..., ::-1])
+    color = np.ascontiguousarray(prepared.work.color[..., ::-1])
     try:
         probs = config.classifier.classify(color, prepared.boxes[picked.rows[chosen]])
     except Exception as error:  # a classifier that fails on one frame must not lose the frame

@@ -93,9 +93,7 @@ def _parse_mix(text: str) -> tuple[str, ...]:
 def scaled_intrinsics(size: tuple[int, int]) -> Intrinsics:
     """NYUv2 standard-crop intrinsics resampled to an image of ``size`` (H, W) (same field of view)."""
     H, W = size
-    sy, sx = H / NYU_CROP_SIZE[0], W / NYU_CROP_SIZE[1]
-    k = NYU_CROP_INTRINSICS
-    return Intrinsics(k.fx * sx, k.fy * sy, (k.cx + 0.5) * sx - 0.5, (k.cy + 0.5) * sy - 0.5)
+    return NYU_CROP_INTRINSICS.resized(W / NYU_CROP_SIZE[1], H / NYU_CROP_SIZE[0])
 
 
 def _parse_split(text: str) -> float:

@@ -72,6 +72,9 @@ def test_usage_errors_exit_2_before_any_frame(tmp_path: Path, capsys: pytest.Cap
     assert len(err.strip().splitlines()) == 1
     assert run([str(folder), "--threads", "0", "--headless"]) == 2
     assert run([str(folder), "--proposals", "mcg", "--headless"]) == 2
+    capsys.readouterr()
+    assert run([str(folder), "--working-side", "-1", "--headless"]) == 2
+    assert "--working-side must be 0" in capsys.readouterr().err
     assert run([str(tmp_path / "nowhere"), "--model", str(folder / "model.onnx"), "--headless"]) == 2
     capsys.readouterr()
     assert run([str(tmp_path / "nowhere"), "--headless"]) == 2  # the folder is named, not the model

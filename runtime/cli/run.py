@@ -3,6 +3,7 @@
     a3d-run FOLDER [--model model.onnx] [--output detections.jsonl] [--threads 2]
             [--detector NAME|FILE|none] [--detector-names FILE] [--class-map FILE] [--classifier NAME|FILE]
             [--proposals auto|compute|precomputed] [--max-proposals N] [--front-end model|live]
+            [--working-side PX]
             [--score-threshold S] [--raw-scores]
             [--resume] [--overlap [auto|on|off]] [--headless] [--connect] [--url URL] [--serve]
             [--save FILE.rrd] [--stdout]
@@ -70,6 +71,7 @@ from a3d.runtime.cli.progress import make_progress
 from a3d.runtime.cli.summary import RunSummary
 from a3d.runtime.detector2d import DETECTORS, Detector2D
 from a3d.runtime.errors import InputError, ModelError
+from a3d.runtime.frontend.working_size import WORKING_SIDE
 from a3d.runtime.io.detections_io import format_line
 from a3d.runtime.mapping.object_map import ObjectMap
 from a3d.runtime.mapping.world import WORLD_AXES, down_of_up_axis
@@ -151,6 +153,15 @@ def build_parser() -> argparse.ArgumentParser:
         "precomputed: NAME.proposals.npz required",
     )
     p.add_argument("--max-proposals", type=int, metavar="N", help="proposals per frame (default: model)")
+    p.add_argument(
+        "--working-side",
+        type=int,
+        default=WORKING_SIDE,
+        metavar="PX",
+        help="a frame whose longer side is over PX pixels is brought down to it first, as the networks "
+        "were trained (2D boxes are reported in the frame's own pixels); 0: every frame as it comes "
+        f"(default: {WORKING_SIDE})",
+    )
     p.add_argument(
         "--front-end",
         choices=FRONT_ENDS,
@@ -252,6 +263,8 @@ def _arguments(argv: list[str] | None) -> argparse.Namespace:
         parser.error("--max-frames must be at least 1")
     if args.max_proposals is not None and args.max_proposals < 1:
         parser.error("--max-proposals must be at least 1")
+    if args.working_side < 0:
+        parser.error("--working-side must be 0 (as the frames come) or a number of pixels")
     if args.score_threshold is not None and not 0.0 <= args.score_threshold <= 1.0:
         parser.error("--score-threshold must be in [0, 1]")
     if args.output == "-" and (args.resume or args.stdout):
@@ -360,6 +373,7 @@ def _job(args: argparse.Namespace) -> _Job:
         front_end=front_end,
         raw_scores=args.raw_scores,
     )
+    config = replace(config, working_side=args.working_side or None)
     detector = pipeline_detector(args.model_name, args.detector, model.metadata.detector)
     if detector is None and (args.detector_names is not None or args.class_map is not None):
         raise InputError("--detector-names and --class-map need a 2D detector (--detector or --model real)")
@@ -702,7 +716,7 @@ def _log(
             boxes3d=det.boxes3d,
             gt_class_ids=None if gt is None else gt.class_ids,
             gt_boxes3d=None if gt is None else gt.boxes3d,
-            proposals=outcome.prepared.boxes,
+            proposals=outcome.prepared.native_boxes,
             options=options,
         )
     except Exception as e:  # the line is written; a viewer problem must not stop the run

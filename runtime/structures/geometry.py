@@ -103,6 +103,11 @@ class Intrinsics:
             raise InputError(f"intrinsics: camera matrix must be 3x3, got shape {K.shape}")
         return cls(fx=K[0, 0], fy=K[1, 1], cx=K[0, 2], cy=K[1, 2])
 
+    def resized(self, sx: float, sy: float) -> Intrinsics:
+        """The same camera for its image resized by ``sx`` across and ``sy`` down (the README pixel
+        convention: ``x -> (x + 0.5) sx - 0.5``)."""
+        return Intrinsics(self.fx * sx, self.fy * sy, (self.cx + 0.5) * sx - 0.5, (self.cy + 0.5) * sy - 0.5)
+
 
 NYU_CROP_INTRINSICS = Intrinsics(fx=518.857901, fy=519.469611, cx=325.582449 - 40.0, cy=253.736166 - 44.0)
 NYU_CROP_SIZE = (427, 561)  # (H, W) of the NYUv2 standard crop, rows 44..470, cols 40..600
