@@ -1,17 +1,19 @@
 """Your own room, measured on a synthetic one: world boxes from rough ones, then a fine-tune.
 
     .venv/bin/python -m bench.own_room --work /tmp/own [--seed 54] [--frames 200] [--loops 2] [--heights H,H]
-        [--minutes 15] [--camera realsense-d435] [--base real] [--h350 /tmp/h350/test] [--skip-finetune]
+        [--minutes 15] [--camera realsense-d435 [--camera-scale 2]] [--base real] [--h350 /tmp/h350/test]
+        [--skip-finetune]
 
 A room the bundled model did not train on (``a3d-synth --sequence``, ``--world real
 --appearance typical``: class-typical materials, where the bundled model saw only materials drawn
 whatever the class) stands in for a user's recording, its ``world_boxes.json`` for the boxes a
 person would draw; ``--camera`` records it with one of a3d-synth's camera presets (a RealSense's
-size, intrinsics and depth model) instead of the NYUv2 crop; ``--loops 2`` goes round it twice,
-hand-held and then as a robot would (lower, on another path, the other way round), so that the
-held-back stretch is the room seen again from a robot's height; ``--heights`` sets the loops' camera
-heights (``1.0,1.0``: the robot records its own room). Each step runs the commands a user runs, as
-subprocesses:
+size, intrinsics and depth model) instead of the NYUv2 crop, ``--camera-scale 2`` at twice its size
+(a RealSense's 1280 x 720: docs/running.md "Frames larger than 640 across"); ``--loops 2`` goes
+round it twice, hand-held and then as a robot would (lower, on another path, the other way round),
+so that the held-back stretch is the room seen again from a robot's height; ``--heights`` sets the
+loops' camera heights (``1.0,1.0``: the robot records its own room). Each step runs the commands
+a user runs, as subprocesses:
 
 1. the sequence (kept in WORK/seq and reused) and its labels from its world boxes (``a3d-labels``);
 2. ``a3d-world-boxes`` from rough boxes: each world box moved 5 to 8 cm along every axis, its
@@ -105,6 +107,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--loops", type=int, default=1, choices=(1, 2), help="loops round the room (a3d-synth)")
     p.add_argument("--heights", help="the loops' camera heights in metres, H or H,H (a3d-synth)")
     p.add_argument("--camera", help="a3d-synth's camera preset that records the room (default: NYUv2 crop)")
+    p.add_argument("--camera-scale", help="the preset's frame size times this (a3d-synth --camera-scale)")
     p.add_argument("--holdout", type=float, default=0.4)
     p.add_argument("--minutes", type=float, default=15.0)
     p.add_argument("--base", default="real", help="the bundled model to fine-tune and compare with")
@@ -114,6 +117,7 @@ def main(argv: list[str] | None = None) -> int:
     seq, labelled, model = args.work / "seq", args.work / "labelled", args.work / "ft.onnx"
     if not (seq / "world_boxes.json").is_file():
         camera = ["--camera-mix", args.camera] if args.camera else []
+        camera += ["--camera-scale", args.camera_scale] if args.camera_scale else []
         camera += ["--heights", args.heights] if args.heights else []
         sh("a3d-synth", seq, "--sequence", args.frames, "--seed", args.seed, "--world", "real",
            "--appearance", "typical", "--workers", "2", "--loops", args.loops, *camera)  # fmt: skip

@@ -12,6 +12,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -21,11 +22,18 @@ from a3d.runtime.evaluation.metric import EvalConfig, evaluate
 from a3d.runtime.evaluation.truth import load_truth
 from a3d.runtime.io.detections_io import read_detections
 from a3d.runtime.network.model import DetectorModel
-from a3d.runtime.sources.folder import FolderSource, read_frame
+from a3d.runtime.sources.folder import (
+    FolderSource,
+    read_folder_intrinsics,
+    read_frame,
+    read_ground_truth,
+    read_instances,
+)
 from a3d.synth.cli import main as synth_main
+from a3d.train import finetune_data
 from a3d.train.checkpoint import load_checkpoint
 from a3d.train.finetune_cli import main
-from a3d.train.finetune_data import calibration_frames
+from a3d.train.finetune_data import calibration_frames, read_recording, split_recordings
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -176,3 +184,30 @@ def test_the_int8_calibration_frames_spread_over_the_recordings_and_the_syntheti
     assert sources[:3] == [(own.resolve(), own_names[i]) for i in (0, 3, 6)]  # spread, not the first three
     assert sources[3:] == [(synth.resolve(), synth_names[i]) for i in (0, 1, 2)]
     assert all(read_frame(ref, None).intrinsics is not None for ref in refs)
+
+
+def test_frames_larger_than_the_working_size_are_fine_tuned_on_at_it(
+    data: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    seq = data / "seq" / "frames"
+    recording = read_recording(seq)
+    linked = split_recordings([recording], 0.3, tmp_path / "as_is")
+    assert all(p.is_symlink() for p in linked.train[0].glob("*.color.png"))  # 120 x 160: as they are
+    monkeypatch.setattr(finetune_data, "WORKING_SIDE", 80)  # a3d-run's 640, scaled to the test's frames
+    split = split_recordings([recording], 0.3, tmp_path / "small")
+    source = FolderSource(split.train[0], with_truth=True)
+    assert len(source.refs) == 7 and not any(ref.color_path.is_symlink() for ref in source.refs)
+    for ref, original in zip(source.refs, recording.refs[:7], strict=True):
+        small, big = source.read(ref), read_frame(original, read_folder_intrinsics(seq))
+        big_truth = read_ground_truth(original)
+        assert small.image_size == (60, 80) and small.R_tilt is not None
+        assert small.intrinsics == big.intrinsics.resized(0.5, 0.5)
+        np.testing.assert_allclose(small.truth.boxes3d, big_truth.boxes3d)  # metric: unchanged
+        np.testing.assert_allclose(small.truth.boxes2d_visible, (big_truth.boxes2d_visible + 0.5) / 2 - 0.5)
+        instances = read_instances(ref)
+        for box, instance in zip(small.truth.boxes2d_visible, small.truth.instance_ids, strict=True):
+            rows, cols = np.nonzero(instances == instance)  # its pixels at the new size lie in its box
+            assert len(rows) and cols.min() >= box[0] - 1 and cols.max() <= box[2] + 1
+            assert rows.min() >= box[1] - 1 and rows.max() <= box[3] + 1
+    held = FolderSource(split.holdout).refs
+    assert all(read_frame(ref, None).image_size == (60, 80) for ref in held)

@@ -4,6 +4,7 @@ working size itself; frames no larger, or with proposals cut for their size, as 
 
 from __future__ import annotations
 
+import logging
 from dataclasses import replace
 
 import cv2
@@ -16,7 +17,10 @@ from a3d.runtime.pipeline import PipelineConfig, finish, infer, prepare
 from a3d.runtime.sources.proposals_file import PrecomputedProposals
 from a3d.runtime.structures.frame import Frame
 from a3d.runtime.structures.geometry import rtilt_from_pitch_roll
+from a3d.train import loop
+from a3d.train.cli import main as train_main
 from tests.helpers.runtime_frames import FakeModel, H, K, W, scene
+from tests.helpers.train_scenes import tiny_train_args, write_scenes
 
 
 def frame_at(factor: int, seed: int = 0) -> Frame:
@@ -89,3 +93,16 @@ def test_a_frame_with_proposals_cut_for_its_size_keeps_it_unless_they_are_comput
 def test_the_python_api_brings_frames_to_the_working_side_unless_told_not_to() -> None:
     assert Detector.load("live", threads=1).config.working_side == WORKING_SIDE
     assert Detector.load("live", threads=1, working_side=None).config.working_side is None
+
+
+def test_training_on_frames_larger_than_the_working_size_says_so(
+    tmp_path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    frames = write_scenes(tmp_path / "frames", 2, seed=3)
+    for side, said in ((WORKING_SIDE, False), (40, True)):  # the scenes' frames are 48 x 64
+        monkeypatch.setattr(loop, "WORKING_SIDE", side)
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger=loop.__name__):
+            args = tiny_train_args(frames, tmp_path / f"run{side}", tmp_path / "cache")
+            assert train_main([*args, "--iters", "1"]) == 0
+        assert ("2 of the 2 training frames are larger than 40 pixels across" in caplog.text) == said

@@ -4,10 +4,13 @@ synthetic frames mixed in.
 Why whole stretches: a recording's neighbouring frames are nearly the same picture, so holding
 back every n-th frame would score the model on frames it has all but seen. The last share of
 each recording (frames sorted by name, i.e. in time) is held back instead: the camera has moved
-on to other views of the same room. The split is made of links to the user's files (nothing is
-copied); the held-back frames of all recordings go into one folder (each frame's meta.json gains
-its folder's intrinsics, so recordings of several cameras can share it), the training frames into
-one folder per recording, as a3d-train takes several.
+on to other views of the same room. The split is made of links to the user's files; the
+held-back frames of all recordings go into one folder (each frame's meta.json gains its folder's
+intrinsics, so recordings of several cameras can share it), the training frames into one folder
+per recording, as a3d-train takes several. A frame larger than the working size a3d-run brings
+every frame to (a RealSense's 1280 x 720: a3d.runtime.frontend.working_size) is written at that
+size instead of linked, with its camera, its ground truth's 2D boxes and its instance map, so that
+the network is fine-tuned on objects of the size in pixels it will see them at.
 """
 
 from __future__ import annotations
@@ -19,12 +22,26 @@ import os
 import shutil
 import sys
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
+import cv2
+
 from a3d.runtime.errors import InputError
+from a3d.runtime.frontend.working_size import WORKING_SIDE, working_frame
 from a3d.runtime.io.atomic import atomic_write_bytes
-from a3d.runtime.sources.folder import INTRINSICS_FILE, FolderSource, FrameRef, read_ground_truth
+from a3d.runtime.io.image_io import read_image_header
+from a3d.runtime.network.network_input import scale_boxes
+from a3d.runtime.sources.folder import (
+    INTRINSICS_FILE,
+    FolderSource,
+    FrameRef,
+    read_folder_intrinsics,
+    read_frame,
+    read_ground_truth,
+    read_instances,
+    write_frame,
+)
 
 SYNTH_SEED = (
     4242  # a3d-synth seed of the mixed-in frames: none of the bundled model's (docs/synthetic-world.md)
@@ -115,7 +132,11 @@ def calibration_frames(train: list[Path], synth: Path, work: Path, count: int) -
 
 def _link(ref: FrameRef, folder: Path, name: str, intrinsics: Path | None = None) -> None:
     """Link a frame's files into ``folder`` as frame ``name``; with ``intrinsics`` its meta.json is
-    written instead, with the folder's intrinsics in it."""
+    written instead, with the folder's intrinsics in it. A frame larger than the working size is
+    written at it instead (module docstring)."""
+    if max(read_image_header(ref.color_path).size) > WORKING_SIDE:
+        _write_working_size(ref, folder, name, ref.color_path.parent)
+        return
     for path in (ref.color_path, ref.depth_path, ref.gt_path, ref.instances_path, ref.proposals_path):
         if path is not None:
             os.symlink(path.resolve(), folder / (name + path.name[len(ref.name) :]))
@@ -155,3 +176,26 @@ def synthetic_frames(work: Path, frames: int, workers: int = 2) -> Path:
         if synth_main([*argv, "--workers", str(workers)]) != 0:
             raise InputError(f"{out}: a3d-synth could not make the synthetic frames")
     return done
+
+
+def _write_working_size(ref: FrameRef, folder: Path, name: str, source: Path) -> None:
+    """Frame ``ref`` of the folder ``source`` written into ``folder`` as ``name`` at the working size:
+    colour, depth and camera as a3d-run brings it there, its ground truth's 2D boxes and its
+    instance map with them."""
+    frame = read_frame(ref, read_folder_intrinsics(source))
+    working = working_frame(frame, WORKING_SIDE)
+    small = working.frame
+    truth = read_ground_truth(ref)
+    if truth is not None:
+        truth = replace(
+            truth,
+            boxes2d_visible=scale_boxes(truth.boxes2d_visible, working.sx, working.sy),
+            boxes2d_amodal=scale_boxes(truth.boxes2d_amodal, working.sx, working.sy),
+        )
+    instances = read_instances(ref)
+    if instances is not None:
+        instances = cv2.resize(instances, small.image_size[::-1], interpolation=cv2.INTER_NEAREST)
+    write_frame(
+        folder, name, small.color, small.depth, R_tilt=small.R_tilt, intrinsics_override=small.intrinsics,
+        gt=truth, instances=instances, pose=small.pose,
+    )  # fmt: skip

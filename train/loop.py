@@ -37,6 +37,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from a3d.runtime.frontend.working_size import WORKING_SIDE
 from a3d.runtime.io.atomic import atomic_write_bytes
 from a3d.runtime.network.cpu_support import bf16_instructions
 from a3d.runtime.structures.classes import CLASSES
@@ -380,6 +381,14 @@ class _Run:
                                 **describe(self.roidb)})  # fmt: skip
             for line in self.roidb.skipped:
                 logger.info("skipped %s", line)
+            large = sum(max(r.image_size) > WORKING_SIDE for r in self.roidb.records)
+            if large:
+                logger.warning(
+                    "%d of the %d training frames are larger than %d pixels across, which a3d-run brings "
+                    "down to %d before the network sees them (docs/running.md \"Frames larger than 640 "
+                    "across\"): train on frames of that size, or run the model with --working-side 0",
+                    large, len(self.roidb.records), WORKING_SIDE, WORKING_SIDE,
+                )
         dataset = BatchDataset(self.roidb.records, self.stats, config,
                                solver.iterations, info.rank, info.world_size, features)  # fmt: skip
         self.loader = batch_loader(dataset, self.start, config.data.workers, pin_memory=dev.type == "cuda")
