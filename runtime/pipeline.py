@@ -221,6 +221,7 @@ class PreparedFrame:
     """
 
     frame: Frame
+    working: WorkingFrame
     R_tilt: np.ndarray
     boxes: np.ndarray
     centers: np.ndarray
@@ -233,22 +234,15 @@ class PreparedFrame:
     notes: list[str] = field(default_factory=list)
     found: Detections2D | None = None
     detector: str = ""
-    working: WorkingFrame | None = None  # None: the frame as it came
-
-    def __post_init__(self) -> None:
-        if self.working is None:
-            self.working = WorkingFrame(self.frame)
 
     @property
     def work(self) -> Frame:
         """The frame at the working size."""
-        assert self.working is not None
         return self.working.frame
 
     @property
     def native_boxes(self) -> np.ndarray:
         """``boxes`` in the pixels of ``frame`` as it came (what a viewer draws on it)."""
-        assert self.working is not None
         return self.working.to_native(self.boxes)
 
     @property
@@ -312,7 +306,7 @@ def prepare(frame: Frame, config: PipelineConfig, timing: dict[str, float] | Non
     inputs = (color[None], depth[None], rois, context_rois)
     detector = "" if config.detector is None else config.detector.name
     return PreparedFrame(
-        native, R_tilt, boxes, centers, *inputs, timing, gravity.source, notes, found, detector, working
+        native, working, R_tilt, boxes, centers, *inputs, timing, gravity.source, notes, found, detector
     )
 
 
@@ -447,7 +441,6 @@ def finish(prepared: PreparedFrame, out: NetworkOutput, config: PipelineConfig) 
     timing = prepared.timing
     timing["total"] = sum(timing[stage] for stage in STAGES if stage in timing)
     frame, working = prepared.frame, prepared.working
-    assert working is not None
     return FrameDetections(
         frame=frame.name,
         R_tilt=prepared.R_tilt,

@@ -12,6 +12,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from a3d.runtime.frontend.working_size import WorkingFrame
 from a3d.runtime.io.detections_io import FrameDetections, format_line, parse_line
 from a3d.runtime.pipeline import NetworkOutput, PipelineConfig, PreparedFrame, finish
 from a3d.runtime.postprocess.box_limits import CLASS_MAX_SIZE_M, MIN_SIZE_M, bound_boxes, near_range
@@ -26,7 +27,9 @@ deltas = st.floats(-50.0, 50.0, allow_nan=False, width=32)
 def _prepared(depth: np.ndarray, centers: np.ndarray, boxes: np.ndarray) -> PreparedFrame:
     frame = Frame("f", np.zeros((*depth.shape, 3), np.uint8), depth, NYU_CROP_INTRINSICS, origin="f")
     empty = np.zeros((0,), np.float32)
-    return PreparedFrame(frame, np.eye(3), boxes, centers, empty, empty, empty, empty, {}, "estimated", [])
+    return PreparedFrame(
+        frame, WorkingFrame(frame), np.eye(3), boxes, centers, empty, empty, empty, empty, {}, "estimated", []
+    )
 
 
 @settings(max_examples=60, deadline=None)

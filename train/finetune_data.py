@@ -135,7 +135,7 @@ def _link(ref: FrameRef, folder: Path, name: str, intrinsics: Path | None = None
     written instead, with the folder's intrinsics in it. A frame larger than the working size is
     written at it instead (module docstring)."""
     if max(read_image_header(ref.color_path).size) > WORKING_SIDE:
-        _write_working_size(ref, folder, name, ref.color_path.parent)
+        _write_working_size(ref, folder, name)
         return
     for path in (ref.color_path, ref.depth_path, ref.gt_path, ref.instances_path, ref.proposals_path):
         if path is not None:
@@ -178,11 +178,10 @@ def synthetic_frames(work: Path, frames: int, workers: int = 2) -> Path:
     return done
 
 
-def _write_working_size(ref: FrameRef, folder: Path, name: str, source: Path) -> None:
-    """Frame ``ref`` of the folder ``source`` written into ``folder`` as ``name`` at the working size:
-    colour, depth and camera as a3d-run brings it there, its ground truth's 2D boxes and its
-    instance map with them."""
-    frame = read_frame(ref, read_folder_intrinsics(source))
+def _write_working_size(ref: FrameRef, folder: Path, name: str) -> None:
+    """Frame ``ref`` written into ``folder`` as ``name`` at the working size: colour, depth and
+    camera as a3d-run brings it there, its ground truth's 2D boxes and its instance map with them."""
+    frame = read_frame(ref, read_folder_intrinsics(ref.color_path.parent))
     working = working_frame(frame, WORKING_SIDE)
     small = working.frame
     truth = read_ground_truth(ref)
