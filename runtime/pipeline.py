@@ -266,8 +266,13 @@ def prepare(frame: Frame, config: PipelineConfig, timing: dict[str, float] | Non
     timing = {} if timing is None else timing
     clock = Clock(timing)
     notes: list[str] = [frame.pose_note] if frame.pose_note else []
-    keeps_size = frame.proposals is not None and config.proposal_source != "compute"  # cut for its size
-    native, working = frame, working_frame(frame, None if keeps_size else config.working_side)
+    side, (height, width) = config.working_side, frame.image_size
+    own_proposals = frame.proposals is not None and config.proposal_source != "compute"
+    if side is not None and max(height, width) > side and own_proposals:  # cut for its own size
+        notes.append(f"{width} x {height} kept for its precomputed proposals: the network works best at "
+                     f"{side} across (--proposals compute brings it there)")  # fmt: skip
+        side = None
+    native, working = frame, working_frame(frame, side)
     frame = working.frame
     clock.lap("read")  # bringing it to the working size is part of reading it
     boxes_of = config.detector

@@ -84,9 +84,12 @@ def test_a_frame_with_proposals_cut_for_its_size_keeps_it_unless_they_are_comput
     masks = np.zeros((1, 2 * H, 2 * W), bool)
     masks[0, 10:60, 20:90] = True
     own = replace(big, proposals=PrecomputedProposals.from_masks([[19.5, 9.5, 89.5, 59.5]], masks))
-    assert prepare(own, config).work is own
-    computed = prepare(own, replace(config, proposal_source="compute")).work
-    assert computed.image_size == (H, W) and computed.proposals is None
+    kept = prepare(own, config)
+    assert kept.work is own and kept.notes == [
+        f"{2 * W} x {2 * H} kept for its precomputed proposals: the network works best at {W} across "
+        "(--proposals compute brings it there)"]  # fmt: skip
+    computed = prepare(own, replace(config, proposal_source="compute"))
+    assert computed.work.image_size == (H, W) and computed.work.proposals is None and not computed.notes
 
 
 
