@@ -27,6 +27,7 @@ from a3d.runtime.structures.geometry import (
     canonical_boxes,
     check_rotation,
     context_boxes,
+    evenly_spread,
     flip_boxes_2d,
     flip_boxes_3d,
     flip_intrinsics,
@@ -463,3 +464,10 @@ def test_boxes_from_pixel_bounds_run_along_the_outer_pixel_edges() -> None:
     np.testing.assert_array_equal(box, [0.5, 1.5, 6.5, 4.5])
     assert (box[2] - box[0], box[3] - box[1]) == (6.0, 3.0)  # width and height count the pixels
     np.testing.assert_array_equal(boxes_from_pixel_bounds(np.zeros((0, 4), int)).shape, (0, 4))
+
+
+def test_evenly_spread_keeps_at_most_the_limit_spread_over_all() -> None:
+    np.testing.assert_array_equal(evenly_spread(np.arange(10), 4), [0, 3, 6, 9])
+    np.testing.assert_array_equal(evenly_spread(np.arange(10), 5), [0, 2, 4, 6, 8])
+    np.testing.assert_array_equal(evenly_spread(np.arange(3), 5), [0, 1, 2])
+    assert evenly_spread(np.zeros((0, 3)), 5).shape == (0, 3)

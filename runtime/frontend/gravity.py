@@ -42,7 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from a3d.runtime.frontend.normals import NormalConfig, normal_grid
-from a3d.runtime.structures.geometry import CameraLike, rtilt_from_pitch_roll
+from a3d.runtime.structures.geometry import CameraLike, evenly_spread, rtilt_from_pitch_roll
 
 STATUS_OK = "ok"
 STATUS_WALLS_ONLY = "walls_only"
@@ -94,8 +94,7 @@ def estimate_gravity(
     """Gupta et al.'s iterative gravity estimate from an (H, W) metric depth map (0 = missing)."""
     grid = normal_grid(depth, K, config.normals)
     normals = grid.normals[grid.valid].astype(np.float64)
-    if len(normals) > config.max_normals:
-        normals = normals[:: -(-len(normals) // config.max_normals)]
+    normals = evenly_spread(normals, config.max_normals)
     g = np.array([0.0, 1.0, 0.0])
     if len(normals) < config.min_normals:
         return GravityEstimate(np.eye(3), g, STATUS_TOO_FEW_NORMALS, 0, 0)

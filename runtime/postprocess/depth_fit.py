@@ -21,7 +21,13 @@ import numpy as np
 from a3d.runtime.postprocess.depth_support import MARGIN_M, SampledDepth, box_points
 from a3d.runtime.structures.boxes import CENTER, THETA, H, L, W
 from a3d.runtime.structures.classes import class_mask
-from a3d.runtime.structures.geometry import CameraLike, points_in_box, project_points, turned_by_yaw
+from a3d.runtime.structures.geometry import (
+    CameraLike,
+    evenly_spread,
+    points_in_box,
+    project_points,
+    turned_by_yaw,
+)
 
 FITTED = ("door",)
 REACH_M, STEP_M = 0.3, 0.05
@@ -65,7 +71,7 @@ def fit_to_depth(
             continue
         box = boxes[i]
         centres = R @ box[CENTER] + offsets  # (G, 3) tilt frame, offset 0 among them
-        held = held[:: -(-len(held) // MAX_POINTS)]  # at most MAX_POINTS, evenly spread
+        held = evenly_spread(held, MAX_POINTS)
         # The box moved by an offset holds what it held of the points moved back by it.
         support = points_in_box(held[None] - offsets[:, None], box, R, MARGIN_M, MARGIN_M).mean(axis=1)
         volume = turned_by_yaw(unit * box[[L, H, W]], box[THETA])  # tilt offsets of the samples

@@ -29,6 +29,7 @@ import numpy as np
 from a3d.runtime.postprocess.depth_support import SampledDepth
 from a3d.runtime.structures.boxes import CENTER, H
 from a3d.runtime.structures.classes import class_mask
+from a3d.runtime.structures.geometry import evenly_spread
 
 STANDING = frozenset({
     "bathtub", "bed", "bookshelf", "chair", "counter", "desk", "door", "dresser", "garbage bin",
@@ -67,7 +68,7 @@ def frame_floor(sampled: SampledDepth) -> np.ndarray | None:
     points = sampled.points[sampled.valid]
     if len(points) < MIN_POINTS:
         return None
-    plane = floor_plane(points[:: -(-len(points) // MAX_POINTS)])  # at most MAX_POINTS, evenly spread
+    plane = floor_plane(evenly_spread(points, MAX_POINTS))
     return plane if np.abs(plane[:2]).max() <= MAX_SLOPE else None
 
 

@@ -405,6 +405,12 @@ def project_boxes_to_2d(
     return out
 
 
+def evenly_spread(points: np.ndarray, limit: int) -> np.ndarray:
+    """At most ``limit`` of ``points`` (rows), every k-th, so that they spread over all of them: a
+    fit on many depth samples holds to the same answer on a fixed number of them."""
+    return points[:: max(1, -(-len(points) // limit))]
+
+
 def points_in_box(
     points: np.ndarray, box: np.ndarray, R_tilt: np.ndarray, margin_m: float = 0.0, bottom_m: float = 0.0
 ) -> np.ndarray:
