@@ -79,7 +79,7 @@ class Detector:
         or ONNX file whose view of the best own detections rescores them (a3d.runtime.classifier2d;
         off by default: docs/real-rooms.md has what it does to the scores). ``working_side``: a
         frame whose longer side is over it is brought down to it first, as the networks were trained
-        (a3d.runtime.frontend.working_size); None: every frame as it comes."""
+        (a3d.runtime.frontend.working_size); None or 0: every frame as it comes."""
         network = DetectorModel.load(model_path(model), threads=threads)
         config = PipelineConfig.from_metadata(
             network.metadata,

@@ -156,8 +156,8 @@ class PipelineConfig:
     (a3d.runtime.postprocess.fuse), None for a3d's own proposals alone. ``classifier``: an image
     classifier whose view of the best own detections of the classes ``detector`` does not know
     rescores them (postprocess.fuse.second_opinion), None for none. ``working_side``: a frame whose
-    longer side is over it is brought down to it first (frontend.working_size), None: every frame
-    as it comes.
+    longer side is over it is brought down to it first (frontend.working_size), None or 0: every
+    frame as it comes.
     """
 
     mean_sizes: np.ndarray
@@ -268,7 +268,7 @@ def prepare(frame: Frame, config: PipelineConfig, timing: dict[str, float] | Non
     notes: list[str] = [frame.pose_note] if frame.pose_note else []
     side, (height, width) = config.working_side, frame.image_size
     own_proposals = frame.proposals is not None and config.proposal_source != "compute"
-    if side is not None and max(height, width) > side and own_proposals:  # cut for its own size
+    if side and max(height, width) > side and own_proposals:  # cut for its own size
         notes.append(f"{width} x {height} kept for its precomputed proposals: the network works best at "
                      f"{side} across (--proposals compute brings it there)")  # fmt: skip
         side = None

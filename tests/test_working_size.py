@@ -43,7 +43,7 @@ def test_a_frame_over_the_working_side_comes_down_to_it_with_its_camera() -> Non
         assert getattr(working.frame.intrinsics, name) == pytest.approx(getattr(K, name), abs=1e-12)
     upright = replace(big, color=np.ascontiguousarray(big.color.transpose(1, 0, 2)), depth=big.depth.T.copy())
     assert working_frame(upright, W).frame.image_size == (W, H)  # the longer side, standing or lying
-    for kept in (working_frame(small, W), working_frame(big, None), working_frame(big, 2 * W)):
+    for kept in (working_frame(small, W), *(working_frame(big, side) for side in (None, 0, 2 * W))):
         assert kept.frame is small or kept.frame is big
         box = np.array([[1.0, 2.0, 3.0, 4.0]])
         np.testing.assert_array_equal(kept.to_native(box), box)
@@ -96,6 +96,9 @@ def test_a_frame_with_proposals_cut_for_its_size_keeps_it_unless_they_are_comput
 def test_the_python_api_brings_frames_to_the_working_side_unless_told_not_to() -> None:
     assert Detector.load("live", threads=1).config.working_side == WORKING_SIDE
     assert Detector.load("live", threads=1, working_side=None).config.working_side is None
+    big = frame_at(2)
+    as_it_comes = Detector.load("live", threads=1, working_side=0)  # as a3d-run's --working-side 0
+    assert prepare(big, as_it_comes.config).work is big
 
 
 def test_training_on_frames_larger_than_the_working_size_says_so(

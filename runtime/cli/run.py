@@ -373,7 +373,7 @@ def _job(args: argparse.Namespace) -> _Job:
         front_end=front_end,
         raw_scores=args.raw_scores,
     )
-    config = replace(config, working_side=args.working_side or None)
+    config = replace(config, working_side=args.working_side)
     detector = pipeline_detector(args.model_name, args.detector, model.metadata.detector)
     if detector is None and (args.detector_names is not None or args.class_map is not None):
         raise InputError("--detector-names and --class-map need a 2D detector (--detector or --model real)")

@@ -46,9 +46,10 @@ class WorkingFrame:
 
 def working_frame(frame: Frame, side: int | None = WORKING_SIDE) -> WorkingFrame:
     """``frame`` with its longer side brought down to ``side`` pixels (module docstring), without its
-    precomputed proposals (cut for its own size); as it is where it is no longer or ``side`` is None."""
+    precomputed proposals (cut for its own size); as it is where it is no longer or ``side`` is None
+    or 0 (a3d-run's ``--working-side 0``)."""
     height, width = frame.image_size
-    if side is None or max(height, width) <= side:
+    if not side or max(height, width) <= side:
         return WorkingFrame(frame)
     scale = side / max(height, width)
     size = (max(1, round(width * scale)), max(1, round(height * scale)))
