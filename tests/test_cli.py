@@ -25,7 +25,7 @@ RST = re.compile(r"``|:(func|class|mod|meth|ref):`")
 def test_the_commands_are_installed() -> None:
     names = [name for name, _ in COMMANDS]
     expected = ["a3d-average", "a3d-eval", "a3d-export", "a3d-finetune", "a3d-labels", "a3d-nyuv2"]
-    expected += ["a3d-pretrain"]
+    expected += ["a3d-poses", "a3d-pretrain"]
     expected += ["a3d-run", "a3d-sunrgbd", "a3d-synth", "a3d-train", "a3d-vgg16-weights", "a3d-world-boxes"]
     assert names == expected
 
@@ -120,6 +120,7 @@ MISSING_INPUT = {
     "a3d-export": ["no/such/folder/checkpoint.pt", "-o", "model.onnx"],
     "a3d-vgg16-weights": ["no/such/vgg16.h5", "--out", "vgg16.pt"],
     "a3d-labels": ["no/such/world_boxes.json", "no/such/folder", "--out", "out"],
+    "a3d-poses": ["no/such/folder", "--out", "out"],
     "a3d-world-boxes": ["no/such/folder", "--rough", "rough.csv"],
     "a3d-finetune": ["no/such/folder", "--out", "model.onnx"],
 }

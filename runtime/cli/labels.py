@@ -125,6 +125,13 @@ def write_labelled_frame(out: Path, frame: Frame, world: WorldBoxes, config: Lab
                 file=sys.stderr,
             )
     labels = label_frame(world, frame.pose, R_tilt, frame.depth, frame.intrinsics, config)
+    write_posed_frame(out, frame, frame.pose, labels)
+    return labels
+
+
+def write_posed_frame(out: Path, frame: Frame, pose: np.ndarray, labels: FrameLabels | None = None) -> None:
+    """Write ``frame`` into the frame folder ``out`` as read (its colour file's bytes, its depth in
+    its own format), with its intrinsics, ``pose``, the R_tilt the pose gives and, given, its labels."""
     color = read_bytes(Path(frame.color_file)) if frame.color_file else frame.color
     npy = frame.depth_file is not None and frame.depth_file.lower().endswith(".npy")
     write_frame(
@@ -132,14 +139,13 @@ def write_labelled_frame(out: Path, frame: Frame, world: WorldBoxes, config: Lab
         frame.name,
         color,
         frame.depth,
-        R_tilt=R_tilt,
+        R_tilt=rtilt_from_pose(pose),
         intrinsics_override=frame.intrinsics,
-        gt=labels.truth,
-        instances=labels.instances,
+        gt=None if labels is None else labels.truth,
+        instances=None if labels is None else labels.instances,
         depth_format="npy" if npy else "png",
-        pose=frame.pose,
+        pose=pose,
     )
-    return labels
 
 
 def labels_record(name: str, world: WorldBoxes, labels: FrameLabels) -> dict:

@@ -1,0 +1,242 @@
+"""Poses from the depth (a3d-poses) on a synthetic recording, against the poses it was rendered at.
+
+    .venv/bin/python -m bench.poses SEQ --work WORK [--every 4] [--voxel M]
+        [--finetune [--seeds 0,1] [--minutes 15]]
+
+SEQ is an ``a3d-synth --sequence`` folder (frames with their true poses, world_boxes.json). The
+bench runs what a user with a RealSense alone runs, as subprocesses, and measures each step
+against the truth:
+
+1. WORK/recording: SEQ's frames without their poses and R_tilt (intrinsics only);
+2. ``a3d-poses WORK/recording --out WORK/posed --every N``: the wall time; the estimated path
+   against the true one after the rigid fit that best maps one onto the other (the estimated
+   world's origin and heading are the first camera's): position error (median, largest), rotation
+   error, and each frame's gravity (its R_tilt from the estimated pose against the true one);
+3. ``a3d-world-boxes`` from rough boxes, as bench.own_room makes them, in the estimated world
+   (the room's boxes moved there by that fit: where a person sees them in its fused cloud);
+4. ``a3d-labels`` with the estimated poses: each frame's labels against its true ground truth
+   (the label of the same class that overlaps a true object most): the share of the true objects
+   labelled at 3D IoU >= 0.5 and >= 0.25, and the median IoU;
+5. with ``--finetune``: ``a3d-finetune`` (``--holdout 0.4``) on those labels and, beside it, on
+   the same frames labelled from the sequence's own poses, once per ``--seeds`` seed; ``real`` and
+   every fine-tuned model run on the frames both held back, with their *true* labels (``a3d-run``
+   + ``a3d-eval``): AP@0.25 per class.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from a3d.runtime.evaluation.metric import retilt_boxes
+from a3d.runtime.mapping.odometry import TrackerConfig
+from a3d.runtime.mapping.world import boxes_to_camera
+from a3d.runtime.mapping.world_boxes import read_world_boxes, write_world_boxes
+from a3d.runtime.sources.folder import TRACKING_FILE, list_frames, read_ground_truth, read_meta
+from a3d.runtime.structures.geometry import iou_3d
+from a3d.runtime.structures.pose import invert_pose, make_pose
+from bench.own_room import BIN, load, scores, sh, world_boxes_step
+
+
+def strip_poses(frames: Path, out: Path) -> None:
+    """``frames`` as a RealSense alone records them: colour and depth linked, meta.json with the
+    intrinsics only."""
+    out.mkdir(parents=True, exist_ok=True)
+    for name in ("intrinsics.json",):
+        if (frames / name).is_file():
+            shutil.copy(frames / name, out / name)
+    for ref in list_frames(frames):
+        for path in (ref.color_path, ref.depth_path):
+            link = out / path.name
+            if not link.exists():
+                link.symlink_to(path.resolve())
+        meta = read_meta(ref)
+        if meta.intrinsics is not None:
+            K = meta.intrinsics
+            document = {"intrinsics": {"fx": K.fx, "fy": K.fy, "cx": K.cx, "cy": K.cy}}
+            (out / f"{ref.name}.meta.json").write_text(json.dumps(document))
+
+
+def rigid_fit(source: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """The rotation and translation (4, 4) that best map the points ``source`` onto ``target``
+    (least squares; Umeyama without scale)."""
+    ms, mt = source.mean(axis=0), target.mean(axis=0)
+    u, _, vt = np.linalg.svd((target - mt).T @ (source - ms))
+    d = np.sign(np.linalg.det(u @ vt))
+    R = u @ np.diag([1.0, 1.0, d]) @ vt
+    return make_pose(R, mt - R @ ms)
+
+
+def angle_deg(R: np.ndarray) -> float:
+    return math.degrees(math.acos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)))
+
+
+def path_errors(seq_frames: Path, posed: Path) -> tuple[np.ndarray, dict[str, float]]:
+    """The fit taking the true world to the estimated one, and the path's errors (module docstring)."""
+    true = {ref.name: read_meta(ref) for ref in list_frames(seq_frames)}
+    est = {ref.name: read_meta(ref) for ref in list_frames(posed)}
+    names = sorted(est)
+    T_true = np.array([true[n].pose for n in names])
+    T_est = np.array([est[n].pose for n in names])
+    fit = rigid_fit(T_true[:, :3, 3], T_est[:, :3, 3])
+    moved = np.einsum("ij,njk->nik", fit, T_true)
+    position = np.linalg.norm(moved[:, :3, 3] - T_est[:, :3, 3], axis=1)
+    rotation = [angle_deg(a[:3, :3].T @ b[:3, :3]) for a, b in zip(moved, T_est, strict=True)]
+    gravity = [
+        math.degrees(math.acos(np.clip(true[n].R_tilt[1] @ est[n].R_tilt[1], -1.0, 1.0))) for n in names
+    ]
+    steps = np.linalg.norm(np.diff(T_true[:, :3, 3], axis=0), axis=1)
+    return fit, {
+        "frames": len(names),
+        "path_m": float(steps.sum()),
+        "position_median_cm": 100 * float(np.median(position)),
+        "position_max_cm": 100 * float(position.max()),
+        "rotation_median_deg": float(np.median(rotation)),
+        "rotation_max_deg": float(np.max(rotation)),
+        "gravity_median_deg": float(np.median(gravity)),
+        "gravity_max_deg": float(np.max(gravity)),
+    }
+
+
+def label_agreement(seq_frames: Path, labelled: Path) -> dict[str, dict[str, float]]:
+    """Each true object of every labelled frame against the frame's label of its class that
+    overlaps it most (3D IoU in the true frame's tilt frame; 0 where there is none): over all
+    objects ("all") and per class, the count, the median IoU and the shares at 0.5 and 0.25."""
+    true = {ref.name: ref for ref in list_frames(seq_frames)}
+    ious: dict[str, list[float]] = {}
+    for ref in list_frames(labelled):
+        truth, labels = read_ground_truth(true[ref.name]), read_ground_truth(ref)
+        R_true, R_label = read_meta(true[ref.name]).R_tilt, read_meta(ref).R_tilt
+        boxes = retilt_boxes(labels.boxes3d, R_label, R_true)
+        for name, cls, box in zip(truth.classes, truth.class_ids, truth.boxes3d, strict=True):
+            same = boxes[labels.class_ids == cls]
+            iou = float(iou_3d(box[None], same, R_true).max()) if len(same) else 0.0
+            for key in ("all", name):
+                ious.setdefault(key, []).append(iou)
+    return {
+        key: {
+            "objects": len(values),
+            "iou_median": round(float(np.median(values)), 3),
+            "share_iou_0.5": round(float(np.mean(np.array(values) >= 0.5)), 4),
+            "share_iou_0.25": round(float(np.mean(np.array(values) >= 0.25)), 4),
+        }
+        for key, values in ious.items()
+    }
+
+
+def link_frames(frames: Path, names: set[str], out: Path) -> None:
+    """A frame folder of the named frames of ``frames`` (links, their intrinsics.json too)."""
+    out.mkdir(parents=True, exist_ok=True)
+    for path in frames.iterdir():
+        if (path.name.split(".")[0] in names or path.name == "intrinsics.json") and not (
+            out / path.name
+        ).exists():
+            (out / path.name).symlink_to(path.resolve())
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("seq", type=Path, help="an a3d-synth --sequence folder")
+    p.add_argument("--work", type=Path, required=True)
+    p.add_argument("--every", type=int, default=4, help="a3d-poses --every")
+    p.add_argument("--voxel", type=float, default=TrackerConfig().voxel_m, help="a3d-poses --voxel")
+    p.add_argument("--finetune", action="store_true", help="also fine-tune on the labels (step 5)")
+    p.add_argument("--seeds", default="0", help="step 5's fine-tunes' seeds (solver.seed), comma-separated")
+    p.add_argument("--minutes", type=float, default=15.0)
+    args = p.parse_args(argv)
+    posed = track(args)
+    fit, path = path_errors(args.seq / "frames", posed)
+    print("\n" + json.dumps({"path": path}, indent=1))
+    est = args.work / "est"
+    est.mkdir(parents=True, exist_ok=True)
+    world = read_world_boxes(args.seq / "world_boxes.json")
+    moved = boxes_to_camera(world.boxes, invert_pose(fit), np.eye(3))  # the boxes in the estimated world
+    write_world_boxes(est / "world_boxes.json", type(world)(world.classes, moved, world.ids))
+    if not (est / "frames").exists():
+        (est / "frames").symlink_to(posed.resolve())
+    world_boxes_step(est, args.work)
+    labelled = args.work / "labelled"
+    if not labelled.is_dir():
+        sh("a3d-labels", est / "world_boxes.json", posed, "--out", labelled)
+    print("\n" + json.dumps({"labels": label_agreement(args.seq / "frames", labelled)}, indent=1))
+    if args.finetune:
+        finetunes(args, labelled)
+    return 0
+
+
+def track(args: argparse.Namespace) -> Path:
+    """Steps 1 and 2 (module docstring): WORK/posed, its wall time and what it could not track."""
+    recording, posed = args.work / "recording", args.work / "posed"
+    strip_poses(args.seq / "frames", recording)
+    if not posed.is_dir():
+        before, start = load(), time.perf_counter()
+        words = [
+            BIN / "a3d-poses",
+            recording,
+            "--out",
+            posed,
+            "--every",
+            str(args.every),
+            "--voxel",
+            str(args.voxel),
+        ]
+        code = subprocess.run(words, stdout=sys.stderr).returncode  # 1: frames it could not track
+        if code not in (0, 1):
+            raise SystemExit(f"a3d-poses exited {code}")
+        seconds = time.perf_counter() - start
+        print(f"\n## a3d-poses --every {args.every}: {seconds:.0f} s; before: {before}; after: {load()}")
+    records = [json.loads(line) for line in (posed / TRACKING_FILE).read_text().splitlines()]
+    lost = [r["frame"] for r in records if not r["tracked"]]
+    print(
+        f"\n{len(records) - len(lost)} of {len(records)} frames tracked"
+        + (f"; not: {', '.join(lost)}" if lost else "")
+    )
+    return posed
+
+
+def finetunes(args: argparse.Namespace, labelled: Path) -> None:
+    """Step 5: a3d-finetune on the tracked poses' labels and, beside it, on the labels of the same
+    frames from the sequence's own poses, once per seed; `real` and every model scored on the frames
+    that both held back, with their true labels, per class."""
+    every = args.work / "true_frames"  # the frames a3d-poses --every took, with their own poses
+    link_frames(
+        args.seq / "frames", {ref.name for ref in list_frames(args.seq / "frames")[:: args.every]}, every
+    )
+    true_labelled = args.work / "true_labelled"
+    if not true_labelled.is_dir():
+        sh("a3d-labels", args.seq / "world_boxes.json", every, "--out", true_labelled)
+    models: dict[str, Path] = {"real": Path("real")}
+    held: set[str] | None = None
+    for tag, folder in (("tracked", labelled), ("true", true_labelled)):
+        work = args.work / f"ft_{tag}.finetune"
+        for seed in args.seeds.split(","):
+            model = models.setdefault(f"{tag} poses, seed {seed}", args.work / f"ft_{tag}_s{seed}.onnx")
+            if not model.is_file():
+                before = load()
+                seconds = sh("a3d-finetune", folder, "--out", model, "--work", work, "--minutes",
+                             args.minutes, "--holdout", "0.4", "--set", f"solver.seed={seed}")  # fmt: skip
+                took = f"{seconds / 60:.1f} minutes; before: {before}; after: {load()}"
+                print(f"\n## a3d-finetune ({tag} poses, seed {seed}): {took}")
+        names = {ref.name.split("_", 1)[1] for ref in list_frames(work / "holdout")}  # "r0_NAME"
+        held = names if held is None else held & names
+    truth = args.work / "holdout_truth"
+    link_frames(args.seq / "frames", held or set(), truth)
+    reports = {tag: scores(model, truth, args.work / f"eval_{model.stem}") for tag, model in models.items()}
+    classes = reports["real"]["present_classes"]
+    print(f"\n{len(held or ())} frames held back by every fine-tune, their true labels; AP@0.25\n")
+    print("| model | mAP | " + " | ".join(classes) + " |\n| --- |" + " ---: |" * (len(classes) + 1))
+    for tag, report in reports.items():
+        aps = [f"{100 * report['classes'][c]['ap']['0.25']:.1f}" for c in classes]
+        print(f"| {tag} | {100 * report['map']['0.25']['present_classes']:.1f} | " + " | ".join(aps) + " |")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

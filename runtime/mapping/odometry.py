@@ -1,0 +1,173 @@
+"""Camera poses from an RGB-D recording's depth: frame-to-model tracking, as KinectFusion does.
+
+Why: world boxes, labels drawn once and the object map need each frame's pose, and a RealSense
+alone gives none. Each frame's depth is aligned by ICP (OpenCV's ``Odometry``, depth type) to the
+depth that the model fused so far (a hashed TSDF volume, OpenCV's ``Volume``) shows from the last
+pose, and then fused into the model at its new pose. Aligning to the model rather than to the last
+frame keeps the drift small: the model averages every frame so far. The poses are in the first
+frame's camera; ``gravity_alignment`` turns them into a3d's gravity-aligned world (y down,
+a3d.runtime.mapping.world) from the gravity the frames' depth shows.
+
+Limits: the scene is static; the depth must show shape (a bare wall that fills the view lets the
+camera slide along it); between two tracked frames the camera moves a few centimetres and degrees
+(a hand-held camera at 5 to 10 frames a second; ``TrackerConfig`` bounds a step); nothing closes
+loops, so the drift grows with the path (measured: docs/mapping.md "Poses from the depth").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from a3d.runtime.errors import InputError
+from a3d.runtime.frontend.gravity import rtilt_from_gravity
+from a3d.runtime.structures.geometry import Intrinsics
+
+
+@dataclass(frozen=True)
+class TrackerConfig:
+    """``voxel_m``: the model's voxel (OpenCV's default, 3 m / 512; coarser ones drift further:
+    bench.poses ``--voxel``); ``truncate_voxels``: its signed distance's truncation, in voxels (OpenCV's
+    ratio); ``max_depth_m``: depth beyond
+    this is neither fused nor tracked; ``max_step_m`` / ``max_turn_deg``: the largest move between
+    two tracked frames that ICP may return; a frame is tracked when at least ``min_agreement`` of
+    the model's pixels that it also sees lie within ``agree_m`` of its own depth after alignment."""
+
+    voxel_m: float = 3.0 / 512
+    truncate_voxels: float = 7.0
+    max_depth_m: float = 4.0
+    max_step_m: float = 0.15
+    max_turn_deg: float = 15.0
+    agree_m: float = 0.05
+    min_agreement: float = 0.5
+
+
+@dataclass(frozen=True)
+class Tracked:
+    """One frame's outcome: ``pose`` (4, 4) camera-to-first-camera, None when it was not tracked
+    (``note`` says why); ``agreement`` the share of the model's pixels that its depth confirms."""
+
+    pose: np.ndarray | None
+    agreement: float
+    note: str = ""
+
+
+def check_opencv() -> None:
+    """InputError unless this OpenCV has the 3D module's Odometry and Volume (OpenCV 5)."""
+    if not (hasattr(cv2, "Odometry") and hasattr(cv2, "Volume")):
+        raise InputError(
+            f"pose tracking needs OpenCV 5 (its Odometry and Volume); this is OpenCV {cv2.__version__}: "
+            "pip install 'opencv-python-headless>=5'"
+        )
+
+
+class DepthTracker:
+    """Tracks the frames of one camera (one size and intrinsics), in order (module docstring)."""
+
+    def __init__(
+        self, intrinsics: Intrinsics, size: tuple[int, int], config: TrackerConfig = TrackerConfig()
+    ):
+        check_opencv()
+        self.intrinsics, self.size, self.config = intrinsics, size, config
+        K = np.array(
+            [[intrinsics.fx, 0, intrinsics.cx], [0, intrinsics.fy, intrinsics.cy], [0, 0, 1]], np.float32
+        )
+        height, width = size
+        volume = cv2.VolumeSettings(cv2.VolumeType_HashTSDF)
+        volume.setCameraIntegrateIntrinsics(K)
+        volume.setCameraRaycastIntrinsics(K)
+        volume.setIntegrateWidth(width)
+        volume.setIntegrateHeight(height)
+        volume.setRaycastWidth(width)
+        volume.setRaycastHeight(height)
+        volume.setDepthFactor(1.0)  # metres in, as a3d's frames hold them
+        volume.setVoxelSize(config.voxel_m)
+        volume.setTsdfTruncateDistance(config.truncate_voxels * config.voxel_m)
+        volume.setMaxDepth(config.max_depth_m)
+        self._volume = cv2.Volume(cv2.VolumeType_HashTSDF, volume)
+        odometry = cv2.OdometrySettings()
+        odometry.setCameraMatrix(K)
+        odometry.setMaxDepth(config.max_depth_m)
+        odometry.setMaxTranslation(config.max_step_m)
+        odometry.setMaxRotation(config.max_turn_deg)
+        self._odometry = cv2.Odometry(cv2.OdometryType_RGB_DEPTH, odometry, cv2.OdometryAlgoType_COMMON)
+        self._pose: np.ndarray | None = None  # the last tracked frame's
+        self._gray: np.ndarray | None = None  # the last tracked frame's image, seen from that pose
+
+    def track(self, depth: np.ndarray, color: np.ndarray) -> Tracked:
+        """Align ``depth`` ((H, W) metres, 0 = missing) to the model and fuse it there; the first
+        frame defines the model's frame."""
+        depth = np.ascontiguousarray(depth, np.float32)
+        gray = cv2.cvtColor(color, cv2.COLOR_BGR2GRAY)
+        if depth.shape != self.size:
+            raise InputError(
+                f"depth is {depth.shape[0]}x{depth.shape[1]}, the recording's {self.size[0]}x{self.size[1]}"
+            )
+        if self._pose is None:
+            if not (depth > 0).any():
+                return Tracked(None, 0.0, "no depth to start the model from")
+            self._pose, self._gray = np.eye(4), gray
+            self._volume.integrate(depth, self._pose.astype(np.float32))
+            return Tracked(self._pose.copy(), 1.0)
+        points, _ = self._volume.raycast(self._pose.astype(np.float32))
+        points = np.asarray(points)[..., :3]
+        model_depth = np.where(np.isfinite(points[..., 2]), points[..., 2], 0).astype(np.float32)
+        previous = cv2.OdometryFrame(model_depth, self._gray)
+        current = cv2.OdometryFrame(depth, gray)
+        self._odometry.prepareFrame(previous)
+        self._odometry.prepareFrame(current)
+        found, Rt = self._odometry.compute(previous, current)
+        if not found:
+            return Tracked(None, 0.0, "ICP found no alignment to the model")
+        Rt = np.asarray(Rt, np.float64)
+        agreement = self.agreement(points, Rt, depth)
+        if agreement < self.config.min_agreement:
+            return Tracked(None, agreement, f"only {agreement:.0%} of the model agrees with its depth")
+        self._pose, self._gray = self._pose @ np.linalg.inv(Rt), gray
+        self._volume.integrate(depth, self._pose.astype(np.float32))
+        return Tracked(self._pose.copy(), agreement)
+
+    def agreement(self, points: np.ndarray, Rt: np.ndarray, depth: np.ndarray) -> float:
+        """The share of the model's points (the last pose's camera) that, moved by ``Rt`` into
+        the frame's camera, land on a pixel whose depth is within ``agree_m`` of theirs, over
+        those that land on a pixel with depth (0 when none does)."""
+        valid = np.isfinite(points[..., 2])
+        moved = points[valid].astype(np.float64) @ Rt[:3, :3].T + Rt[:3, 3]
+        z = moved[:, 2]
+        K = self.intrinsics
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = np.round(K.fx * moved[:, 0] / z + K.cx)
+            v = np.round(K.fy * moved[:, 1] / z + K.cy)
+        height, width = self.size
+        inside = (z > 0) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+        seen = depth[v[inside].astype(np.int64), u[inside].astype(np.int64)]
+        both = seen > 0
+        if not both.any():
+            return 0.0
+        return float(np.mean(np.abs(seen[both] - z[inside][both]) <= self.config.agree_m))
+
+
+@dataclass(frozen=True)
+class GravityAlignment:
+    """The rotation that turns the tracking frame into a3d's world (its gravity on +y), the
+    frames it was taken from and the median angle between their gravity and the mean."""
+
+    rotation: np.ndarray
+    frames: int
+    spread_deg: float
+
+
+def gravity_alignment(poses: list[np.ndarray], downs: list[np.ndarray]) -> GravityAlignment:
+    """The mean of the frames' gravity (``downs``: each a unit down vector in its camera, from its
+    R_tilt) taken into the tracking frame by their ``poses``, turned onto a3d's down, +y. The
+    heading is the first camera's. ValueError when no frame gave gravity."""
+    if not downs:
+        raise ValueError("no frame's gravity to align the poses with")
+    world = np.array([pose[:3, :3] @ down for pose, down in zip(poses, downs, strict=True)])
+    world /= np.linalg.norm(world, axis=1, keepdims=True)
+    mean = world.mean(axis=0)
+    mean /= np.linalg.norm(mean)
+    spread = np.degrees(np.arccos(np.clip(world @ mean, -1.0, 1.0)))
+    return GravityAlignment(rtilt_from_gravity(mean), len(downs), float(np.median(spread)))
