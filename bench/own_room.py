@@ -92,9 +92,10 @@ def world_boxes_step(seq: Path, work: Path) -> None:
     print(f"\n{len(centres)} objects: {close}")
 
 
-def scores(model: str | Path, frames: Path, out: Path) -> dict:
-    """a3d-eval's report (its eval.json) of the model's a3d-run on the frames."""
-    sh("a3d-run", frames, "--model", model, "--output", out.with_suffix(".jsonl"), "--headless")
+def scores(model: str | Path, frames: Path, out: Path, *run_args: str) -> dict:
+    """a3d-eval's report (its eval.json) of the model's a3d-run on the frames (``run_args``: more
+    of a3d-run's flags, e.g. ``--detector none``)."""
+    sh("a3d-run", frames, "--model", model, "--output", out.with_suffix(".jsonl"), "--headless", *run_args)
     sh("a3d-eval", frames, "--detections", out.with_suffix(".jsonl"), "--out", out)
     return json.loads((out / "eval.json").read_text())
 

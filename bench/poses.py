@@ -163,12 +163,21 @@ def main(argv: list[str] | None = None) -> int:
     if not (est / "frames").exists():
         (est / "frames").symlink_to(posed.resolve())
     world_boxes_step(est, args.work)
+    true_seq = args.work / "true_seq"  # the same frames with the sequence's own poses, for comparison
+    link_frames(
+        args.seq / "frames",
+        {r.name for r in list_frames(args.seq / "frames")[:: args.every]},
+        true_seq / "frames",
+    )
+    if not (true_seq / "world_boxes.json").exists():
+        (true_seq / "world_boxes.json").symlink_to((args.seq / "world_boxes.json").resolve())
+    world_boxes_step(true_seq, true_seq)
     labelled = args.work / "labelled"
     if not labelled.is_dir():
         sh("a3d-labels", est / "world_boxes.json", posed, "--out", labelled)
     print("\n" + json.dumps({"labels": label_agreement(args.seq / "frames", labelled)}, indent=1))
     if args.finetune:
-        finetunes(args, labelled)
+        finetunes(args, labelled, true_seq)
     return 0
 
 
@@ -202,17 +211,14 @@ def track(args: argparse.Namespace) -> Path:
     return posed
 
 
-def finetunes(args: argparse.Namespace, labelled: Path) -> None:
+def finetunes(args: argparse.Namespace, labelled: Path, true_seq: Path) -> None:
     """Step 5: a3d-finetune on the tracked poses' labels and, beside it, on the labels of the same
-    frames from the sequence's own poses, once per seed; `real` and every model scored on the frames
-    that both held back, with their true labels, per class."""
-    every = args.work / "true_frames"  # the frames a3d-poses --every took, with their own poses
-    link_frames(
-        args.seq / "frames", {ref.name for ref in list_frames(args.seq / "frames")[:: args.every]}, every
-    )
+    frames from the sequence's own poses (``true_seq``), once per seed; `real` and every model
+    scored on the frames that both held back, with their true labels, per class, and the network
+    alone (``--detector none``)."""
     true_labelled = args.work / "true_labelled"
     if not true_labelled.is_dir():
-        sh("a3d-labels", args.seq / "world_boxes.json", every, "--out", true_labelled)
+        sh("a3d-labels", true_seq / "world_boxes.json", true_seq / "frames", "--out", true_labelled)
     models: dict[str, Path] = {"real": Path("real")}
     held: set[str] | None = None
     for tag, folder in (("tracked", labelled), ("true", true_labelled)):
@@ -230,12 +236,18 @@ def finetunes(args: argparse.Namespace, labelled: Path) -> None:
     truth = args.work / "holdout_truth"
     link_frames(args.seq / "frames", held or set(), truth)
     reports = {tag: scores(model, truth, args.work / f"eval_{model.stem}") for tag, model in models.items()}
+    alone = {
+        tag: scores(model, truth, args.work / f"eval_alone_{model.stem}", "--detector", "none")
+        for tag, model in models.items()
+    }
     classes = reports["real"]["present_classes"]
     print(f"\n{len(held or ())} frames held back by every fine-tune, their true labels; AP@0.25\n")
-    print("| model | mAP | " + " | ".join(classes) + " |\n| --- |" + " ---: |" * (len(classes) + 1))
+    print("| model | mAP (network alone) | " + " | ".join(classes) + " |")
+    print("| --- |" + " ---: |" * (len(classes) + 1))
     for tag, report in reports.items():
         aps = [f"{100 * report['classes'][c]['ap']['0.25']:.1f}" for c in classes]
-        print(f"| {tag} | {100 * report['map']['0.25']['present_classes']:.1f} | " + " | ".join(aps) + " |")
+        pipeline, network = (100 * r["map"]["0.25"]["present_classes"] for r in (report, alone[tag]))
+        print(f"| {tag} | {pipeline:.1f} ({network:.1f}) | " + " | ".join(aps) + " |")
 
 
 if __name__ == "__main__":
