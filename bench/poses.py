@@ -12,8 +12,10 @@ against the truth:
    against the true one after the rigid fit that best maps one onto the other (the estimated
    world's origin and heading are the first camera's): position error (median, largest), rotation
    error, and each frame's gravity (its R_tilt from the estimated pose against the true one);
-3. ``a3d-world-boxes`` from rough boxes, as bench.own_room makes them, in the estimated world
-   (the room's boxes moved there by that fit: where a person sees them in its fused cloud);
+3. ``a3d-world-boxes`` from rough boxes, as bench.own_room makes them, in the estimated world:
+   the room's boxes moved to where the tracked recording shows them (``boxes_where_seen``: each
+   through the frames that see it), as a person drawing them in its fused cloud sees them; and on
+   the same frames with their own poses;
 4. ``a3d-labels`` with the estimated poses: each frame's labels against its true ground truth
    (the label of the same class that overlaps a true object most): the share of the true objects
    labelled at 3D IoU >= 0.5 and >= 0.25, and the median IoU;
@@ -38,11 +40,10 @@ import numpy as np
 
 from a3d.runtime.evaluation.metric import retilt_boxes
 from a3d.runtime.mapping.odometry import TrackerConfig
-from a3d.runtime.mapping.world import boxes_to_camera
 from a3d.runtime.mapping.world_boxes import read_world_boxes, write_world_boxes
-from a3d.runtime.sources.folder import TRACKING_FILE, list_frames, read_ground_truth, read_meta
-from a3d.runtime.structures.geometry import iou_3d
-from a3d.runtime.structures.pose import invert_pose, make_pose
+from a3d.runtime.sources.folder import LABELS_FILE, TRACKING_FILE, list_frames, read_ground_truth, read_meta
+from a3d.runtime.structures.geometry import box_corners_camera, boxes_from_corners_tilt, iou_3d
+from a3d.runtime.structures.pose import invert_pose, make_pose, transform_points
 from bench.own_room import BIN, load, scores, sh, world_boxes_step
 
 
@@ -50,9 +51,8 @@ def strip_poses(frames: Path, out: Path) -> None:
     """``frames`` as a RealSense alone records them: colour and depth linked, meta.json with the
     intrinsics only."""
     out.mkdir(parents=True, exist_ok=True)
-    for name in ("intrinsics.json",):
-        if (frames / name).is_file():
-            shutil.copy(frames / name, out / name)
+    if (frames / "intrinsics.json").is_file():
+        shutil.copy(frames / "intrinsics.json", out / "intrinsics.json")
     for ref in list_frames(frames):
         for path in (ref.color_path, ref.depth_path):
             link = out / path.name
@@ -106,6 +106,30 @@ def path_errors(seq_frames: Path, posed: Path) -> tuple[np.ndarray, dict[str, fl
     }
 
 
+def boxes_where_seen(
+    boxes: np.ndarray, ids: np.ndarray, true_frames: Path, posed: Path, true_labelled: Path, fit: np.ndarray
+) -> np.ndarray:
+    """The world boxes (N, 7) where the tracked recording shows each object: its corners taken
+    through every frame that sees it (true labels' labels.jsonl) from the true camera to the tracked
+    one, and averaged; ``fit`` (the path's rigid fit) for an object no tracked frame sees. A person
+    drawing the boxes in the tracked cloud sees them there, whatever the drift between rooms' ends."""
+    true = {ref.name: read_meta(ref).pose for ref in list_frames(true_frames)}
+    est = {ref.name: read_meta(ref).pose for ref in list_frames(posed)}
+    seen: dict[int, list[str]] = {}
+    for line in (true_labelled / LABELS_FILE).read_text().splitlines():
+        record = json.loads(line)
+        for obj in record["objects"]:
+            if obj["labelled"] and record["frame"] in est:
+                seen.setdefault(obj["id"], []).append(record["frame"])
+    out = []
+    for box, object_id in zip(boxes, ids, strict=True):
+        corners = box_corners_camera(box[None], np.eye(3))[0]
+        moves = [est[n] @ invert_pose(true[n]) for n in seen.get(int(object_id), [])] or [fit]
+        mean = np.mean([transform_points(move, corners) for move in moves], axis=0)
+        out.append(boxes_from_corners_tilt(mean[None], np.eye(3))[0])
+    return np.array(out).reshape(-1, 7)
+
+
 def label_agreement(seq_frames: Path, labelled: Path) -> dict[str, dict[str, float]]:
     """Each true object of every labelled frame against the frame's label of its class that
     overlaps it most (3D IoU in the true frame's tilt frame; 0 where there is none): over all
@@ -155,14 +179,6 @@ def main(argv: list[str] | None = None) -> int:
     posed = track(args)
     fit, path = path_errors(args.seq / "frames", posed)
     print("\n" + json.dumps({"path": path}, indent=1))
-    est = args.work / "est"
-    est.mkdir(parents=True, exist_ok=True)
-    world = read_world_boxes(args.seq / "world_boxes.json")
-    moved = boxes_to_camera(world.boxes, invert_pose(fit), np.eye(3))  # the boxes in the estimated world
-    write_world_boxes(est / "world_boxes.json", type(world)(world.classes, moved, world.ids))
-    if not (est / "frames").exists():
-        (est / "frames").symlink_to(posed.resolve())
-    world_boxes_step(est, args.work)
     true_seq = args.work / "true_seq"  # the same frames with the sequence's own poses, for comparison
     link_frames(
         args.seq / "frames",
@@ -171,7 +187,19 @@ def main(argv: list[str] | None = None) -> int:
     )
     if not (true_seq / "world_boxes.json").exists():
         (true_seq / "world_boxes.json").symlink_to((args.seq / "world_boxes.json").resolve())
-    world_boxes_step(true_seq, true_seq)
+    true_labelled = args.work / "true_labelled"
+    if not true_labelled.is_dir():
+        sh("a3d-labels", true_seq / "world_boxes.json", true_seq / "frames", "--out", true_labelled)
+    est = args.work / "est"
+    est.mkdir(parents=True, exist_ok=True)
+    world = read_world_boxes(args.seq / "world_boxes.json")
+    moved = boxes_where_seen(world.boxes, world.ids, true_seq / "frames", posed, true_labelled, fit)
+    write_world_boxes(est / "world_boxes.json", type(world)(world.classes, moved, world.ids))
+    if not (est / "frames").exists():
+        (est / "frames").symlink_to(posed.resolve())
+    for title, seq, work in (("tracked", est, args.work), ("sequence's own", true_seq, true_seq)):
+        print(f"\n### World boxes on the {title} poses")
+        world_boxes_step(seq, work)
     labelled = args.work / "labelled"
     if not labelled.is_dir():
         sh("a3d-labels", est / "world_boxes.json", posed, "--out", labelled)
@@ -217,8 +245,6 @@ def finetunes(args: argparse.Namespace, labelled: Path, true_seq: Path) -> None:
     scored on the frames that both held back, with their true labels, per class, and the network
     alone (``--detector none``)."""
     true_labelled = args.work / "true_labelled"
-    if not true_labelled.is_dir():
-        sh("a3d-labels", true_seq / "world_boxes.json", true_seq / "frames", "--out", true_labelled)
     models: dict[str, Path] = {"real": Path("real")}
     held: set[str] | None = None
     for tag, folder in (("tracked", labelled), ("true", true_labelled)):

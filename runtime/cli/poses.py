@@ -3,9 +3,9 @@
     a3d-poses SOURCE --out OUT [--every N] [--voxel M]
               [--source-format KIND] [--intrinsics FX,FY,CX,CY] [--depth-scale S]
 
-Each frame's pose is tracked from the depth (a3d.runtime.mapping.odometry: ICP against the model
-fused so far, as KinectFusion does) in a gravity-aligned world (y down, the mean gravity the
-frames' depth shows; the first camera's heading), so that a3d-world-boxes, a3d-labels and
+Each frame's pose is tracked (a3d.runtime.mapping.odometry: RGB-D odometry against the model fused
+so far, as KinectFusion does; frames over 640 across at 640) in a gravity-aligned world (y down,
+the mean gravity the frames show; the first camera's heading), so that a3d-world-boxes, a3d-labels and
 a3d-run --map take the recording as they take one with poses (docs/mapping.md "Poses from the
 depth"). OUT (new, or empty) becomes an a3d frame folder: per tracked frame its colour (the file's
 bytes) and depth, NAME.meta.json with its intrinsics, pose and the R_tilt the pose gives; and

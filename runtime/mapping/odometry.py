@@ -1,17 +1,18 @@
-"""Camera poses from an RGB-D recording's depth: frame-to-model tracking, as KinectFusion does.
+"""Camera poses from an RGB-D recording: frame-to-model tracking, as KinectFusion does.
 
 Why: world boxes, labels drawn once and the object map need each frame's pose, and a RealSense
-alone gives none. Each frame's depth is aligned by ICP (OpenCV's ``Odometry``, depth type) to the
-depth that the model fused so far (a hashed TSDF volume, OpenCV's ``Volume``) shows from the last
-pose, and then fused into the model at its new pose. Aligning to the model rather than to the last
-frame keeps the drift small: the model averages every frame so far. The poses are in the first
-frame's camera; ``gravity_alignment`` turns them into a3d's gravity-aligned world (y down,
-a3d.runtime.mapping.world) from the gravity the frames' depth shows.
+alone gives none. Each frame is aligned (OpenCV's RGB-D ``Odometry``: depth and photometric terms)
+to the model fused so far, a hashed TSDF volume (OpenCV's ``Volume``), as it looks from the last
+pose: the model's depth raycast there, beside the last frame's image, which was taken there. The
+frame is then fused into the model at its new pose. Aligning to the model, which averages every
+frame so far, rather than to the last frame keeps the drift small; the image's term holds the
+camera where depth alone lets it slide (a wall and the floor fix no motion along both). The poses
+are in the first frame's camera; ``gravity_alignment`` turns them into a3d's gravity-aligned
+world (y down, a3d.runtime.mapping.world) from the gravity the frames show.
 
-Limits: the scene is static; the depth must show shape (a bare wall that fills the view lets the
-camera slide along it); between two tracked frames the camera moves a few centimetres and degrees
-(a hand-held camera at 5 to 10 frames a second; ``TrackerConfig`` bounds a step); nothing closes
-loops, so the drift grows with the path (measured: docs/mapping.md "Poses from the depth").
+Limits: the scene is static; between two tracked frames the camera moves a few centimetres and
+degrees (a hand-held camera at 5 to 10 frames a second; ``TrackerConfig`` bounds a step); nothing
+closes loops, so the drift grows with the path (measured: docs/mapping.md "Poses from the depth").
 """
 
 from __future__ import annotations
@@ -120,7 +121,7 @@ class DepthTracker:
         self._odometry.prepareFrame(current)
         found, Rt = self._odometry.compute(previous, current)
         if not found:
-            return Tracked(None, 0.0, "ICP found no alignment to the model")
+            return Tracked(None, 0.0, "the odometry found no alignment to the model")
         Rt = np.asarray(Rt, np.float64)
         agreement = self.agreement(points, Rt, depth)
         if agreement < self.config.min_agreement:
