@@ -20,7 +20,8 @@ from a3d.runtime.errors import InputError
 from a3d.runtime.mapping.odometry import DepthTracker, gravity_alignment
 from a3d.runtime.mapping.world import rtilt_from_pose
 from a3d.runtime.sources.folder import TRACKING_FILE, FolderSource, list_frames, read_meta, write_frame
-from a3d.runtime.structures.geometry import rtilt_from_pitch_roll
+from a3d.runtime.structures.frame import Frame
+from a3d.runtime.structures.geometry import Intrinsics, rtilt_from_pitch_roll
 from a3d.runtime.structures.pose import invert_pose, make_pose
 from a3d.synth.cli import frame_seed, scaled_intrinsics
 from a3d.synth.scene import SceneConfig, generate_frame
@@ -181,3 +182,21 @@ def test_gravity_alignment_turns_the_mean_down_onto_y() -> None:
     assert alignment.frames == 2 and alignment.spread_deg < 1e-6
     with pytest.raises(ValueError, match="gravity"):
         gravity_alignment([], [])
+
+
+def test_gravity_from_walls_alone_only_when_no_frame_shows_a_floor(capsys) -> None:
+    K = Intrinsics(300.0, 300.0, 159.5, 119.5)
+    u = np.arange(320)[None, :] - 159.5
+    wall = np.ones((240, 1), np.float32) * (600.0 / (300.0 + 0.5 * u)).astype(np.float32)  # turned about y
+    frame = Frame("w", np.zeros((240, 320, 3), np.uint8), wall, K)
+    tracks = poses_cli.Tracks(poses={0: np.eye(4)})
+    poses_cli.add_down(tracks, 0, frame)
+    assert not tracks.downs and list(tracks.wall_downs) == [0]
+    turn = poses_cli.world_turn(tracks, Path("rec"))
+    np.testing.assert_allclose(turn[:3, :3] @ tracks.wall_downs[0], [0, 1, 0], atol=1e-9)
+    assert "walls alone" in capsys.readouterr().err
+    tracks.downs[0] = np.array([0.0, 0.0, 1.0])  # a frame that shows a floor wins over the walls
+    turn = poses_cli.world_turn(tracks, Path("rec"))
+    np.testing.assert_allclose(turn[:3, :3] @ [0.0, 0.0, 1.0], [0, 1, 0], atol=1e-9)
+    with pytest.raises(InputError, match="which way is down"):
+        poses_cli.world_turn(poses_cli.Tracks(poses={0: np.eye(4)}), Path("rec"))
