@@ -70,6 +70,7 @@ def check_poses(out: Path, true_poses: list[np.ndarray], true_tilts: list[np.nda
         assert math.degrees(math.acos(np.clip(meta.R_tilt[1] @ tilt[1], -1, 1))) < 2.0  # gravity
     records = [json.loads(line) for line in (out / TRACKING_FILE).read_text().splitlines()]
     assert [r["tracked"] for r in records] == [True] * FRAMES
+    assert [r["refined"] for r in records] == [True] * FRAMES  # against the model of all of them
     assert min(r["agreement"] for r in records) > 0.8
 
 
@@ -169,6 +170,21 @@ def test_tracking_a_frame_against_itself_and_a_wrong_size(recording) -> None:
         DepthTracker(frame.intrinsics, frame.depth.shape).track(np.zeros_like(frame.depth), frame.color).pose
         is None
     )
+
+
+def test_a_pose_put_off_is_refined_back_against_the_model_of_all_frames(recording) -> None:
+    frames, _, _ = recording
+    loaded = [loader.load() for loader in FolderSource(frames)][:4]
+    tracker = DepthTracker(loaded[0].intrinsics, loaded[0].depth.shape)
+    poses = [tracker.track(f.depth, f.color).pose for f in loaded]
+    off = poses[2] @ make_pose(rtilt_from_pitch_roll(math.radians(1.0), 0.0), [0.02, 0.0, 0.01])
+    refined = tracker.refine(loaded[2].depth, off)
+    assert refined is not None
+    assert np.linalg.norm(refined[:3, 3] - poses[2][:3, 3]) < 0.3 * np.linalg.norm(
+        off[:3, 3] - poses[2][:3, 3]
+    )
+    turn = refined[:3, :3].T @ poses[2][:3, :3]
+    assert math.degrees(math.acos(np.clip((np.trace(turn) - 1) / 2, -1, 1))) < 0.3
 
 
 def test_gravity_alignment_turns_the_mean_down_onto_y() -> None:

@@ -84,9 +84,7 @@ def main(argv: list[str] | None = None) -> int:
     if not tracks.poses:
         raise InputError(f"{args.source}: no frame could be tracked")
     turn = world_turn(tracks, args.source)
-    written = write_tracked(
-        out, loaders, {i: turn @ pose for i, pose in tracks.poses.items()}, tracks, failures
-    )
+    written = write_tracked(out, loaders, tracks, turn, failures)
     print(f"{out}: {written} frames with poses, of {len(loaders)} read", file=sys.stderr)
     if failures:
         print(f"{PROG}: {len(failures)} frame(s) failed", file=sys.stderr)
@@ -111,15 +109,18 @@ def world_turn(tracks: Tracks, source: Path) -> np.ndarray:
 
 
 def write_tracked(
-    out: Path, loaders: list[FrameLoader], poses: dict[int, np.ndarray], tracks: Tracks, failures: list[str]
+    out: Path, loaders: list[FrameLoader], tracks: Tracks, turn: np.ndarray, failures: list[str]
 ) -> int:
-    """Write the tracked frames (read again) with their world ``poses`` and tracking.jsonl into a
-    staging folder beside ``out`` that becomes ``out`` once whole; the frames written."""
+    """Read the tracked frames again, refine each pose against the model of all of them
+    (``DepthTracker.refine``; the tracked pose where it finds no correction), and write them with
+    their world poses (``turn`` after it) and tracking.jsonl into a staging folder beside ``out``
+    that becomes ``out`` once whole; the frames written."""
+    assert tracks.tracker is not None  # a pose was tracked
     out.parent.mkdir(parents=True, exist_ok=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.", dir=out.parent))
     written = 0
     try:
-        bar = tqdm(sorted(poses), desc=f"{PROG} writing", unit="frame", file=sys.stderr, disable=None)
+        bar = tqdm(sorted(tracks.poses), desc=f"{PROG} writing", unit="frame", file=sys.stderr, disable=None)
         for i in bar:
             try:
                 frame = loaders[i].load()
@@ -127,9 +128,11 @@ def write_tracked(
                 failures.append(frame_problem(loaders[i], e))
                 tqdm.write(f"{PROG}: {failures[-1]}", file=sys.stderr)
                 continue
-            write_posed_frame(staging, frame, poses[i])
+            refined = tracks.tracker.refine(working_frame(frame).frame.depth, tracks.poses[i])
+            tracks.records[i]["refined"] = refined is not None
+            write_posed_frame(staging, frame, turn @ (tracks.poses[i] if refined is None else refined))
             written += 1
-        records = "".join(json.dumps(r) + "\n" for r in tracks.records)
+        records = "".join(json.dumps(tracks.records[i]) + "\n" for i in sorted(tracks.records))
         atomic_write_bytes(staging / TRACKING_FILE, records.encode("utf-8"))
         if out.exists():
             out.rmdir()  # empty, checked before any work
@@ -142,41 +145,39 @@ def write_tracked(
 @dataclass
 class Tracks:
     """The tracked frames' poses by loader index (the first camera's frame), their down vectors
-    in their cameras where the frame gave one (``wall_downs``: from its walls alone), and one
-    tracking.jsonl record per frame read."""
+    in their cameras where the frame gave one (``wall_downs``: from its walls alone), one
+    tracking.jsonl record per frame read, by loader index, and the tracker."""
 
     poses: dict[int, np.ndarray] = field(default_factory=dict)
     downs: dict[int, np.ndarray] = field(default_factory=dict)
     wall_downs: dict[int, np.ndarray] = field(default_factory=dict)
-    records: list[dict] = field(default_factory=list)
+    records: dict[int, dict] = field(default_factory=dict)
+    tracker: DepthTracker | None = None  # holds the model of every tracked frame once done
 
 
 def track_all(loaders: list[FrameLoader], config: TrackerConfig, failures: list[str]) -> Tracks:
     """Track every loader's frame in order, at the working size (frames over 640 across brought
     to it: a camera's pose does not depend on the image's size, and tracking costs its pixels);
     every GRAVITY_EVERY-th tracked frame gives its down (``add_down``)."""
-    tracker: DepthTracker | None = None
     tracks = Tracks()
     bar = tqdm(loaders, desc=f"{PROG} tracking", unit="frame", file=sys.stderr, disable=None)
     for i, loader in enumerate(bar):
         try:
             frame = working_frame(loader.load()).frame  # a RealSense's 1280 x 720 tracked at 640 x 360
-            if tracker is None:
-                tracker = DepthTracker(frame.intrinsics, frame.depth.shape, config)
-            elif frame.intrinsics != tracker.intrinsics:
+            if tracks.tracker is None:
+                tracks.tracker = DepthTracker(frame.intrinsics, frame.depth.shape, config)
+            elif frame.intrinsics != tracks.tracker.intrinsics:
                 raise InputError(f"{frame.origin}: its intrinsics differ from the recording's first frame's")
-            tracked = tracker.track(frame.depth, frame.color)
+            tracked = tracks.tracker.track(frame.depth, frame.color)
         except ValueError as e:  # InputError included: one line per bad frame
             failures.append(frame_problem(loader, e))
             tqdm.write(f"{PROG}: {failures[-1]}", file=sys.stderr)
             continue
-        tracks.records.append(
-            {
-                "frame": frame.name,
-                "tracked": tracked.pose is not None,
-                "agreement": round(tracked.agreement, 4),
-            }
-        )
+        tracks.records[i] = {
+            "frame": frame.name,
+            "tracked": tracked.pose is not None,
+            "agreement": round(tracked.agreement, 4),
+        }
         if tracked.pose is None:
             failures.append(f"{frame.origin}: not tracked ({tracked.note}); not written")
             tqdm.write(f"{PROG}: {failures[-1]}", file=sys.stderr)

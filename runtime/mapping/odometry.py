@@ -34,7 +34,8 @@ class TrackerConfig:
     ratio); ``max_depth_m``: depth beyond
     this is neither fused nor tracked; ``max_step_m`` / ``max_turn_deg``: the largest move between
     two tracked frames that ICP may return; a frame is tracked when at least ``min_agreement`` of
-    the model's pixels that it also sees lie within ``agree_m`` of its own depth after alignment."""
+    the model's pixels that it also sees lie within ``agree_m`` of its own depth after alignment;
+    ``refine_step_m`` / ``refine_turn_deg``: the largest correction ``refine`` may make."""
 
     voxel_m: float = 3.0 / 512
     truncate_voxels: float = 7.0
@@ -43,6 +44,8 @@ class TrackerConfig:
     max_turn_deg: float = 15.0
     agree_m: float = 0.05
     min_agreement: float = 0.5
+    refine_step_m: float = 0.05
+    refine_turn_deg: float = 3.0
 
 
 @dataclass(frozen=True)
@@ -88,12 +91,10 @@ class DepthTracker:
         volume.setTsdfTruncateDistance(config.truncate_voxels * config.voxel_m)
         volume.setMaxDepth(config.max_depth_m)
         self._volume = cv2.Volume(cv2.VolumeType_HashTSDF, volume)
-        odometry = cv2.OdometrySettings()
-        odometry.setCameraMatrix(K)
-        odometry.setMaxDepth(config.max_depth_m)
-        odometry.setMaxTranslation(config.max_step_m)
-        odometry.setMaxRotation(config.max_turn_deg)
-        self._odometry = cv2.Odometry(cv2.OdometryType_RGB_DEPTH, odometry, cv2.OdometryAlgoType_COMMON)
+        tracking = _odometry_settings(K, config.max_depth_m, config.max_step_m, config.max_turn_deg)
+        self._odometry = cv2.Odometry(cv2.OdometryType_RGB_DEPTH, tracking, cv2.OdometryAlgoType_COMMON)
+        refining = _odometry_settings(K, config.max_depth_m, config.refine_step_m, config.refine_turn_deg)
+        self._refining = cv2.Odometry(cv2.OdometryType_DEPTH, refining, cv2.OdometryAlgoType_COMMON)
         self._pose: np.ndarray | None = None  # the last tracked frame's
         self._gray: np.ndarray | None = None  # the last tracked frame's image, seen from that pose
 
@@ -130,6 +131,21 @@ class DepthTracker:
         self._volume.integrate(depth, self._pose.astype(np.float32))
         return Tracked(self._pose.copy(), agreement)
 
+    def refine(self, depth: np.ndarray, pose: np.ndarray) -> np.ndarray | None:
+        """``pose`` (a tracked frame's) aligned again, by depth ICP, to the model as it stands once
+        every frame is fused: each frame was tracked against the model of the frames before it,
+        and re-aligning every frame to the one model of all of them takes out most of their
+        frame-to-frame disagreement (docs/mapping.md "Poses from the depth"). None when ICP
+        finds no correction within ``refine_step_m`` and ``refine_turn_deg``."""
+        points, _ = self._volume.raycast(np.asarray(pose, np.float32))
+        model_depth = np.asarray(points)[..., 2]
+        model = cv2.OdometryFrame(np.where(np.isfinite(model_depth), model_depth, 0).astype(np.float32))
+        frame = cv2.OdometryFrame(np.ascontiguousarray(depth, np.float32))
+        self._refining.prepareFrame(model)
+        self._refining.prepareFrame(frame)
+        found, Rt = self._refining.compute(model, frame)
+        return np.asarray(pose, np.float64) @ np.linalg.inv(np.asarray(Rt, np.float64)) if found else None
+
     def agreement(self, points: np.ndarray, Rt: np.ndarray, depth: np.ndarray) -> float:
         """The share of the model's points (the last pose's camera) that, moved by ``Rt`` into
         the frame's camera, land on a pixel whose depth is within ``agree_m`` of theirs, over
@@ -148,6 +164,19 @@ class DepthTracker:
         if not both.any():
             return 0.0
         return float(np.mean(np.abs(seen[both] - z[inside][both]) <= self.config.agree_m))
+
+
+def _odometry_settings(
+    K: np.ndarray, max_depth_m: float, step_m: float, turn_deg: float
+) -> cv2.OdometrySettings:
+    """OpenCV's odometry settings for the camera ``K``: depth used up to ``max_depth_m``, a move of at
+    most ``step_m`` and ``turn_deg`` accepted."""
+    settings = cv2.OdometrySettings()
+    settings.setCameraMatrix(K)
+    settings.setMaxDepth(max_depth_m)
+    settings.setMaxTranslation(step_m)
+    settings.setMaxRotation(turn_deg)
+    return settings
 
 
 @dataclass(frozen=True)
