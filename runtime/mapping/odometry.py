@@ -24,7 +24,8 @@ import numpy as np
 
 from a3d.runtime.errors import InputError
 from a3d.runtime.frontend.gravity import rtilt_from_gravity
-from a3d.runtime.structures.geometry import Intrinsics
+from a3d.runtime.structures.geometry import Intrinsics, project_points
+from a3d.runtime.structures.pose import transform_points
 
 
 @dataclass(frozen=True)
@@ -113,17 +114,12 @@ class DepthTracker:
             self._pose, self._gray = np.eye(4), gray
             self._volume.integrate(depth, self._pose.astype(np.float32))
             return Tracked(self._pose.copy(), 1.0)
-        points, _ = self._volume.raycast(self._pose.astype(np.float32))
-        points = np.asarray(points)[..., :3]
-        model_depth = np.where(np.isfinite(points[..., 2]), points[..., 2], 0).astype(np.float32)
-        previous = cv2.OdometryFrame(model_depth, self._gray)
-        current = cv2.OdometryFrame(depth, gray)
-        self._odometry.prepareFrame(previous)
-        self._odometry.prepareFrame(current)
-        found, Rt = self._odometry.compute(previous, current)
-        if not found:
+        points, model_depth = self._model(self._pose)
+        Rt = _align(
+            self._odometry, cv2.OdometryFrame(model_depth, self._gray), cv2.OdometryFrame(depth, gray)
+        )
+        if Rt is None:
             return Tracked(None, 0.0, "the odometry found no alignment to the model")
-        Rt = np.asarray(Rt, np.float64)
         agreement = self.agreement(points, Rt, depth)
         if agreement < self.config.min_agreement:
             return Tracked(None, agreement, f"only {agreement:.0%} of the model agrees with its depth")
@@ -137,33 +133,40 @@ class DepthTracker:
         and re-aligning every frame to the one model of all of them takes out most of their
         frame-to-frame disagreement (docs/mapping.md "Poses from the depth"). None when ICP
         finds no correction within ``refine_step_m`` and ``refine_turn_deg``."""
-        points, _ = self._volume.raycast(np.asarray(pose, np.float32))
-        model_depth = np.asarray(points)[..., 2]
-        model = cv2.OdometryFrame(np.where(np.isfinite(model_depth), model_depth, 0).astype(np.float32))
+        _, model_depth = self._model(pose)
         frame = cv2.OdometryFrame(np.ascontiguousarray(depth, np.float32))
-        self._refining.prepareFrame(model)
-        self._refining.prepareFrame(frame)
-        found, Rt = self._refining.compute(model, frame)
-        return np.asarray(pose, np.float64) @ np.linalg.inv(np.asarray(Rt, np.float64)) if found else None
+        Rt = _align(self._refining, cv2.OdometryFrame(model_depth), frame)
+        return None if Rt is None else np.asarray(pose, np.float64) @ np.linalg.inv(Rt)
+
+    def _model(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The model raycast from ``pose``: its points (H, W, 3) in that camera, NaN where it holds
+        nothing, and their depth (H, W) float32, 0 there."""
+        points = np.asarray(self._volume.raycast(np.asarray(pose, np.float32))[0])[..., :3]
+        return points, np.where(np.isfinite(points[..., 2]), points[..., 2], 0).astype(np.float32)
 
     def agreement(self, points: np.ndarray, Rt: np.ndarray, depth: np.ndarray) -> float:
         """The share of the model's points (the last pose's camera) that, moved by ``Rt`` into
         the frame's camera, land on a pixel whose depth is within ``agree_m`` of theirs, over
         those that land on a pixel with depth (0 when none does)."""
-        valid = np.isfinite(points[..., 2])
-        moved = points[valid].astype(np.float64) @ Rt[:3, :3].T + Rt[:3, 3]
-        z = moved[:, 2]
-        K = self.intrinsics
-        with np.errstate(divide="ignore", invalid="ignore"):
-            u = np.round(K.fx * moved[:, 0] / z + K.cx)
-            v = np.round(K.fy * moved[:, 1] / z + K.cy)
+        moved = transform_points(Rt, points[np.isfinite(points[..., 2])].astype(np.float64))
+        moved = moved[moved[:, 2] > 0]
+        u, v = np.round(project_points(moved, self.intrinsics)).T
         height, width = self.size
-        inside = (z > 0) & (u >= 0) & (u < width) & (v >= 0) & (v < height)
+        inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
         seen = depth[v[inside].astype(np.int64), u[inside].astype(np.int64)]
         both = seen > 0
         if not both.any():
             return 0.0
-        return float(np.mean(np.abs(seen[both] - z[inside][both]) <= self.config.agree_m))
+        return float(np.mean(np.abs(seen[both] - moved[inside, 2][both]) <= self.config.agree_m))
+
+
+def _align(odometry: cv2.Odometry, source: cv2.OdometryFrame, target: cv2.OdometryFrame) -> np.ndarray | None:
+    """The rigid transform (4, 4) taking ``source``'s camera to ``target``'s (both prepared here for
+    ``odometry``), None when it finds none within its settings' bounds."""
+    odometry.prepareFrame(source)
+    odometry.prepareFrame(target)
+    found, Rt = odometry.compute(source, target)
+    return np.asarray(Rt, np.float64) if found else None
 
 
 def _odometry_settings(
