@@ -477,11 +477,11 @@ def _picked(prepared: PreparedFrame, class_scores: np.ndarray, config: PipelineC
     found = prepared.found
     if found is None or not len(found.boxes):
         return own
-    picks = detector_picks(class_scores, n, found.scores, found.candidates, prepared.detector)
+    picks = detector_picks(class_scores, prepared.boxes, n, found.scores, found.candidates, prepared.detector)
     alive = picks.scores >= config.min_score
     picks = Picked(picks.rows[alive], picks.class_idx[alive], picks.scores[alive],
                    tuple(s for s, a in zip(picks.sources, alive, strict=True) if a))  # fmt: skip
-    return merge(own, picks, prepared.boxes, found.scores[alive])
+    return merge(own, picks, prepared.boxes, found.scores[picks.rows - n])
 
 
 def _second_opinion(prepared: PreparedFrame, picked: Picked, config: PipelineConfig) -> Picked:

@@ -38,11 +38,30 @@ def test_a_box_of_several_candidate_classes_takes_the_one_the_network_prefers():
     scores[4, CHAIR] = 0.9  # not a candidate: never chosen
     candidates = np.zeros((2, NUM_CLASSES), bool)
     candidates[:, [MONITOR, TV]] = True
-    picked = detector_picks(scores, 3, np.array([0.8, 0.7]), candidates, "yolox-nano")
+    boxes = np.array([[0, 0, 10, 10]] * 3 + [[0, 0, 100, 100], [200, 0, 300, 100]], float)
+    picked = detector_picks(scores, boxes, 3, np.array([0.8, 0.7]), candidates, "yolox-nano")
     assert picked.rows.tolist() == [3, 4]
     assert picked.class_idx.tolist() == [MONITOR, TV]
     assert picked.scores == pytest.approx(fused_score(np.array([0.8, 0.7]), np.array([0.6, 0.4])))
     assert picked.sources == ("yolox-nano", "yolox-nano")
+
+
+def test_boxes_of_two_detector_classes_that_become_one_a3d_class_on_one_object_count_once():
+    sofa = class_index("sofa")
+    scores = np.zeros((3, NUM_CLASSES))
+    scores[:, CHAIR], scores[:, sofa] = 0.3, 0.1  # the network takes all three for chairs
+    boxes = np.array([[0, 0, 100, 100], [4, 2, 100, 104], [300, 0, 400, 100]], float)
+    candidates = np.zeros((3, NUM_CLASSES), bool)
+    candidates[0, CHAIR] = True  # a "chair" box ...
+    candidates[1:, [CHAIR, sofa]] = True  # ... and a "couch" box on the same object, one elsewhere
+    picked = detector_picks(scores, boxes, 0, np.array([0.6, 0.8, 0.7]), candidates, "yolox-nano")
+    assert picked.rows.tolist() == [1, 2]  # the better "couch" box is the object; the far one stays
+    assert picked.class_idx.tolist() == [CHAIR, CHAIR]
+    assert picked.scores == pytest.approx(fused_score(np.array([0.8, 0.7]), np.array([0.3, 0.3])))
+    # Taken for different classes, the same boxes are two objects.
+    scores[1, sofa] = 0.9
+    picked = detector_picks(scores, boxes, 0, np.array([0.6, 0.8, 0.7]), candidates, "yolox-nano")
+    assert picked.rows.tolist() == [0, 1, 2] and picked.class_idx.tolist() == [CHAIR, sofa, CHAIR]
 
 
 def _picked(rows, classes, scores, source):

@@ -2,9 +2,10 @@
 
 Why: a COCO detector knows "couch" and "dining table", not a3d's "sofa" and "table", and most of
 its classes (person, cup, ...) are none of a3d's 19. A class may stand for several a3d classes
-("tv" is a monitor or a television): the pipeline picks among those candidates with the 3D
-network's probabilities. A class map file is a JSON object
-``{"detector class": "a3d class" | ["a3d class", ...]}``; an empty list drops a class.
+("tv" is a monitor or a television; "couch" a sofa or, as COCO's annotators often box an
+armchair, a chair): the pipeline picks among those candidates with the 3D network's
+probabilities. A class map file is a JSON object ``{"detector class": "a3d class" | ["a3d
+class", ...]}``; an empty list drops a class.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from a3d.runtime.structures.classes import CLASSES, NUM_CLASSES
 # COCO's classes that are a3d's, under YOLOX's spellings and Darknet's (sofa, diningtable, tvmonitor).
 COCO_CLASS_MAP: dict[str, tuple[str, ...]] = {
     "chair": ("chair",),
-    "couch": ("sofa",),
+    "couch": ("sofa", "chair"),
     "sofa": ("sofa",),
     "bed": ("bed",),
     "dining table": ("table",),

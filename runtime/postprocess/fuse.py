@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from a3d.runtime.postprocess.score_calibration import SCORE_EPS
-from a3d.runtime.structures.geometry import iou_2d
+from a3d.runtime.structures.geometry import batched_nms_2d, iou_2d
 
 NETWORK = "network"
 NETWORK_WEIGHT = 0.5
@@ -80,16 +80,21 @@ def fused_score(detector: np.ndarray, network: np.ndarray) -> np.ndarray:
 
 
 def detector_picks(
-    class_scores: np.ndarray, first_row: int, detector_scores: np.ndarray, candidates: np.ndarray, name: str
-) -> Picked:
-    """The detector's boxes as detections: RoIs ``first_row`` on, ``class_scores`` (N, C) of all
-    RoIs (calibrated, no background), ``candidates`` (M, C) the classes each box may be."""
+    class_scores: np.ndarray, boxes2d: np.ndarray, first_row: int, detector_scores: np.ndarray,
+    candidates: np.ndarray, name: str,
+) -> Picked:  # fmt: skip
+    """The detector's boxes as detections: RoIs ``first_row`` on, ``class_scores`` (N, C) and
+    ``boxes2d`` (N, 4) of all RoIs (scores calibrated, no background), ``candidates`` (M, C) the
+    classes each box may be. Two boxes of different detector classes can become the same a3d class
+    (COCO's couch and chair both a chair); of those on one object (IoU over ``SAME_OBJECT_IOU``) the
+    better-scored one is kept, so that the object is reported once."""
     m = len(detector_scores)
     rows = first_row + np.arange(m, dtype=np.int64)
     network = np.where(candidates, class_scores[rows], -1.0)
     class_idx = np.argmax(network, axis=1).astype(np.int64)
-    net = network[np.arange(m), class_idx]
-    return Picked(rows, class_idx, fused_score(detector_scores, net), (name,) * m)
+    scores = fused_score(detector_scores, network[np.arange(m), class_idx])
+    keep = np.sort(batched_nms_2d(boxes2d[rows], scores, class_idx, SAME_OBJECT_IOU))
+    return Picked(rows[keep], class_idx[keep], scores[keep], (name,) * len(keep))
 
 
 def merge(own: Picked, found: Picked, boxes2d: np.ndarray, detector_scores: np.ndarray) -> Picked:
