@@ -2,7 +2,7 @@
 
     .venv/bin/python -m bench.own_room --work /tmp/own [--seed 54] [--frames 200] [--loops 2] [--heights H,H]
         [--minutes 15] [--camera realsense-d435 [--camera-scale 2]] [--base real] [--h350 /tmp/h350/test]
-        [--skip-finetune]
+        [--skip-finetune | --world-boxes-only]
 
 A room the bundled model did not train on (``a3d-synth --sequence``, ``--world real
 --appearance typical``: class-typical materials, where the bundled model saw only materials drawn
@@ -18,7 +18,8 @@ a user runs, as subprocesses:
 1. the sequence (kept in WORK/seq and reused) and its labels from its world boxes (``a3d-labels``);
 2. ``a3d-world-boxes`` from rough boxes: each world box moved 5 to 8 cm along every axis, its
    extents scaled by 0.9 to 1.15 and its yaw turned by 7 degrees (seeded), written as a person's
-   rough.csv; the fitted boxes against the room's own: centre distance and size differences;
+   rough.csv; the fitted boxes against the room's own: centre distance, size differences and 3D
+   IoU (the rough boxes' IoU beside it); ``--world-boxes-only`` stops here;
 3. ``a3d-finetune`` of ``--base`` (the bundled default pipeline, ``real``) on the labelled
    recording, the last ``--holdout`` (0.4) held back, within ``--minutes``, the load average before
    and after (the machine is shared);
@@ -41,9 +42,10 @@ from pathlib import Path
 
 import numpy as np
 
-from a3d.runtime.mapping.rough_boxes import COLUMNS
+from a3d.runtime.mapping.rough_boxes import COLUMNS, read_rough_boxes
 from a3d.runtime.mapping.world_boxes import read_world_boxes
 from a3d.runtime.network.model import DetectorModel
+from a3d.runtime.structures.geometry import iou_3d
 
 BIN = Path(sys.executable).parent
 
@@ -80,14 +82,19 @@ def world_boxes_step(seq: Path, work: Path) -> None:
         "a3d-world-boxes", seq / "frames", "--rough", boxes / "rough.csv", "--save", boxes / "fitted.rrd"
     )
     truth, fitted = read_world_boxes(seq / "world_boxes.json"), read_world_boxes(boxes / "world_boxes.json")
+    rough = read_rough_boxes(boxes / "rough.csv").boxes
     centres = np.linalg.norm(fitted.boxes[:, :3] - truth.boxes[:, :3], axis=1)
     sizes = np.abs(fitted.boxes[:, 3:6] - truth.boxes[:, 3:6])
+    ious = [np.diag(iou_3d(truth.boxes, boxes, np.eye(3))) for boxes in (rough, fitted.boxes)]
     print(f"\n## a3d-world-boxes ({seconds:.0f} s, {load()})\n")
-    print("| object | centre off (m) | l, w, h off (m) |\n| --- | --- | --- |")
-    for name, centre, size in zip(truth.classes, centres, sizes, strict=True):
-        print(f"| {name} | {centre:.3f} | {', '.join(f'{v:.3f}' for v in size)} |")
+    print("| object | centre off (m) | l, w, h off (m) | 3D IoU: rough -> fitted |")
+    print("| --- | --- | --- | --- |")
+    for name, centre, size, before, after in zip(truth.classes, centres, sizes, *ious, strict=True):
+        sized = ", ".join(f"{v:.3f}" for v in size)
+        print(f"| {name} | {centre:.3f} | {sized} | {before:.2f} -> {after:.2f} |")
     median = ", ".join(f"{v:.3f}" for v in np.median(sizes, axis=0))
-    print(f"| **median** | {np.median(centres):.3f} | {median} |")
+    before, after = (np.median(v) for v in ious)
+    print(f"| **median** | {np.median(centres):.3f} | {median} | {before:.2f} -> {after:.2f} |")
     close = ", ".join(f"{(centres < bar).sum()} within {100 * bar:.0f} cm" for bar in (0.02, 0.05, 0.1))
     print(f"\n{len(centres)} objects: {close}")
 
@@ -114,6 +121,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--base", default="real", help="the bundled model to fine-tune and compare with")
     p.add_argument("--h350", type=Path, help="the 350 held-out frames of the bundled model's world")
     p.add_argument("--skip-finetune", action="store_true", help="score the WORK/ft.onnx made before")
+    p.add_argument("--world-boxes-only", action="store_true", help="steps 1 and 2 alone: the world boxes")
     args = p.parse_args(argv)
     seq, labelled, model = args.work / "seq", args.work / "labelled", args.work / "ft.onnx"
     if not (seq / "world_boxes.json").is_file():
@@ -125,6 +133,8 @@ def main(argv: list[str] | None = None) -> int:
     if not labelled.is_dir():
         sh("a3d-labels", seq / "world_boxes.json", seq / "frames", "--out", labelled)
     world_boxes_step(seq, args.work)
+    if args.world_boxes_only:
+        return 0
     if not args.skip_finetune:
         before = load()
         seconds = sh(

@@ -83,3 +83,33 @@ def test_a_wall_the_margin_reaches_into_is_left_out() -> None:
     rough = standing + np.array([0.06, 0.0, 0.05, 0.1, 0.1, 0.05, 0.1])  # its margin reaches the wall
     fitted = fit_box(points, rough, floor_y=floor_level(points))
     assert box_differences(fitted[None], standing[None])[0] < 0.02
+
+
+def test_the_sensors_stray_depth_beyond_a_surface_does_not_widen_the_box() -> None:
+    rng = np.random.default_rng(3)
+    points = surface_points(TRUE, 2000, rng)
+    points += rng.normal(0, 0.005, points.shape)  # the noise of depth fused from many views
+    points[rng.choice(len(points), 60, replace=False)] += rng.normal(0, 0.06, (60, 3))  # and strays
+    rough = TRUE + np.array([0.05, -0.04, 0.05, 0.1, 0.1, 0.1, 0.1])
+    fitted = fit_box(points, rough)
+    assert box_differences(fitted[None], TRUE[None])[0] < 0.03  # the noise's own centimetre a side
+    spread = np.ptp(points[:, 1][np.abs(points[:, 1] - TRUE[1]) < 0.6])  # the points' own height range
+    assert spread > TRUE[5] + 0.08  # the strays alone would have made the box that much taller
+
+
+def test_a_face_where_a_neighbour_runs_on_to_the_margins_edge_is_the_rough_boxs() -> None:
+    rng = np.random.default_rng(4)
+    box = np.array([1.0, -1.05, 3.0, 0.4, 0.3, 0.3, 0.0])  # a box on a counter, against the wall behind it
+    n = 20000
+    top = np.column_stack([rng.uniform(0, 2, n), rng.normal(-0.9, 0.003, n), rng.uniform(2.6, 3.15, n)])
+    wall = np.column_stack([rng.uniform(0, 2, n), rng.uniform(-2.5, -0.9, n), rng.normal(3.15, 0.003, n)])
+    on_box = surface_points(box, 500, rng)
+    points = np.vstack([on_box[on_box[:, 2] < 3.14], top, wall])  # its back face against the wall
+    rough = box + np.array([0.03, -0.04, 0.02, 0.06, 0.06, 0.06, 0.0])
+    corners = box_corners_camera(np.stack([box, rough, fit_box(points, rough, margin_m=0.1)]), np.eye(3))
+    low, high = corners.min(axis=1), corners.max(axis=1)  # x, y, z extents of the three boxes
+    (x0, y0, z0), (x1, y1, z1) = low.T.reshape(3, 3), high.T.reshape(3, 3)  # rows: box, rough, fitted
+    # The wall runs on left, right and above: there the rough box's faces, not the margin's edge.
+    assert abs(x0[2] - x0[1]) < 0.01 and abs(x1[2] - x1[1]) < 0.01 and abs(y0[2] - y0[1]) < 0.01
+    # The box's own front face, the wall behind it and the counter top under it end where they are.
+    assert abs(z0[2] - z0[0]) < 0.02 and abs(z1[2] - 3.15) < 0.02 and abs(y1[2] + 0.9) < 0.02

@@ -3,8 +3,13 @@
 Why: labelling a recording (a3d-labels) needs each object's box once, in a gravity-aligned world
 (y down). Typing one to the centimetre is hard; a rough box around the object is easy. This
 module fuses a posed recording's depth into world points and fits, to the points inside a rough
-box (grown by a margin), the box a3d uses: the smallest-area rectangle of their footprint (OpenCV's
-``minAreaRect``), their height range, in the 7-vector convention (l >= w, yaw in [-pi/2, pi/2]).
+box (grown by a margin), the box a3d uses: its footprint turned as the smallest-area rectangle of
+theirs (OpenCV's ``minAreaRect``), each face where the points end, in the 7-vector convention
+(l >= w, yaw in [-pi/2, pi/2]). Two things make the points end elsewhere than the object: the
+sensor's noise, a few stray centimetres beyond every surface (the outermost ``TRIM_PERCENT`` of
+the points along each axis are left out), and what the object touches (a wall, a counter, a
+neighbour), whose points run on to the edge of the search region: a face that ends there was cut
+by it, not by the object, and the rough box's own face is the better guess.
 docs/mapping.md "Drawing the world boxes" gives the procedure.
 """
 
@@ -19,7 +24,13 @@ from a3d.runtime.errors import InputError
 from a3d.runtime.mapping.labels import LabelConfig, inside_box
 from a3d.runtime.structures.boxes import L, W
 from a3d.runtime.structures.frame import Frame
-from a3d.runtime.structures.geometry import backproject, boxes_from_corners_tilt
+from a3d.runtime.structures.geometry import (
+    backproject,
+    box_corners_tilt,
+    boxes_from_corners_tilt,
+    evenly_spread,
+    points_in_box,
+)
 from a3d.runtime.structures.pose import transform_points
 
 MIN_POINTS = 20  # fewer points inside a rough box are no object's surface
@@ -27,6 +38,9 @@ FLOOR_SEARCH_M = 0.3  # the floor is looked for this far above the cloud's lowes
 FLOOR_GAP_M = 0.03  # points this close to the floor are the floor's, not an object's
 FLOOR_SNAP_M = 0.1  # a fitted box whose bottom is this close to the floor stands on it
 CELL_M = 0.02  # footprint cells in which an object's points are told from a neighbour's
+TRIM_PERCENT = 1.0  # of the points along each axis, left out at either end: the sensor's stray depth
+EDGE_M = 0.02  # a face whose outermost points lie this close to the search region's edge was cut there
+YAW_SAMPLE = 4000  # footprint points the turn is chosen on
 
 
 def world_points(frames: Iterable[Frame], stride: int = 4) -> np.ndarray:
@@ -90,27 +104,72 @@ def fit_box(
     points: np.ndarray, rough: np.ndarray, margin_m: float = 0.1, floor_y: float | None = None
 ) -> np.ndarray:
     """The gravity-aligned box (world 7-vector) of the world ``points`` inside ``rough`` grown by
-    ``margin_m``: footprint by the smallest-area rectangle, height by the points' y range.
+    ``margin_m`` (module docstring): footprint turned as their smallest-area rectangle, each side
+    and the top where the points end (``TRIM_PERCENT``), or the rough box's own where they run on
+    to the edge of the search region (``EDGE_M``).
 
     With ``floor_y`` (``floor_level``), points within ``FLOOR_GAP_M`` of the floor are left out
     (the floor round an object's foot would widen its footprint), and a box whose bottom ends within
     ``FLOOR_SNAP_M`` of the floor is extended down to it (the object stands there)."""
     config = LabelConfig(margin_m=margin_m, floor_gap_m=0.0)
-    points = np.asarray(points, np.float64)
-    inside = points[inside_box(points, np.asarray(rough, np.float64), np.eye(3), config)]
+    points, rough = np.asarray(points, np.float64), np.asarray(rough, np.float64)
+    inside = points[inside_box(points, rough, np.eye(3), config)]
     if floor_y is not None:
         inside = inside[inside[:, 1] < floor_y - FLOOR_GAP_M]
-        connected = _connected_to_core(inside, np.asarray(rough, np.float64))
+        connected = _connected_to_core(inside, rough)
         inside = inside[connected] if connected.sum() >= MIN_POINTS else inside  # else too sparse to tell
     if len(inside) < MIN_POINTS:
         raise InputError(f"rough box {np.round(rough, 3).tolist()}: {len(inside)} points inside, "
                          f"need {MIN_POINTS} (is it where the object is?)")  # fmt: skip
-    footprint = cv2.boxPoints(cv2.minAreaRect(inside[:, [0, 2]].astype(np.float32))).astype(np.float64)
-    top, bottom = inside[:, 1].min(), inside[:, 1].max()  # y is down: the lower face has the larger y
+    side_edge, top_edge = _at_search_edge(inside, rough, margin_m)
+    axes = _footprint_axes(inside[:, [0, 2]])
+    rough_footprint = box_corners_tilt(rough[None], np.eye(3))[0, :4][:, [0, 2]]
+    bounds = np.zeros((2, 2))
+    for k, axis in enumerate(axes):
+        rough_along = rough_footprint @ axis
+        bounds[k] = _faces(inside[:, [0, 2]] @ axis, side_edge, rough_along.min(), rough_along.max())
+    heights = inside[:, 1]  # y is down: the top is the smallest
+    top = _faces(heights, top_edge, rough[1] - rough[5] / 2, np.inf)[0]
+    bottom = heights.max()
     if floor_y is not None and floor_y - bottom < FLOOR_SNAP_M:
         bottom = max(bottom, floor_y)
+    (u0, u1), (v0, v1) = bounds
+    footprint = np.array([u0 * axes[0] + v0 * axes[1], u1 * axes[0] + v0 * axes[1],
+                          u1 * axes[0] + v1 * axes[1], u0 * axes[0] + v1 * axes[1]])  # fmt: skip
     corners = np.zeros((1, 8, 3))
     corners[0, :4, [0, 2]] = footprint.T
     corners[0, 4:, [0, 2]] = footprint.T
     corners[0, :4, 1], corners[0, 4:, 1] = bottom, top
     return boxes_from_corners_tilt(corners, np.eye(3))[0]
+
+
+def _footprint_axes(footprint: np.ndarray) -> np.ndarray:
+    """(2, 2) the directions in (x, z) of the footprint's sides: the turn, in whole degrees, whose
+    rectangle of the trimmed extents (``TRIM_PERCENT``) is the smallest (a rectangle round every
+    point, OpenCV's ``minAreaRect``, turns with the strays)."""
+    sample = evenly_spread(footprint, YAW_SAMPLE)
+    turns = np.radians(np.arange(90))
+    cos, sin = np.cos(turns), np.sin(turns)
+    axes = np.stack([np.stack([cos, sin], 1), np.stack([-sin, cos], 1)], 1)  # (turn, axis, (x, z))
+    along = np.einsum("pc,tac->tap", sample, axes)  # (turn, axis, point)
+    low, high = np.percentile(along, [TRIM_PERCENT, 100 - TRIM_PERCENT], axis=2)
+    return axes[int(np.argmin(np.prod(high - low, axis=1)))]
+
+
+def _at_search_edge(inside: np.ndarray, rough: np.ndarray, margin_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """Which points lie within ``EDGE_M`` of the search region's sides, and of its top (the rough
+    box grown by ``margin_m``): where a neighbour or a wall the margin reaches into runs on."""
+    shrunk = max(margin_m - EDGE_M, 0.0)
+    top = inside[:, 1] < rough[1] - rough[5] / 2 - shrunk  # y is down
+    sides = ~points_in_box(inside, rough, np.eye(3), shrunk, 0.0) & ~top
+    return sides, top
+
+
+def _faces(along: np.ndarray, at_edge: np.ndarray, rough_low: float, rough_high: float) -> np.ndarray:
+    """The low and high faces of points' coordinates ``along`` one axis: their trimmed ends
+    (``TRIM_PERCENT``), or the rough box's where most points within ``EDGE_M`` of the end (and
+    beyond it) lie at the search region's edge (``at_edge``): something runs on there."""
+    low, high = np.percentile(along, [TRIM_PERCENT, 100 - TRIM_PERCENT])
+    low = rough_low if at_edge[along <= low + EDGE_M].mean() > 0.5 else low
+    high = rough_high if at_edge[along >= high - EDGE_M].mean() > 0.5 else high
+    return np.array([low, high])
