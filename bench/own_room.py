@@ -2,7 +2,7 @@
 
     .venv/bin/python -m bench.own_room --work /tmp/own [--seed 54] [--frames 200] [--loops 2] [--heights H,H]
         [--minutes 15] [--camera realsense-d435 [--camera-scale 2]] [--base real] [--h350 /tmp/h350/test]
-        [--skip-finetune | --world-boxes-only]
+        [--skip-finetune | --world-boxes-only] [--rough-from-map]
 
 A room the bundled model did not train on (``a3d-synth --sequence``, ``--world real
 --appearance typical``: class-typical materials, where the bundled model saw only materials drawn
@@ -19,7 +19,9 @@ a user runs, as subprocesses:
 2. ``a3d-world-boxes`` from rough boxes: each world box moved 5 to 8 cm along every axis, its
    extents scaled by 0.9 to 1.15 and its yaw turned by 7 degrees (seeded), written as a person's
    rough.csv; the fitted boxes against the room's own: centre distance, size differences and 3D
-   IoU (the rough boxes' IoU beside it); ``--world-boxes-only`` stops here;
+   IoU (the rough boxes' IoU beside it); with ``--rough-from-map`` also from the rows a3d drafts
+   (``a3d-run --map`` with ``--base``, then ``a3d-world-boxes --rough-from``): the rows a person
+   keeps, deletes and adds (``map_step``); ``--world-boxes-only`` stops here;
 3. ``a3d-finetune`` of ``--base`` (the bundled default pipeline, ``real``) on the labelled
    recording, the last ``--holdout`` (0.4) held back, within ``--minutes``, the load average before
    and after (the machine is shared);
@@ -42,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from a3d.runtime.mapping.rough_boxes import COLUMNS, read_rough_boxes
+from a3d.runtime.mapping.rough_boxes import COLUMNS, read_rough_boxes, row_text
 from a3d.runtime.mapping.world_boxes import read_world_boxes
 from a3d.runtime.network.model import DetectorModel
 from a3d.runtime.structures.geometry import iou_3d
@@ -69,9 +71,43 @@ def rough_csv(world_boxes: Path, seed: int = 0) -> str:
     for name, box in zip(world.classes, world.boxes, strict=True):
         centre = box[:3] + rng.choice([-1, 1], 3) * rng.uniform(0.05, 0.08, 3)
         size = box[3:6] * rng.uniform(0.9, 1.15, 3)
-        yaw = math.degrees(box[6]) + rng.choice([-1, 1]) * 7
-        rows.append(",".join([name, *(f"{v:.3f}" for v in (*centre, *size)), f"{yaw:.1f}"]))
+        yaw = box[6] + rng.choice([-1, 1]) * math.radians(7)
+        rows.append(row_text(name, np.array([*centre, *size, yaw])))
     return "\n".join(rows) + "\n"
+
+
+def map_step(seq: Path, work: Path, model: str) -> None:
+    """Rough boxes from a3d's own object map of the recording (``a3d-run --map``, then
+    ``a3d-world-boxes --rough-from``), fitted as they come, against the room's own boxes: the rows a
+    person keeps (an object of the room's, same class, 3D IoU >= 0.25, each once, best first),
+    deletes (the others) and adds (the objects no row found)."""
+    boxes = work / "boxes_map"
+    boxes.mkdir(parents=True, exist_ok=True)
+    run = sh("a3d-run", seq / "frames", "--model", model, "--output", boxes / "det.jsonl", "--headless",
+             "--map", boxes / "map.json")  # fmt: skip
+    (boxes / "rough.csv").unlink(missing_ok=True)
+    sh("a3d-world-boxes", seq / "frames", "--rough", boxes / "rough.csv", "--rough-from", boxes / "map.json")
+    sh("a3d-world-boxes", seq / "frames", "--rough", boxes / "rough.csv")
+    truth, fitted = read_world_boxes(seq / "world_boxes.json"), read_world_boxes(boxes / "world_boxes.json")
+    rough = read_rough_boxes(boxes / "rough.csv")
+    ious = iou_3d(fitted.boxes, truth.boxes, np.eye(3))
+    ious[np.array(fitted.classes)[:, None] != np.array(truth.classes)[None, :]] = 0.0
+    kept: dict[int, int] = {}
+    for row, obj in sorted(np.argwhere(ious >= 0.25).tolist(), key=lambda pair: -ious[pair[0], pair[1]]):
+        if row not in kept and obj not in kept.values():
+            kept[row] = obj
+    frames = len(list((seq / "frames").glob("*.color.*")))
+    after = [ious[r, o] for r, o in kept.items()]
+    before = [iou_3d(rough.boxes[[r]], truth.boxes[[o]], np.eye(3))[0, 0] for r, o in kept.items()]
+    print(f"\n## rough boxes from a3d-run --map ({model}, {run:.0f} s for {frames} frames): "
+          f"{len(rough.classes)} rows for the room's {len(truth.classes)} objects\n")  # fmt: skip
+    print(f"- kept (the object's class, 3D IoU >= 0.25 after the fit): {len(kept)}, median 3D IoU "
+          f"{np.median(after) if kept else 0:.2f} (the rows as a3d-run mapped them: "
+          f"{np.median(before) if kept else 0:.2f})")  # fmt: skip
+    wrong = [fitted.classes[r] for r in range(len(fitted.classes)) if r not in kept]
+    missed = [truth.classes[o] for o in range(len(truth.classes)) if o not in kept.values()]
+    print(f"- to delete: {len(wrong)} ({', '.join(sorted(wrong))})")
+    print(f"- to add: {len(missed)} ({', '.join(sorted(missed))})")
 
 
 def world_boxes_step(seq: Path, work: Path) -> None:
@@ -122,6 +158,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--h350", type=Path, help="the 350 held-out frames of the bundled model's world")
     p.add_argument("--skip-finetune", action="store_true", help="score the WORK/ft.onnx made before")
     p.add_argument("--world-boxes-only", action="store_true", help="steps 1 and 2 alone: the world boxes")
+    p.add_argument("--rough-from-map", action="store_true", help="step 2 also from a3d-run --map's map")
     args = p.parse_args(argv)
     seq, labelled, model = args.work / "seq", args.work / "labelled", args.work / "ft.onnx"
     if not (seq / "world_boxes.json").is_file():
@@ -133,6 +170,8 @@ def main(argv: list[str] | None = None) -> int:
     if not labelled.is_dir():
         sh("a3d-labels", seq / "world_boxes.json", seq / "frames", "--out", labelled)
     world_boxes_step(seq, args.work)
+    if args.rough_from_map:
+        map_step(seq, args.work, args.base)
     if args.world_boxes_only:
         return 0
     if not args.skip_finetune:

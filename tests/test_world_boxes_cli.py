@@ -3,6 +3,7 @@ frames; bad input is one line and exit 2 with nothing written."""
 
 from __future__ import annotations
 
+import json
 import math
 import shutil
 from pathlib import Path
@@ -94,3 +95,48 @@ def test_bad_input_is_one_line_and_nothing_is_written(
     shutil.copytree(ROOT / "samples", unposed)
     _one_line_exit_2([str(unposed), "--rough", str(rough)], capsys, f"{unposed}: no frame has a pose")
     assert not out.exists() and not (tmp_path / "world_boxes_check").exists()
+
+
+def map_file(path: Path, world: WorldBoxes, turn_deg: float = 0.0) -> Path:
+    """An object map (a3d-run --map's map.json) holding ``world``'s boxes 4 cm off as confirmed
+    objects, scored by index, and one spurious unconfirmed box; its frame turned ``turn_deg`` about x."""
+    c, s = math.cos(math.radians(turn_deg)), math.sin(math.radians(turn_deg))
+    turn = [[1, 0, 0, 0], [0, c, -s, 0], [0, s, c, 0], [0, 0, 0, 1]]
+    objects = [
+        {"id": k, "class": name, "centre": (box[:3] + 0.04).tolist(), "size": box[3:6].tolist(),
+         "yaw": float(box[6]), "score": 0.5 + 0.01 * k, "confirmed": True, "support": 3 + k}
+        for k, (name, box) in enumerate(zip(world.classes, world.boxes, strict=True))
+    ]  # fmt: skip
+    objects.append({"id": 99, "class": "bed", "centre": [0, -0.3, 2], "size": [2, 1.5, 0.5], "yaw": 0,
+                    "score": 0.9, "confirmed": False, "support": 1})  # fmt: skip
+    path.write_text(json.dumps({"version": 1, "map_from_world": turn, "objects": objects}))
+    return path
+
+
+def test_rough_boxes_can_start_from_the_object_map_a3d_made_of_the_recording(
+    sequence: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    truth = seen_objects(sequence)
+    rough, mapped = tmp_path / "rough.csv", map_file(tmp_path / "map.json", truth)
+    args = [str(sequence / "frames"), "--rough", str(rough), "--stride", "1"]
+    assert main([*args, "--rough-from", str(mapped)]) == 0, capsys.readouterr().err
+    proposed = read_rough_boxes(rough)  # rows to correct, surest first; the unconfirmed bed left out
+    order = np.argsort([-k for k in range(len(truth))], kind="stable")
+    assert proposed.classes == [truth.classes[k] for k in order]
+    moved = truth.boxes[order, :6] + np.array([0.04, 0.04, 0.04, 0, 0, 0])
+    np.testing.assert_allclose(proposed.boxes[:, :6], moved, atol=6e-4)
+    first = f"map.json: score {0.5 + 0.01 * order[0]:.2f}, detected in {3 + order[0]} frames"
+    assert first in rough.read_text()
+    assert main(args) == 0, capsys.readouterr().err  # as they are: fitted like typed ones
+    fitted = read_world_boxes(tmp_path / "world_boxes.json")
+    centres = np.linalg.norm(fitted.boxes[:, :3] - truth.boxes[order, :3], axis=1)
+    assert fitted.classes == proposed.classes and np.median(centres) < 0.04 * math.sqrt(3)  # nearer
+    # A rough file is never overwritten, and a map whose world is not the recording's is refused.
+    _one_line_exit_2([*args, "--rough-from", str(mapped)], capsys, f"{rough}: exists; --rough-from only")
+    turned, fresh = map_file(tmp_path / "turned.json", truth, turn_deg=10), tmp_path / "fresh.csv"
+    _one_line_exit_2([str(sequence / "frames"), "--rough", str(fresh), "--rough-from", str(turned)], capsys,
+                     f"{turned}: the map's frame is turned 10.0 degrees")  # fmt: skip
+    (tmp_path / "not_a_map.json").write_text("[1, 2]")
+    _one_line_exit_2([str(sequence / "frames"), "--rough", str(fresh), "--rough-from",
+                      str(tmp_path / "not_a_map.json")], capsys, "not an object map")  # fmt: skip
+    assert not fresh.exists()

@@ -1,12 +1,15 @@
 """a3d-world-boxes: world_boxes.json for a posed recording, from rough boxes a person types once.
 
-    a3d-world-boxes SOURCE --rough rough.csv [--out world_boxes.json] [--save boxes.rrd | --spawn]
+    a3d-world-boxes SOURCE --rough rough.csv [--rough-from map.json] [--out world_boxes.json]
+        [--save boxes.rrd | --spawn]
 
 Run it twice. The first time (ROUGH does not exist yet) it fuses the recording's depth into one
 coloured point cloud in the recording's world (y down), shows it (``--spawn``: a rerun window;
 ``--save``: an .rrd to open with ``rerun FILE``) and writes ROUGH, a CSV with the columns to fill
 in (a3d.runtime.mapping.rough_boxes): one row per object, its class, centre, size and yaw read off
-the view, a hand's width off is fine. The second time it fits every rough box to the points inside
+the view, a hand's width off is fine; with ``--rough-from MAP.json`` (``a3d-run SOURCE --map
+MAP.json``) ROUGH starts with a row per object a3d found in the recording, for the person to
+correct rather than type. The second time it fits every rough box to the points inside
 it (a3d.runtime.mapping.box_fit, the floor found and left out), writes OUT for a3d-labels, and
 shows the fitted boxes over the cloud and, as PNGs in CHECK_DIR (and in the view), over a few
 frames: the check that each box sits on its object. Bad input (a source without poses, a class
@@ -31,6 +34,7 @@ from a3d.runtime.extras import Needs
 from a3d.runtime.io.atomic import atomic_write_bytes
 from a3d.runtime.mapping.box_fit import fit_box, floor_level, world_cloud
 from a3d.runtime.mapping.labels import LabelConfig, inside_box
+from a3d.runtime.mapping.object_map import read_confirmed
 from a3d.runtime.mapping.rough_boxes import RoughBoxes, read_rough_boxes, write_template
 from a3d.runtime.mapping.world import boxes_to_camera, rtilt_from_pose
 from a3d.runtime.mapping.world_boxes import WORLD_BOXES_FILE, WorldBoxes, write_world_boxes
@@ -52,6 +56,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--rough", type=Path, required=True, help="rough boxes CSV: a template is written when missing"
     )
+    p.add_argument(
+        "--rough-from", type=Path, metavar="MAP.json",
+        help="fill a new ROUGH with the confirmed objects of an object map (a3d-run --map), to correct",
+    )  # fmt: skip
     p.add_argument("--out", type=Path, help=f"the fitted boxes (default: {WORLD_BOXES_FILE} beside ROUGH)")
     p.add_argument("--check-dir", type=Path, help="the check images (default: OUT without .json, + _check)")
     p.add_argument("--check-frames", type=int, default=4, help="frames the fitted boxes are drawn over")
@@ -73,6 +81,9 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--stride and --frame-step must be >= 1, --check-frames and --margin >= 0")
     if args.save or args.spawn:
         Needs("view", ("rerun",)).check()
+    if args.rough_from is not None and args.rough.exists():
+        raise InputError(f"{args.rough}: exists; --rough-from only fills a new rough boxes file")
+    proposed = proposals(args.rough_from) if args.rough_from is not None else []
     rough = read_rough_boxes(args.rough) if args.rough.exists() else None  # bad rows before any work
     loaders = list(open_posed_source(args))
     fused = loaders[:: args.frame_step]
@@ -87,9 +98,13 @@ def main(argv: list[str] | None = None) -> int:
         write_template(args.rough, [
             f"The cloud spans x {extent[0, 0]} .. {extent[1, 0]}, z {extent[0, 2]} .. {extent[1, 2]}; "
             f"the floor is at y = {floor:.2f}.",
-        ])  # fmt: skip
-        _show(args, points, colours, None, None, [])
-        _say(f"wrote {args.rough}: add one row per object (read off the view), then run this again")
+            *([f"The rows below are the objects of {args.rough_from}: delete the wrong ones, correct the "
+               "rest, add what it missed."] if args.rough_from else []),
+        ], proposed)  # fmt: skip
+        shown = RoughBoxes([row[1] for row in proposed], np.array([row[2] for row in proposed]), [])
+        _show(args, points, colours, shown if proposed else None, None, [])
+        from_map = f" ({len(proposed)} rows from {args.rough_from} to correct)" if args.rough_from else ""
+        _say(f"wrote {args.rough}{from_map}: add one row per object (read off the view), then run this again")
         return 0
     out = args.out or args.rough.parent / WORLD_BOXES_FILE
     fitted = fit_all(points, rough, args.margin, floor, args.rough)
@@ -103,6 +118,18 @@ def main(argv: list[str] | None = None) -> int:
     _show(args, points, colours, rough, fitted, checks)
     _say(f"wrote {out} ({len(fitted)} objects) and {len(checks)} check images in {check_dir}")
     return 0
+
+
+def proposals(path: Path) -> list[tuple[str, str, np.ndarray]]:
+    """The object map's confirmed objects as rough boxes' rows (a comment, a class, a box), the
+    surest first: what a3d itself found in the recording, for the person to correct."""
+    found = read_confirmed(path)
+    order = np.argsort(-found.scores, kind="stable")
+    return [
+        (f"{path.name}: score {found.scores[k]:.2f}, detected in {found.support[k]} frames",
+         found.classes[k], found.boxes[k])
+        for k in order
+    ]  # fmt: skip
 
 
 def fit_all(

@@ -36,8 +36,11 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from a3d.runtime.errors import InputError
 from a3d.runtime.io.atomic import atomic_write_bytes
 from a3d.runtime.io.detections_io import FrameDetections
+from a3d.runtime.io.image_io import read_bytes
+from a3d.runtime.io.json_input import parse_json
 from a3d.runtime.mapping.association import AssociationGates, associate
 from a3d.runtime.mapping.fusion import fuse_boxes
 from a3d.runtime.mapping.world import boxes_to_camera, boxes_to_world
@@ -361,3 +364,54 @@ def _turn_to_y(down: np.ndarray) -> np.ndarray:
 
 def _rounded(values: np.ndarray) -> list[float]:
     return [round(float(v), 6) for v in values]
+
+
+MAP_TURN_DEG = 3.0  # a map whose frame is turned further from its recording's world does not share it
+
+
+@dataclass(frozen=True)
+class MappedObjects:
+    """The confirmed objects of a map file: class names, boxes (N, 7) in the map's frame (a3d's
+    7-vector: centre, l, w, h, yaw about y), scores (N,) and the frames that detected each (N,)."""
+
+    classes: list[str]
+    boxes: np.ndarray
+    scores: np.ndarray
+    support: np.ndarray
+
+
+def read_confirmed(path: str | os.PathLike, within_deg: float = MAP_TURN_DEG) -> MappedObjects:
+    """A map file's (``ObjectMap.write``) confirmed objects, where its frame is its recording's
+    world turned by at most ``within_deg`` (a recording whose world has y down); every problem is
+    one InputError naming the file."""
+    doc = parse_json(read_bytes(path), str(path), "object map")
+    objects = doc.get("objects") if isinstance(doc, dict) else None
+    if not isinstance(objects, list):
+        raise InputError(f"{path}: not an object map (a3d-run --map's map.json): no objects list")
+    turn = doc.get("map_from_world")
+    try:
+        rotation = np.eye(3) if turn is None else np.asarray(turn, np.float64)[:3, :3]
+        degrees = float(np.degrees(np.arccos(np.clip((np.trace(rotation) - 1) / 2, -1.0, 1.0))))
+    except (TypeError, ValueError, IndexError):
+        raise InputError(f"{path}: map_from_world must be a 4 x 4 matrix") from None
+    if degrees > within_deg:
+        raise InputError(f"{path}: the map's frame is turned {degrees:.1f} degrees from its recording's "
+                         "world, so that world's y is not down (a3d-world-boxes needs y down)")  # fmt: skip
+    rows = []
+    for k, item in enumerate(objects):
+        if not isinstance(item, dict) or not item.get("confirmed"):
+            continue
+        try:
+            box = [*map(float, item["centre"]), *map(float, item["size"]), float(item["yaw"])]
+            rows.append((str(item["class"]), box, float(item["score"]), int(item["support"])))
+        except (KeyError, TypeError, ValueError):
+            needs = "a class, centre, size, yaw, score and support"
+            raise InputError(f"{path}: objects[{k}] needs {needs}") from None
+        if rows[-1][0] not in CLASSES or len(box) != 7 or not np.all(np.isfinite(box)) or min(box[3:6]) <= 0:
+            raise InputError(f"{path}: objects[{k}] is no box of the 19 classes: {item['class']!r}, {box}")
+    return MappedObjects(
+        classes=[row[0] for row in rows],
+        boxes=np.array([row[1] for row in rows], np.float64).reshape(-1, 7),
+        scores=np.array([row[2] for row in rows], np.float64),
+        support=np.array([row[3] for row in rows], np.int64),
+    )

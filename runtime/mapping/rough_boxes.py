@@ -37,8 +37,14 @@ class RoughBoxes:
     lines: list[int]
 
 
-def template(notes: list[str]) -> str:
-    """The file a first run writes for the person to fill in: ``notes`` as comments, then the header."""
+def row_text(name: str, box: np.ndarray) -> str:
+    """One CSV row of a box (world 7-vector, yaw in radians): centimetres, and tenths of a degree."""
+    return ",".join([name, *(f"{v:.3f}" for v in box[:6]), f"{math.degrees(box[6]):.1f}"])
+
+
+def template(notes: list[str], rows: list[tuple[str, str, np.ndarray]] = ()) -> str:
+    """The file a first run writes for the person to fill in: ``notes`` as comments, the header,
+    then ``rows`` (a comment, a class, a world box) proposed for the person to correct."""
     head = [
         "a3d-world-boxes rough boxes: one object a row, read off the rerun view of the fused cloud.",
         "World metres, y down (the floor has the largest y); yaw in degrees about y;",
@@ -47,11 +53,14 @@ def template(notes: list[str]) -> str:
         "Example row: sofa,2.1,-0.4,3.6,2.0,0.9,0.8,90",
         *notes,
     ]
-    return "".join(f"# {line}\n" for line in head) + ",".join(COLUMNS) + "\n"
+    proposed = "".join(f"# {comment}\n{row_text(name, box)}\n" for comment, name, box in rows)
+    return "".join(f"# {line}\n" for line in head) + ",".join(COLUMNS) + "\n" + proposed
 
 
-def write_template(path: str | os.PathLike, notes: list[str]) -> None:
-    atomic_write_bytes(path, template(notes).encode("utf-8"))
+def write_template(
+    path: str | os.PathLike, notes: list[str], rows: list[tuple[str, str, np.ndarray]] = ()
+) -> None:
+    atomic_write_bytes(path, template(notes, rows).encode("utf-8"))
 
 
 def read_rough_boxes(path: str | os.PathLike) -> RoughBoxes:
