@@ -103,8 +103,10 @@ def main(argv: list[str] | None = None) -> int:
         ], proposed)  # fmt: skip
         shown = RoughBoxes([row[1] for row in proposed], np.array([row[2] for row in proposed]), [])
         _show(args, points, colours, shown if proposed else None, None, [])
-        from_map = f" ({len(proposed)} rows from {args.rough_from} to correct)" if args.rough_from else ""
-        _say(f"wrote {args.rough}{from_map}: add one row per object (read off the view), then run this again")
+        todo = "add one row per object (read off the view)"
+        if args.rough_from:
+            todo = f"correct the {len(proposed)} rows from {args.rough_from}, add what it missed"
+        _say(f"wrote {args.rough}: {todo}, then run this again")
         return 0
     out = args.out or args.rough.parent / WORLD_BOXES_FILE
     fitted = fit_all(points, rough, args.margin, floor, args.rough)

@@ -3,8 +3,8 @@
 Why: labelling a recording (a3d-labels) needs each object's box once, in a gravity-aligned world
 (y down). Typing one to the centimetre is hard; a rough box around the object is easy. This
 module fuses a posed recording's depth into world points and fits, to the points inside a rough
-box (grown by a margin), the box a3d uses: its footprint turned as the smallest-area rectangle of
-theirs (OpenCV's ``minAreaRect``), each face where the points end, in the 7-vector convention
+box (grown by a margin), the box a3d uses: its footprint turned, in whole degrees, to the smallest
+rectangle round theirs, each face where the points end, in the 7-vector convention
 (l >= w, yaw in [-pi/2, pi/2]). Two things make the points end elsewhere than the object: the
 sensor's noise, a few stray centimetres beyond every surface (the outermost ``TRIM_PERCENT`` of
 the points along each axis are left out), and what the object touches (a wall, a counter, a
@@ -104,7 +104,7 @@ def fit_box(
     points: np.ndarray, rough: np.ndarray, margin_m: float = 0.1, floor_y: float | None = None
 ) -> np.ndarray:
     """The gravity-aligned box (world 7-vector) of the world ``points`` inside ``rough`` grown by
-    ``margin_m`` (module docstring): footprint turned as their smallest-area rectangle, each side
+    ``margin_m`` (module docstring): footprint turned to their smallest rectangle, each side
     and the top where the points end (``TRIM_PERCENT``), or the rough box's own where they run on
     to the edge of the search region (``EDGE_M``).
 

@@ -50,6 +50,7 @@ from a3d.runtime.structures.geometry import Intrinsics, box_area_2d, iou_3d, pro
 from a3d.runtime.structures.pose import make_pose
 
 MAP_VERSION = 1
+MAP_TURN_DEG = 3.0  # a map whose frame is turned further from its recording's world does not share it
 FALLBACK = "fallback"
 
 
@@ -364,9 +365,6 @@ def _turn_to_y(down: np.ndarray) -> np.ndarray:
 
 def _rounded(values: np.ndarray) -> list[float]:
     return [round(float(v), 6) for v in values]
-
-
-MAP_TURN_DEG = 3.0  # a map whose frame is turned further from its recording's world does not share it
 
 
 @dataclass(frozen=True)
