@@ -44,3 +44,17 @@ def test_a_box_that_holds_its_object_low_scores_and_a_zero_margin_are_left_as_th
     np.testing.assert_allclose(step.hold_depth(sampled, BOX2D, behind, low), behind)
     monkeypatch.setattr(step, "MARGIN_M", 0.0)
     np.testing.assert_allclose(step.hold_depth(sampled, BOX2D, behind, np.array([0.9])), behind)
+
+
+def test_the_floor_round_a_boxs_foot_is_not_its_objects() -> None:
+    rows = np.indices((120, 160), dtype=np.float64)[0]
+    below = (rows - K.cy) / K.fy  # the ray's drop per metre ahead; the floor 1 m below the camera
+    depth = np.where(below > 0.01, 1.0 / np.maximum(below, 0.01), 0.0)
+    depth = np.where(depth < 8.0, depth, 0.0)
+    sampled = sample_depth(depth, K, np.eye(3))
+    box = np.array([[0.0, 0.75, 3.0, 0.6, 0.6, 0.5, 0.0]])  # standing on the floor, nothing of it seen
+    box2d = np.array([[60.0, 70.0, 100.0, 100.0]])  # its 2D box shows the floor round its foot
+    kept = step.hold_depth(sampled, box2d, box, np.array([0.9]), floor=np.array([0.0, 0.0, 1.0]))
+    np.testing.assert_allclose(kept, box)
+    grown = step.hold_depth(sampled, box2d, box, np.array([0.9]))  # the floor taken for the object
+    assert grown[0, 3] > box[0, 3] + 0.05
