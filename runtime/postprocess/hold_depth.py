@@ -20,8 +20,8 @@ from __future__ import annotations
 import numpy as np
 
 from a3d.runtime.postprocess.depth_support import MIN_SCORE, SampledDepth, box_points
-from a3d.runtime.structures.boxes import CENTER, SIZE, THETA
-from a3d.runtime.structures.geometry import canonical_boxes, evenly_spread
+from a3d.runtime.structures.boxes import CENTER, LOCAL_XYZ_EXTENTS, THETA, local_half_sizes
+from a3d.runtime.structures.geometry import canonical_boxes, evenly_spread, turned_by_yaw
 
 MARGIN_M = 0.1
 TRIM_PERCENT = 3.0
@@ -49,19 +49,15 @@ def hold_depth(
             points = points[points[:, 1] < points[:, [0, 2]] @ floor[:2] + floor[2] - FLOOR_GAP_M]
         box = boxes3d[i]
         centre = R @ box[CENTER]
-        c, s = np.cos(box[THETA]), np.sin(box[THETA])
-        d = points - centre
-        local = np.stack([c * d[:, 0] - s * d[:, 2], d[:, 1], s * d[:, 0] + c * d[:, 2]], axis=1)  # l, h, w
-        half = box[SIZE][[0, 2, 1]] / 2
+        local = turned_by_yaw(points - centre, -box[THETA])  # along the box's l, h, w
+        half = local_half_sizes(box[None])[0]
         near = local[np.all(np.abs(local) <= half + MARGIN_M, axis=1)]
         if len(near) < MIN_POINTS:
             continue
         ordered, trim = np.sort(near, axis=0), int(TRIM_PERCENT / 100 * (len(near) - 1))
         low, high = ordered[trim], ordered[-1 - trim]
         low, high = np.minimum(-half, low), np.maximum(half, high)
-        mid = (low + high) / 2  # the grown box's centre along l, h, w
-        shift = np.array([c * mid[0] + s * mid[2], mid[1], -s * mid[0] + c * mid[2]])
-        box[CENTER] = R.T @ (centre + shift)
-        box[SIZE] = (high - low)[[0, 2, 1]]
+        box[CENTER] = R.T @ (centre + turned_by_yaw((low + high) / 2, box[THETA]))
+        box[LOCAL_XYZ_EXTENTS] = high - low
     boxes3d[chosen] = canonical_boxes(boxes3d[chosen])  # l >= w again where w grew past l
     return boxes3d
