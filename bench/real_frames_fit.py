@@ -2,6 +2,7 @@
 
     .venv/bin/python -m bench.real_frames_fit REAL_FRAMES --fit DRAFT.json   # the draft, once
     .venv/bin/python -m bench.real_frames_fit REAL_FRAMES --draw DIR        # re-check the committed file
+    .venv/bin/python -m bench.real_frames_fit REAL_FRAMES --draw DIR --detections RUN/detections.jsonl
 
 The real frames have no 3D ground truth; bench/data/real_frames_boxes3d.json gives their
 hand-drawn objects (bench/data/real_frames_boxes.json) amodal 3D boxes for bench.real_frames's 3D
@@ -16,7 +17,10 @@ hand correction (which points are the object's, the amodal extent of hidden part
 file's notes.
 
 ``--draw`` writes the pictures of bench.real_frames_views for every frame and boxed object, and a
-contact sheet of all frames (the one in docs/images/real_frames_boxes3d.jpg).
+contact sheet of all frames (the one in docs/images/real_frames_boxes3d.jpg). With
+``--detections`` (bench.real_frames's DIR/detections.jsonl, or a3d-run's) the frames' pictures
+and the sheet (DIR/detections_boxes3d.jpg, the one in docs/images/real_frames_real_3d.jpg) also
+hold the 3D boxes of the detections scoring ``--threshold`` or more, beside the truth's in grey.
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ import numpy as np
 from a3d.runtime.errors import InputError
 from a3d.runtime.frontend.depth import fill_depth_info
 from a3d.runtime.frontend.gravity import choose_gravity
+from a3d.runtime.io.detections_io import FrameDetections, read_detections
 from a3d.runtime.mapping.box_fit import fit_box
 from a3d.runtime.postprocess.floor_contact import floor_plane
 from a3d.runtime.sources.folder import FolderSource, read_frame
@@ -48,7 +53,7 @@ from bench.real_frames import (
     read_boxes,
     read_boxes3d,
 )
-from bench.real_frames_views import FrameCloud, draw_frame
+from bench.real_frames_views import FrameCloud, draw_frame, found_boxes
 
 FLOOR_GAP_M = 0.04  # points this close above the floor are floor
 FLOOR_CLASSES = frozenset(
@@ -144,23 +149,40 @@ def dump(doc: dict) -> str:
 # ----------------------------------------------------------------------------- the command
 
 
-def draw(source: FolderSource, hand: dict[str, HandBoxes], boxes: dict[str, Boxes3D], out: Path) -> Path:
+def draw(
+    source: FolderSource,
+    hand: dict[str, HandBoxes],
+    boxes: dict[str, Boxes3D],
+    out: Path,
+    detections: dict[str, FrameDetections] | None = None,
+    threshold: float = 0.5,
+) -> Path:
     """Each frame's picture (bench.real_frames_views) as OUT/NAME.png, each object's as
     OUT/objects/NAME_I.png, and all frames on OUT/real_frames_boxes3d.jpg, a contact sheet at half
-    size (the one in docs/images)."""
+    size (the one in docs/images); with ``detections`` (by frame name) the frames' pictures hold
+    their boxes scoring ``threshold`` or more, and the sheet is OUT/detections_boxes3d.jpg."""
     (out / "objects").mkdir(parents=True, exist_ok=True)
     tiles = []
     for ref in source.refs:
         frame = read_frame(ref, source.intrinsics)
-        cloud = frame_cloud(frame, boxes[ref.name].truth.R_tilt)
-        scene, zoomed = draw_frame(frame, cloud, hand[ref.name], boxes[ref.name])
+        truth = boxes[ref.name].truth
+        cloud = frame_cloud(frame, truth.R_tilt)
+        found = None
+        if detections is not None:
+            if ref.name not in detections:
+                raise InputError(f"the detections file has no line for frame {ref.name}")
+            found = found_boxes(detections[ref.name], threshold, truth.R_tilt)
+        scene, zoomed = draw_frame(frame, cloud, hand[ref.name], boxes[ref.name], found)
         cv2.imwrite(str(out / f"{ref.name}.png"), scene)
         for i, tile in zip(boxes[ref.name].objects, zoomed, strict=True):
             cv2.imwrite(str(out / "objects" / f"{ref.name}_{i}.png"), tile)
         tiles.append(scene)
-    sheet = contact_sheet(tiles, columns=2, header="3D boxes of the real frames' hand-drawn objects")
+    header = "3D boxes of the real frames' hand-drawn objects"
+    if detections is not None:
+        header += f" (grey) and of the detections >= {threshold:g} (class colours)"
+    sheet = contact_sheet(tiles, columns=2, header=header)
     sheet = cv2.resize(sheet, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
-    path = out / "real_frames_boxes3d.jpg"
+    path = out / ("real_frames_boxes3d.jpg" if detections is None else "detections_boxes3d.jpg")
     cv2.imwrite(str(path), sheet, [cv2.IMWRITE_JPEG_QUALITY, 80])
     return path
 
@@ -173,7 +195,11 @@ def main(argv: list[str] | None = None) -> int:
     mode.add_argument("--draw", type=Path, metavar="DIR", help="draw the 3D boxes file's boxes")
     parser.add_argument("--boxes", type=Path, default=DEFAULT_BOXES, help="the hand-drawn 2D boxes file")
     parser.add_argument("--boxes3d", type=Path, default=DEFAULT_BOXES3D, help="the 3D boxes file drawn")
+    parser.add_argument("--detections", type=Path, help="with --draw: a run's detections file, drawn too")
+    parser.add_argument("--threshold", type=float, default=0.5, help="lowest score of a detection drawn")
     args = parser.parse_args(argv)
+    if args.detections and not args.draw:
+        parser.error("--detections goes with --draw")
     try:
         hand = read_boxes(args.boxes)
         source = FolderSource(args.folder)
@@ -182,7 +208,10 @@ def main(argv: list[str] | None = None) -> int:
             args.fit.write_text(dump(draft(source, hand.frames)))
             print(f"wrote {args.fit}")
         else:
-            print(f"wrote {draw(source, hand.frames, read_boxes3d(args.boxes3d, hand), args.draw)}")
+            runs = [] if args.detections is None else read_detections(args.detections)
+            found = {d.frame: d for d in runs} if args.detections else None
+            boxes3d = read_boxes3d(args.boxes3d, hand)
+            print(f"wrote {draw(source, hand.frames, boxes3d, args.draw, found, args.threshold)}")
     except (InputError, ValueError, OSError) as e:
         print(f"real_frames_fit: {e}", file=sys.stderr)
         return 1

@@ -6,6 +6,11 @@ projected (the hand-drawn 2D boxes dashed and numbered), a top view and a side v
 frame's depth points in the boxes' tilt frame (gravity down), coloured by height above the floor,
 with the boxes' outlines. Per frame all boxes; per object its box alone, zoomed on it, with the
 points of its 2D box bright and the others grey, so that what the box was fitted to shows.
+
+With a model's detections (``bench.real_frames_fit --draw DIR --detections FILE``) the frame's
+picture also holds the 3D boxes of its detections at or above a score, in their class colours and
+labelled with class and score, and the truth's boxes turn grey: whether a detection's box stands
+where its object does, and how far off it is in depth, shows in the top and side views.
 """
 
 from __future__ import annotations
@@ -16,6 +21,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from a3d.runtime.io.detections_io import FrameDetections
 from a3d.runtime.structures.classes import CLASS_COLORS_RGB, CLASSES
 from a3d.runtime.structures.frame import Frame
 from a3d.runtime.structures.geometry import box_corners_tilt, project_boxes_to_2d
@@ -54,24 +60,57 @@ class Outlines:
     def pick(self, k: int) -> Outlines:
         return Outlines(self.corners[k : k + 1], self.colours[k : k + 1], self.labels[k : k + 1])
 
+    def __add__(self, other: Outlines) -> Outlines:
+        corners = np.concatenate([self.corners, other.corners])
+        return Outlines(corners, self.colours + other.colours, self.labels + other.labels)
+
+
+@dataclass(frozen=True)
+class Found:
+    """A run's detections to draw over the truth: their boxes as the run gives them (camera-frame
+    centre, yaw in ``R_tilt``'s frame) and their outlines in the truth's tilt frame."""
+
+    boxes3d: np.ndarray
+    R_tilt: np.ndarray
+    outlines: Outlines
+
+
+def found_boxes(found: FrameDetections, threshold: float, R_tilt: np.ndarray) -> Found:
+    """``found``'s detections scoring ``threshold`` or more; outlines in the tilt frame of
+    ``R_tilt`` (the truth's: the run may have estimated its own), class colours, "class score"."""
+    keep = np.flatnonzero(found.scores >= threshold)
+    boxes3d, own = found.boxes3d[keep], np.asarray(found.R_tilt, np.float64)
+    corners = box_corners_tilt(boxes3d, own) @ own @ np.asarray(R_tilt).T  # own tilt -> camera -> R_tilt's
+    ids = found.class_ids[keep]
+    labels = [f"{CLASSES[c]} {s:.2f}" for c, s in zip(ids, found.scores[keep], strict=True)]
+    return Found(boxes3d, own, Outlines(corners, [CLASS_COLORS_RGB[c][::-1] for c in ids], labels))
+
 
 def draw_frame(
-    frame: Frame, cloud: FrameCloud, hand: HandBoxes, boxes: Boxes3D
+    frame: Frame, cloud: FrameCloud, hand: HandBoxes, boxes: Boxes3D, found: Found | None = None
 ) -> tuple[np.ndarray, list[np.ndarray]]:
     """The frame's picture, and one picture per boxed object (module docstring); ``cloud`` is the
-    frame's depth in the boxes' tilt frame."""
+    frame's depth in the boxes' tilt frame; ``found``: detections' boxes (``found_boxes``) drawn
+    over the truth's, which then are grey."""
     truth = boxes.truth
     colours = [CLASS_COLORS_RGB[c][::-1] for c in truth.class_ids]
     outlines = Outlines(
         box_corners_tilt(truth.boxes3d, truth.R_tilt), colours, [str(i) for i in boxes.objects]
     )
     points = cloud.points[cloud.valid]
-    image = _on_image(frame, hand, boxes, colours, range(len(boxes.objects)))
     skipped = sorted(set(range(len(hand.boxes))) - set(boxes.objects.tolist()))
     title = f"{frame.name}: {len(boxes.objects)} of {len(hand.boxes)} boxed" + (
         f", skipped {', '.join(map(str, skipped))}" if skipped else ""
     )
-    views = _views(cloud, points, _tints(cloud, points), outlines, FRAME_MARGIN_M, image.shape[0])
+    shown = outlines
+    if found is None:
+        image = _on_image(frame, hand, boxes, colours, range(len(boxes.objects)))
+    else:
+        grey = [EXPECTED_COLOR] * len(colours)
+        shown = Outlines(outlines.corners, grey, outlines.labels) + found.outlines
+        image = _on_image(frame, hand, boxes, grey, range(len(boxes.objects)), found)
+        title += f"; {len(found.boxes3d)} detections (colour), the truth grey"
+    views = _views(cloud, points, _tints(cloud, points), shown, FRAME_MARGIN_M, image.shape[0])
     scene = titled(np.hstack([image, *views]), title)
     pixel_ids = np.flatnonzero(cloud.valid)
     zoomed = []
@@ -87,10 +126,15 @@ def draw_frame(
 
 
 def _on_image(
-    frame: Frame, hand: HandBoxes, boxes: Boxes3D, colours: list, which: Iterable[int]
+    frame: Frame,
+    hand: HandBoxes,
+    boxes: Boxes3D,
+    colours: list,
+    which: Iterable[int],
+    found: Found | None = None,
 ) -> np.ndarray:
-    """The colour image with the hand-drawn boxes dashed and numbered and the 3D boxes ``which``
-    (indices into ``boxes``) projected in their class colours."""
+    """The colour image with the hand-drawn boxes dashed and numbered, the 3D boxes ``which``
+    (indices into ``boxes``) projected in ``colours``, and ``found``'s boxes over them."""
     image = frame.color.copy()
     for i, box2d in enumerate(hand.boxes):
         dashed_rectangle(image, box2d, EXPECTED_COLOR)
@@ -98,9 +142,23 @@ def _on_image(
     truth = boxes.truth
     for k in which:
         edges = projected_box_edges(truth.boxes3d[k : k + 1], truth.R_tilt, frame.intrinsics, image.shape[:2])
-        for a, b in np.round(edges[np.isfinite(edges).all(axis=(1, 2))]).astype(int):
-            cv2.line(image, tuple(a), tuple(b), colours[k], 2, cv2.LINE_AA)
+        _lines(image, edges, colours[k])
+    if found is not None:
+        labels = found.outlines
+        for box, colour, label in zip(found.boxes3d, labels.colours, labels.labels, strict=True):
+            edges = projected_box_edges(box[None], found.R_tilt, frame.intrinsics, image.shape[:2])
+            _lines(image, edges, colour)
+            ends = edges[np.isfinite(edges).all(axis=(1, 2))].reshape(-1, 2)
+            if len(ends):
+                u, v = np.maximum(ends.min(axis=0), 0)
+                _label(image, label, (int(u) + 3, int(v) + 16), colour)
     return image
+
+
+def _lines(image: np.ndarray, edges: np.ndarray, colour: tuple[int, ...]) -> None:
+    """Draw the finite ones of projected edges (E, 2, 2) in ``colour``."""
+    for a, b in np.round(edges[np.isfinite(edges).all(axis=(1, 2))]).astype(int):
+        cv2.line(image, tuple(a), tuple(b), colour, 2, cv2.LINE_AA)
 
 
 def _crop(image: np.ndarray, box2d: np.ndarray, frame: Frame, boxes: Boxes3D, k: int) -> np.ndarray:
