@@ -1,8 +1,9 @@
-"""How the constants of the pipeline's depth steps were chosen (docs/real-rooms.md, steps 6, 8 and 9).
+"""How the constants of the pipeline's depth steps were chosen (docs/real-rooms.md, steps 6, 8, 9 and 10).
 
     .venv/bin/python -m bench.depth_steps walls --synthetic /tmp/v350/test --real REAL --values 0,10,20,30,45
     .venv/bin/python -m bench.depth_steps floor --synthetic /tmp/v350/test --real REAL --values 0,0.2,0.3,0.4
     .venv/bin/python -m bench.depth_steps hold --synthetic /tmp/v350/test --real REAL --values 0,0.05,0.1,0.15
+    .venv/bin/python -m bench.depth_steps turn --synthetic /tmp/v350/test --real REAL --values inf,1.5,2,3
 
 For each value of the step's constant, the bundled pipeline ``real``: on ``--synthetic`` a3d-synth
 frames with ground truth (the constants were chosen on 350 frames of seed 2031, which no other
@@ -10,9 +11,11 @@ benchmark uses: bench.depth_support's command makes them), mAP@0.25 over their c
 the step is for: for ``walls`` (a3d.runtime.postprocess.wall_axes.SNAP_DEG, how far from a wall
 direction a yaw is turned onto it; 0: none, 45: every box) the doors' AP@0.25 (thin boxes, which a
 wrong yaw loses whole), for ``floor`` (a3d.runtime.postprocess.floor_contact.REACH_M, how far from
-the floor a standing box's bottom is set onto it; 0: none) and for ``hold``
+the floor a standing box's bottom is set onto it; 0: none), for ``hold``
 (a3d.runtime.postprocess.hold_depth.MARGIN_M, how far from a box the depth is taken for its
-object's and the box grown to hold it; 0: none) mAP@0.5 (where a few centimetres count); on
+object's and the box grown to hold it; 0: none), for ``turn``
+(a3d.runtime.postprocess.long_axis.MIN_ELONGATION, how long the depth's footprint round a long
+box must be for the box to be turned along it; inf: never) mAP@0.5 (where a few centimetres count); on
 ``--real`` the real frames of bench.real_frames (REAL), its 2D counts at 0.5 and its
 3D mAP@0.25 and median 3D IoU (its files under OUT/VALUE).
 """
@@ -27,7 +30,7 @@ from pathlib import Path
 from types import ModuleType
 
 from a3d.runtime.evaluation.metric import EvalResult
-from a3d.runtime.postprocess import floor_contact, hold_depth, wall_axes
+from a3d.runtime.postprocess import floor_contact, hold_depth, long_axis, wall_axes
 from bench.depth_support import floats, real_frames_result, real_result
 
 
@@ -54,6 +57,7 @@ STEPS = {
     "walls": Step(wall_axes, "SNAP_DEG", "doors AP@0.25", doors_ap),
     "floor": Step(floor_contact, "REACH_M", "mAP@0.5", map_at_half),
     "hold": Step(hold_depth, "MARGIN_M", "mAP@0.5", map_at_half),
+    "turn": Step(long_axis, "MIN_ELONGATION", "mAP@0.5", map_at_half),
 }
 
 

@@ -78,6 +78,7 @@ from a3d.runtime.postprocess.fuse import (
     second_opinion_rows,
 )
 from a3d.runtime.postprocess.hold_depth import hold_depth
+from a3d.runtime.postprocess.long_axis import along_depth
 from a3d.runtime.postprocess.score_calibration import ScoreCalibration
 from a3d.runtime.postprocess.select import decode_detections, select_detections
 from a3d.runtime.postprocess.wall_axes import NO_WALLS, square_to_walls, wall_direction
@@ -424,7 +425,7 @@ def finish(prepared: PreparedFrame, out: NetworkOutput, config: PipelineConfig) 
     bounded = bound_boxes(boxes3d, class_idx, near_range(prepared.work.depth))
     boxes3d, sources = bounded.boxes3d, picked.sources
     depth_notes: list[str] = []
-    if prepared.found is not None and len(rows):  # steps 6, 7, 8, 5, 9 (docs/real-rooms.md): with a detector
+    if prepared.found is not None and len(rows):  # steps 6, 7, 8, 5, 10, 9 (docs/real-rooms.md)
         frame, boxes2d = prepared.work, prepared.boxes[rows]
         direction = wall_direction(frame.depth, frame.intrinsics, prepared.R_tilt)
         if direction is None:
@@ -439,6 +440,7 @@ def finish(prepared: PreparedFrame, out: NetworkOutput, config: PipelineConfig) 
         else:
             boxes3d = stand_on_floor(boxes3d, class_idx, plane, prepared.R_tilt)
         scores = rescored(scores, sampled, boxes2d, boxes3d)
+        boxes3d = along_depth(sampled, boxes2d, boxes3d, class_idx, scores, plane)  # step 10, after 5
         boxes3d = hold_depth(sampled, boxes2d, boxes3d, scores, plane)  # step 9, after 5: moves no score
         order = np.argsort(-scores, kind="stable")
         rows, class_idx, boxes3d, amodal = (a[order] for a in (rows, class_idx, boxes3d, amodal))
