@@ -26,11 +26,19 @@ from dataclasses import dataclass
 import numpy as np
 
 from a3d.runtime.postprocess.score_calibration import SCORE_EPS
-from a3d.runtime.structures.geometry import CameraLike, backproject, pixel_window, points_in_box
+from a3d.runtime.structures.geometry import (
+    CameraLike,
+    backproject,
+    evenly_spread,
+    pixel_window,
+    points_in_box,
+)
 
 SUPPORT_WEIGHT = 2.0
 SUPPORT_REFERENCE = 0.6
 MARGIN_M = 0.05
+OBJECT_POINTS = 1500  # of a 2D box's samples, spread over it: an object's surface to a centimetre, quickly
+FLOOR_GAP_M = 0.03  # samples this close to the floor are the floor's, not an object's
 STRIDE = 2  # every 2nd pixel of every 2nd row: the share, at a quarter of the cost
 MIN_SCORE = 0.01  # below it no evidence matters (moved by at most 0.8 in log-odds, it stays under 0.022)
 
@@ -79,6 +87,21 @@ def box_points(sampled: SampledDepth, boxes2d: np.ndarray) -> list[np.ndarray]:
         window = tuple(slice(-(-p.start // STRIDE), -(-p.stop // STRIDE)) for p in pixels)
         held.append(sampled.points[window][sampled.valid[window]])
     return held
+
+
+def object_samples(
+    sampled: SampledDepth, boxes2d: np.ndarray, floor: np.ndarray | None = None
+) -> list[np.ndarray]:
+    """Per 2D box (N, 4), at most ``OBJECT_POINTS`` of its samples' tilt-frame points, spread over
+    it, without those within ``FLOOR_GAP_M`` of ``floor`` (step 8's plane, floor_contact.frame_floor;
+    None: none left out): what steps 9 and 10 read an object's surface from."""
+    out = []
+    for points in box_points(sampled, boxes2d):
+        points = evenly_spread(points, OBJECT_POINTS)
+        if floor is not None:  # y is down: the floor's samples have the largest y
+            points = points[points[:, 1] < points[:, [0, 2]] @ floor[:2] + floor[2] - FLOOR_GAP_M]
+        out.append(points)
+    return out
 
 
 def rescored(

@@ -19,15 +19,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from a3d.runtime.postprocess.depth_support import MIN_SCORE, SampledDepth, box_points
+from a3d.runtime.postprocess.depth_support import MIN_SCORE, SampledDepth, object_samples
 from a3d.runtime.structures.boxes import CENTER, LOCAL_XYZ_EXTENTS, THETA, local_half_sizes
-from a3d.runtime.structures.geometry import canonical_boxes, evenly_spread, turned_by_yaw
+from a3d.runtime.structures.geometry import canonical_boxes, turned_by_yaw
 
 MARGIN_M = 0.1
 TRIM_PERCENT = 3.0
 MIN_POINTS = 30  # fewer samples near a box say nothing of where its object's surface ends
-MAX_POINTS = 1500  # of a 2D box's samples, spread over it: its surface's extent to a centimetre, quickly
-FLOOR_GAP_M = 0.03  # samples this close to the floor are the floor's
 
 
 def hold_depth(
@@ -36,17 +34,14 @@ def hold_depth(
 ) -> np.ndarray:  # fmt: skip
     """``boxes3d`` (N, 7; camera-frame centres, yaws in ``sampled.R_tilt``'s tilt frame), those
     scoring ``MIN_SCORE`` or more grown to hold their object's depth samples (module docstring).
-    With the frame's ``floor`` (floor_contact.frame_floor's plane), samples within ``FLOOR_GAP_M``
-    of it are the floor's, not an object's: no box grows into the floor or along it."""
+    With the frame's ``floor`` (floor_contact.frame_floor's plane), the floor's samples
+    (depth_support.object_samples) are not an object's: no box grows into the floor or along it."""
     boxes3d = np.array(boxes3d, np.float64)
     chosen = np.flatnonzero(np.asarray(scores) >= MIN_SCORE)
     if MARGIN_M <= 0 or not len(chosen):
         return boxes3d
     R = sampled.R_tilt
-    for i, points in zip(chosen, box_points(sampled, np.asarray(boxes2d)[chosen]), strict=True):
-        points = evenly_spread(points, MAX_POINTS)
-        if floor is not None:  # y is down: the floor's samples have the largest y
-            points = points[points[:, 1] < points[:, [0, 2]] @ floor[:2] + floor[2] - FLOOR_GAP_M]
+    for i, points in zip(chosen, object_samples(sampled, np.asarray(boxes2d)[chosen], floor), strict=True):
         box = boxes3d[i]
         centre = R @ box[CENTER]
         local = turned_by_yaw(points - centre, -box[THETA])  # along the box's l, h, w

@@ -19,18 +19,16 @@ from __future__ import annotations
 
 import numpy as np
 
-from a3d.runtime.postprocess.depth_support import MIN_SCORE, SampledDepth, box_points
+from a3d.runtime.postprocess.depth_support import MIN_SCORE, SampledDepth, object_samples
 from a3d.runtime.structures.boxes import CENTER, THETA, L, W, local_half_sizes
 from a3d.runtime.structures.classes import class_mask
-from a3d.runtime.structures.geometry import canonical_boxes, evenly_spread, turned_by_yaw
+from a3d.runtime.structures.geometry import canonical_boxes, turned_by_yaw
 
 MIN_RATIO = 1.4
 MIN_ELONGATION = 1.5
 TURN_DEG = 45.0
 MARGIN_M = 0.1
 MIN_POINTS = 50  # fewer samples round a box say nothing of which way its object runs
-MAX_POINTS = 1500
-FLOOR_GAP_M = 0.03  # samples this close to the floor are the floor's
 KEPT = ("door",)
 
 
@@ -47,10 +45,7 @@ def along_depth(
     if not np.isfinite(MIN_ELONGATION) or not len(chosen):
         return boxes3d
     R = sampled.R_tilt
-    for i, points in zip(chosen, box_points(sampled, np.asarray(boxes2d)[chosen]), strict=True):
-        points = evenly_spread(points, MAX_POINTS)
-        if floor is not None:  # y is down: the floor's samples have the largest y
-            points = points[points[:, 1] < points[:, [0, 2]] @ floor[:2] + floor[2] - FLOOR_GAP_M]
+    for i, points in zip(chosen, object_samples(sampled, np.asarray(boxes2d)[chosen], floor), strict=True):
         box = boxes3d[i]
         offsets = points - R @ box[CENTER]
         half_l, half_h, _ = local_half_sizes(box[None])[0]
