@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 
 from a3d.runtime.errors import InputError
-from a3d.runtime.mapping.box_fit import fit_box, floor_level, world_points
+from a3d.runtime.mapping.box_fit import DepthView, fit_box, floor_level, world_cloud, world_points
 from a3d.runtime.mapping.world import box_differences
 from a3d.runtime.structures.frame import Frame
 from a3d.runtime.structures.geometry import Intrinsics, box_corners_camera
-from a3d.runtime.structures.pose import make_pose
+from a3d.runtime.structures.pose import invert_pose, make_pose
 
 TRUE = np.array([1.0, -0.45, 3.0, 1.2, 0.6, 0.9, 0.4])  # a world box (y down: its top at y = -0.9)
 
@@ -51,6 +51,8 @@ def test_world_points_are_each_posed_frames_depth_moved_into_the_world() -> None
     frames = [Frame("a", color, depth, K, pose=pose), Frame("b", color, depth, K)]  # b has no pose
     points = world_points(frames, stride=1)
     assert points.shape == (24 * 32 - 1, 3)
+    views = world_cloud(frames, stride=2).views  # the posed frame's depth, every 2nd pixel
+    assert len(views) == 1 and views[0].depth.shape == (12, 16) and views[0].stride == 2
     # every point is 2 m in front of the camera along its optical axis (world +x after the turn)
     np.testing.assert_allclose(points[:, 0], 1.0 + 2.0, atol=1e-9)
 
@@ -113,3 +115,30 @@ def test_a_face_where_a_neighbour_runs_on_to_the_margins_edge_is_the_rough_boxs(
     assert abs(x0[2] - x0[1]) < 0.01 and abs(x1[2] - x1[1]) < 0.01 and abs(y0[2] - y0[1]) < 0.01
     # The box's own front face, the wall behind it and the counter top under it end where they are.
     assert abs(z0[2] - z0[0]) < 0.02 and abs(z1[2] - 3.15) < 0.02 and abs(y1[2] + 0.9) < 0.02
+
+
+def _view_from_the_front(depth_m: float) -> DepthView:
+    """A camera 3 m in front of the door below (looking along +z), its depth ``depth_m`` everywhere
+    (10: it sees through the space round the door; 0: it measured nothing)."""
+    pose = make_pose(np.eye(3), [1.0, -1.0, 0.0])
+    depth = np.full((90, 120), depth_m, np.float32)
+    return DepthView(depth, Intrinsics(40.0, 40.0, 59.5, 44.5), 1, invert_pose(pose))
+
+
+def test_a_face_the_points_end_at_only_because_no_frame_saw_further_stays_the_rough_boxs() -> None:
+    rng = np.random.default_rng(5)
+    door = np.array([1.0, -1.05, 3.0, 0.9, 0.08, 2.1, 0.0])  # standing on the floor at y = 0
+    seen = surface_points(door, 3000, rng)
+    points = seen[seen[:, 1] > -1.75]  # its top 35 cm out of every frame's view
+    rough = door + np.array([0.02, -0.03, 0.0, 0.04, 0.02, 0.06, 0.0])
+    unseen = fit_box(points, rough, floor_y=0.0, views=[_view_from_the_front(0.0)])
+    assert _top(unseen) == pytest.approx(_top(rough), abs=0.005)  # and its bottom on the floor:
+    assert unseen[1] + unseen[5] / 2 == pytest.approx(0.0)
+    seen_through = fit_box(points, rough, floor_y=0.0, views=[_view_from_the_front(10.0)])
+    assert _top(seen_through) == pytest.approx(-1.75, abs=0.03)  # the space above was seen free
+    assert _top(fit_box(points, rough, floor_y=0.0)) == pytest.approx(-1.75, abs=0.03)  # no views: as before
+
+
+def _top(box: np.ndarray) -> float:
+    """A world box's top (y is down)."""
+    return box[1] - box[5] / 2

@@ -32,7 +32,7 @@ from a3d.runtime.cli.labels import add_source_args, open_posed_source
 from a3d.runtime.errors import InputError
 from a3d.runtime.extras import Needs
 from a3d.runtime.io.atomic import atomic_write_bytes
-from a3d.runtime.mapping.box_fit import fit_box, floor_level, world_cloud
+from a3d.runtime.mapping.box_fit import DepthView, fit_box, floor_level, world_cloud
 from a3d.runtime.mapping.labels import LabelConfig, inside_box
 from a3d.runtime.mapping.object_map import read_confirmed
 from a3d.runtime.mapping.rough_boxes import RoughBoxes, read_rough_boxes, write_template
@@ -87,7 +87,8 @@ def main(argv: list[str] | None = None) -> int:
     rough = read_rough_boxes(args.rough) if args.rough.exists() else None  # bad rows before any work
     loaders = list(open_posed_source(args))
     fused = loaders[:: args.frame_step]
-    points, colours = world_cloud(_loaded(fused), args.stride)
+    cloud = world_cloud(_loaded(fused), args.stride)
+    points, colours = cloud.points, cloud.colours
     if not len(points):
         raise InputError(f"{args.source}: no frame has a pose; a3d-world-boxes needs a posed recording "
                          "(docs/sources.md 'Camera poses')")  # fmt: skip
@@ -109,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
         _say(f"wrote {args.rough}: {todo}, then run this again")
         return 0
     out = args.out or args.rough.parent / WORLD_BOXES_FILE
-    fitted = fit_all(points, rough, args.margin, floor, args.rough)
+    fitted = fit_all(points, rough, args.margin, floor, args.rough, cloud.views)
     write_world_boxes(out, fitted)
     for k, line in enumerate(rough.lines):
         moved = fitted.boxes[k, :3] - rough.boxes[k, :3]
@@ -135,7 +136,12 @@ def proposals(path: Path) -> list[tuple[str, str, np.ndarray]]:
 
 
 def fit_all(
-    points: np.ndarray, rough: RoughBoxes, margin: float, floor: float | None, path: Path
+    points: np.ndarray,
+    rough: RoughBoxes,
+    margin: float,
+    floor: float | None,
+    path: Path,
+    views: list[DepthView] | None = None,
 ) -> WorldBoxes:
     """Every rough box fitted to its points (InputError naming the file's line for one around too
     few). A box's margin does not reach into its neighbours: points inside another rough box and
@@ -146,7 +152,7 @@ def fit_all(
     for k, line in enumerate(rough.lines):
         others = np.delete(owner, k, axis=0).any(axis=0) & ~owner[k]
         try:
-            boxes.append(fit_box(points[~others], rough.boxes[k], margin, floor))
+            boxes.append(fit_box(points[~others], rough.boxes[k], margin, floor, views))
         except InputError as e:
             raise InputError(f"{path}:{line}: {rough.classes[k]}: {e}") from None
     return WorldBoxes(list(rough.classes), np.array(boxes), np.arange(len(boxes), dtype=np.int64))

@@ -9,13 +9,18 @@ rectangle round theirs, each face where the points end, in the 7-vector conventi
 sensor's noise, a few stray centimetres beyond every surface (the outermost ``TRIM_PERCENT`` of
 the points along each axis are left out), and what the object touches (a wall, a counter, a
 neighbour), whose points run on to the edge of the search region: a face that ends there was cut
-by it, not by the object, and the rough box's own face is the better guess.
+by it, not by the object, and the rough box's own face is the better guess. And where no frame saw
+a part of the object (a door's top above every view, a basin's bottom, a counter's back behind
+its top), the points end short of it: a face far inside the rough box's is kept only where some
+frame saw through the space it would give up (the recording's depth says so), else the rough
+box's face stands.
 docs/mapping.md "Drawing the world boxes" gives the procedure.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
@@ -25,13 +30,15 @@ from a3d.runtime.mapping.labels import LabelConfig, inside_box
 from a3d.runtime.structures.boxes import L, W
 from a3d.runtime.structures.frame import Frame
 from a3d.runtime.structures.geometry import (
+    CameraLike,
     backproject,
     box_corners_tilt,
     boxes_from_corners_tilt,
     evenly_spread,
     points_in_box,
+    project_points,
 )
-from a3d.runtime.structures.pose import transform_points
+from a3d.runtime.structures.pose import invert_pose, transform_points
 
 MIN_POINTS = 20  # fewer points inside a rough box are no object's surface
 FLOOR_SEARCH_M = 0.3  # the floor is looked for this far above the cloud's lowest points
@@ -41,17 +48,41 @@ CELL_M = 0.02  # footprint cells in which an object's points are told from a nei
 TRIM_PERCENT = 1.0  # of the points along each axis, left out at either end: the sensor's stray depth
 EDGE_M = 0.02  # a face whose outermost points lie this close to the search region's edge was cut there
 YAW_SAMPLE = 4000  # footprint points the turn is chosen on
+SHRINK_M = 0.10  # a face this far inside the rough box's is checked against what the camera saw
+FREE_M = 0.05  # a point the camera saw this far beyond, in some frame, is free space
+FREE_SHARE = 0.5  # a face moves in only where this share of the space it gives up was seen free
+SLAB_SAMPLES = 5  # per side of the space a face gives up, and 3 deep
+
+
+@dataclass(frozen=True)
+class DepthView:
+    """A posed frame's depth, every ``stride``-th pixel: what says which space the camera saw through."""
+
+    depth: np.ndarray  # (h, w) metres, 0 where missing
+    K: CameraLike  # the full frame's
+    stride: int
+    world_to_camera: np.ndarray  # (4, 4)
+
+
+@dataclass(frozen=True)
+class WorldCloud:
+    """A posed recording's world points, their colours (RGB) and its frames' depth views."""
+
+    points: np.ndarray
+    colours: np.ndarray
+    views: list[DepthView]
 
 
 def world_points(frames: Iterable[Frame], stride: int = 4) -> np.ndarray:
     """(N, 3) world points of posed frames' depth (every ``stride``-th pixel each way; frames without
     a pose are left out): the point cloud to fit boxes to."""
-    return world_cloud(frames, stride)[0]
+    return world_cloud(frames, stride).points
 
 
-def world_cloud(frames: Iterable[Frame], stride: int = 4) -> tuple[np.ndarray, np.ndarray]:
-    """``world_points`` and their colours (N, 3) uint8 RGB: the cloud a person draws rough boxes in."""
-    clouds, colours = [], []
+def world_cloud(frames: Iterable[Frame], stride: int = 4) -> WorldCloud:
+    """``world_points``, their colours (N, 3) uint8 RGB and each posed frame's depth view: the cloud
+    a person draws rough boxes in, and what the camera saw through."""
+    clouds, colours, views = [], [], []
     for frame in frames:
         if frame.pose is None:
             continue
@@ -61,9 +92,29 @@ def world_cloud(frames: Iterable[Frame], stride: int = 4) -> tuple[np.ndarray, n
         points = backproject(cols[seen], rows[seen], depth[seen].astype(np.float64), frame.intrinsics)
         clouds.append(transform_points(frame.pose, points))
         colours.append(frame.color[::stride, ::stride][seen][:, ::-1])  # BGR -> RGB
+        views.append(DepthView(depth.astype(np.float32), frame.intrinsics, stride, invert_pose(frame.pose)))
     if not clouds:
-        return np.zeros((0, 3)), np.zeros((0, 3), np.uint8)
-    return np.concatenate(clouds), np.concatenate(colours)
+        return WorldCloud(np.zeros((0, 3)), np.zeros((0, 3), np.uint8), [])
+    return WorldCloud(np.concatenate(clouds), np.concatenate(colours), views)
+
+
+def seen_free(points: np.ndarray, views: list[DepthView]) -> np.ndarray:
+    """(N,) bool: world ``points`` that some view saw through (its depth there more than ``FREE_M``
+    beyond them): free space, not an object's."""
+    free = np.zeros(len(points), bool)
+    for view in views:
+        camera = transform_points(view.world_to_camera, points)
+        ahead = camera[:, 2] > 0.1
+        if not ahead.any():
+            continue
+        uv = np.full((len(points), 2), -1.0)
+        uv[ahead] = project_points(camera[ahead], view.K) / view.stride
+        u, v = np.round(uv[:, 0]).astype(np.int64), np.round(uv[:, 1]).astype(np.int64)
+        h, w = view.depth.shape
+        on = ahead & (u >= 0) & (v >= 0) & (u < w) & (v < h)
+        observed = np.where(on, view.depth[np.clip(v, 0, h - 1), np.clip(u, 0, w - 1)], 0.0)
+        free |= on & (observed > camera[:, 2] + FREE_M)
+    return free
 
 
 def floor_level(points: np.ndarray) -> float | None:
@@ -101,7 +152,11 @@ def _connected_to_core(points: np.ndarray, rough: np.ndarray) -> np.ndarray:
 
 
 def fit_box(
-    points: np.ndarray, rough: np.ndarray, margin_m: float = 0.1, floor_y: float | None = None
+    points: np.ndarray,
+    rough: np.ndarray,
+    margin_m: float = 0.1,
+    floor_y: float | None = None,
+    views: list[DepthView] | None = None,
 ) -> np.ndarray:
     """The gravity-aligned box (world 7-vector) of the world ``points`` inside ``rough`` grown by
     ``margin_m`` (module docstring): footprint turned to their smallest rectangle, each side
@@ -110,7 +165,10 @@ def fit_box(
 
     With ``floor_y`` (``floor_level``), points within ``FLOOR_GAP_M`` of the floor are left out
     (the floor round an object's foot would widen its footprint), and a box whose bottom ends within
-    ``FLOOR_SNAP_M`` of the floor is extended down to it (the object stands there)."""
+    ``FLOOR_SNAP_M`` of the floor is extended down to it (the object stands there). With the
+    recording's depth ``views`` (``world_cloud``), a face more than ``SHRINK_M`` inside the rough
+    box's stays where the points end only if some frame saw through the space it gives up, else it
+    is the rough box's (``_unseen_kept``)."""
     config = LabelConfig(margin_m=margin_m, floor_gap_m=0.0)
     points, rough = np.asarray(points, np.float64), np.asarray(rough, np.float64)
     inside = points[inside_box(points, rough, np.eye(3), config)]
@@ -133,6 +191,12 @@ def fit_box(
     bottom = heights.max()
     if floor_y is not None and floor_y - bottom < FLOOR_SNAP_M:
         bottom = max(bottom, floor_y)
+    if views:
+        rough_top, rough_bottom = rough[1] - rough[5] / 2, rough[1] + rough[5] / 2
+        rough_bottom = rough_bottom if floor_y is None else min(rough_bottom, floor_y)
+        rough_faces = np.vstack([_rough_along(rough_footprint, axes), [rough_top, rough_bottom]])
+        faces = _unseen_kept(np.vstack([bounds, [top, bottom]]), rough_faces, axes, views)
+        bounds, (top, bottom) = faces[:2], faces[2]
     (u0, u1), (v0, v1) = bounds
     footprint = np.array([u0 * axes[0] + v0 * axes[1], u1 * axes[0] + v0 * axes[1],
                           u1 * axes[0] + v1 * axes[1], u0 * axes[0] + v1 * axes[1]])  # fmt: skip
@@ -141,6 +205,50 @@ def fit_box(
     corners[0, 4:, [0, 2]] = footprint.T
     corners[0, :4, 1], corners[0, 4:, 1] = bottom, top
     return boxes_from_corners_tilt(corners, np.eye(3))[0]
+
+
+def _rough_along(footprint: np.ndarray, axes: np.ndarray) -> np.ndarray:
+    """(2, 2) the rough box's low and high faces along the fit's footprint ``axes``: its centre's
+    place along each, less and plus half its own side nearest that axis (the corners' extent along a
+    turned axis would widen a thin box by its length's share)."""
+    sides = np.stack([footprint[1] - footprint[0], footprint[3] - footprint[0]])  # (2, (x, z))
+    lengths = np.linalg.norm(sides, axis=1)
+    centre = footprint.mean(axis=0)
+    out = np.zeros((2, 2))
+    for k, axis in enumerate(axes):
+        half = lengths[np.argmax(np.abs(sides @ axis) / lengths)] / 2
+        out[k] = centre @ axis - half, centre @ axis + half
+    return out
+
+
+def _unseen_kept(
+    faces: np.ndarray, rough_faces: np.ndarray, axes: np.ndarray, views: list[DepthView]
+) -> np.ndarray:
+    """``faces`` (3, 2: low and high along the two footprint ``axes``, then top and bottom, y down)
+    with each that lies more than ``SHRINK_M`` inside the rough box's (``rough_faces``) put back at
+    the rough box's, unless some frame saw through most of the space it gives up (``seen_free``):
+    where the points end only because no frame saw further, the rough box is the better guess."""
+    faces = np.array(faces, np.float64)
+    for k in range(3):
+        for side, inward in ((0, 1.0), (1, -1.0)):
+            fitted, rough = faces[k, side], rough_faces[k, side]
+            if inward * (fitted - rough) > SHRINK_M:
+                spans = faces.copy()
+                spans[k] = fitted, rough
+                if seen_free(_slab_samples(spans, k, axes), views).mean() < FREE_SHARE:
+                    faces[k, side] = rough
+    return faces
+
+
+def _slab_samples(spans: np.ndarray, k: int, axes: np.ndarray) -> np.ndarray:
+    """World points spread through the box of ``spans`` (3, 2; as ``_unseen_kept``'s faces): a grid
+    of ``SLAB_SAMPLES`` a side, 3 deep along span ``k``."""
+    grid = (np.arange(SLAB_SAMPLES) + 0.5) / SLAB_SAMPLES
+    fractions = [np.array([1 / 6, 1 / 2, 5 / 6]) if i == k else grid for i in range(3)]
+    values = [low + (high - low) * f for (low, high), f in zip(spans, fractions, strict=True)]
+    u, v, y = (g.ravel() for g in np.meshgrid(*values, indexing="ij"))
+    xz = u[:, None] * axes[0] + v[:, None] * axes[1]
+    return np.column_stack([xz[:, 0], y, xz[:, 1]])
 
 
 def _footprint_axes(footprint: np.ndarray) -> np.ndarray:
