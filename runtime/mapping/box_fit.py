@@ -50,6 +50,7 @@ EDGE_M = 0.02  # a face whose outermost points lie this close to the search regi
 YAW_SAMPLE = 4000  # footprint points the turn is chosen on
 SHRINK_M = 0.10  # a face this far inside the rough box's is checked against what the camera saw
 FREE_M = 0.05  # a point the camera saw this far beyond, in some frame, is free space
+NEAR_M = 0.1  # points nearer a camera than this are not looked at in its view
 FREE_SHARE = 0.5  # a face moves in only where this share of the space it gives up was seen free
 SLAB_SAMPLES = 5  # per side of the space a face gives up, and 3 deep
 
@@ -104,7 +105,7 @@ def seen_free(points: np.ndarray, views: list[DepthView]) -> np.ndarray:
     free = np.zeros(len(points), bool)
     for view in views:
         camera = transform_points(view.world_to_camera, points)
-        ahead = camera[:, 2] > 0.1
+        ahead = camera[:, 2] > NEAR_M
         if not ahead.any():
             continue
         uv = np.full((len(points), 2), -1.0)

@@ -1,8 +1,8 @@
 """Long boxes turned along their object: step 10 of the pipelines with a 2D detector.
 
 Why: a box regressed from one RoI gets a long object's length right more often than which way it
-runs. Seen end on, a dining table or a sofa along the wall comes out as a box across it (about a
-right angle off, looked at on the real frames: docs/real-rooms.md), and a box a right angle off
+runs: on the real frames a sofa along the wall and a dining table seen end on came out as boxes
+across them, about a right angle off (looked at: docs/real-rooms.md), and a box a right angle off
 overlaps its object by a fraction. The depth says which way the object runs: from above, what the
 camera sees of a table's top or a sofa's front and seat is long along the object. So for each box
 that is itself long (``l >= MIN_RATIO * w``: sofas, tables, counters, beds, desks, dressers), the
