@@ -9,6 +9,7 @@ import pytest
 from a3d.runtime.postprocess.depth_support import (
     MIN_SCORE,
     SUPPORT_REFERENCE,
+    box_points,
     depth_support,
     rescored,
     sample_depth,
@@ -65,3 +66,14 @@ def test_scores_under_the_floor_keep_their_value_and_the_rest_are_moved():
     scores = np.array([MIN_SCORE / 2, 0.3])
     moved = rescored(scores, sample_depth(_depth(), K, np.eye(3)), boxes2d, np.array([behind, behind]))
     assert moved[0] == pytest.approx(scores[0]) and moved[1] == pytest.approx(supported_scores(0.3, 0.0))
+
+
+def test_a_boxs_samples_are_gathered_once_a_frame_and_shared_read_only() -> None:
+    sampled = sample_depth(_depth(), K, np.eye(3))
+    boxes2d = np.array([[55.0, 35.0, 115.0, 105.0], [0.0, 0.0, 20.0, 20.0]])
+    first = box_points(sampled, boxes2d)
+    again = box_points(sampled, boxes2d[::-1])
+    assert again[1] is first[0] and again[0] is first[1]  # the same arrays, whichever step asks
+    assert set(np.round(first[0][:, 2], 6)) == {2.0, 4.0}  # the block's face and the wall round it
+    with pytest.raises(ValueError, match="read-only"):
+        first[0][0, 0] = 0.0  # no step can change what the next one reads

@@ -21,7 +21,7 @@ it costs about 8 ms a frame, which the network alone (`live`, the fast choice) d
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -46,14 +46,15 @@ MIN_SCORE = 0.01  # below it no evidence matters (moved by at most 0.8 in log-od
 @dataclass(frozen=True, eq=False)
 class SampledDepth:
     """A frame's depth with its samples (every ``STRIDE``-th pixel of every ``STRIDE``-th row)
-    back-projected to tilt-frame points once: what step 5's supports, step 7's fits
-    (a3d.runtime.postprocess.depth_fit) and step 8's floor (floor_contact) are counted over."""
+    back-projected to tilt-frame points once: what the depth steps (5, 7 to 10) count over. Each 2D
+    box's samples are gathered once a frame (``box_points``), however many steps ask for them."""
 
     depth: np.ndarray  # (H, W) metres, 0 where missing
     K: CameraLike
     R_tilt: np.ndarray  # (3, 3)
     points: np.ndarray  # (h, w, 3) the samples' tilt-frame points
     valid: np.ndarray  # (h, w) bool: the sample has depth
+    held: dict = field(default_factory=dict, repr=False)  # a window's points, by its sample rows and columns
 
 
 def sample_depth(depth: np.ndarray, K: CameraLike, R_tilt: np.ndarray) -> SampledDepth:
@@ -84,8 +85,13 @@ def box_points(sampled: SampledDepth, boxes2d: np.ndarray) -> list[np.ndarray]:
     held = []
     for box2d in np.asarray(boxes2d):
         pixels = pixel_window(box2d, sampled.depth.shape)  # its samples: the pixels j * STRIDE among them
-        window = tuple(slice(-(-p.start // STRIDE), -(-p.stop // STRIDE)) for p in pixels)
-        held.append(sampled.points[window][sampled.valid[window]])
+        key = tuple((-(-p.start // STRIDE), -(-p.stop // STRIDE)) for p in pixels)
+        if key not in sampled.held:
+            window = tuple(slice(*k) for k in key)
+            points = sampled.points[window][sampled.valid[window]]
+            points.setflags(write=False)  # shared by the steps that ask for it
+            sampled.held[key] = points
+        held.append(sampled.held[key])
     return held
 
 
