@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from a3d.runtime.errors import InputError
-from a3d.runtime.mapping.box_fit import DepthView, fit_box, floor_level, world_cloud, world_points
+from a3d.runtime.mapping.box_fit import DepthView, fit_box, fitted_box, floor_level, world_cloud, world_points
 from a3d.runtime.mapping.world import box_differences
 from a3d.runtime.structures.frame import Frame
 from a3d.runtime.structures.geometry import Intrinsics, box_corners_camera
@@ -131,11 +131,11 @@ def test_a_face_the_points_end_at_only_because_no_frame_saw_further_stays_the_ro
     seen = surface_points(door, 3000, rng)
     points = seen[seen[:, 1] > -1.75]  # its top 35 cm out of every frame's view
     rough = door + np.array([0.02, -0.03, 0.0, 0.04, 0.02, 0.06, 0.0])
-    unseen = fit_box(points, rough, floor_y=0.0, views=[_view_from_the_front(0.0)])
-    assert _top(unseen) == pytest.approx(_top(rough), abs=0.005)  # and its bottom on the floor:
-    assert unseen[1] + unseen[5] / 2 == pytest.approx(0.0)
-    seen_through = fit_box(points, rough, floor_y=0.0, views=[_view_from_the_front(10.0)])
-    assert _top(seen_through) == pytest.approx(-1.75, abs=0.03)  # the space above was seen free
+    unseen = fitted_box(points, rough, floor_y=0.0, views=[_view_from_the_front(0.0)])
+    assert _top(unseen.box) == pytest.approx(_top(rough), abs=0.005)  # and its bottom on the floor:
+    assert unseen.box[1] + unseen.box[5] / 2 == pytest.approx(0.0) and unseen.unseen == ("top",)
+    seen_through = fitted_box(points, rough, floor_y=0.0, views=[_view_from_the_front(10.0)])
+    assert _top(seen_through.box) == pytest.approx(-1.75, abs=0.03) and seen_through.unseen == ()
     assert _top(fit_box(points, rough, floor_y=0.0)) == pytest.approx(-1.75, abs=0.03)  # no views: as before
 
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from a3d.runtime.cli.common import EXIT_USAGE
-from a3d.runtime.cli.world_boxes import main
+from a3d.runtime.cli.world_boxes import _faces_text, main
 from a3d.runtime.mapping.box_fit import world_points
 from a3d.runtime.mapping.labels import LabelConfig, inside_box
 from a3d.runtime.mapping.rough_boxes import COLUMNS, read_rough_boxes
@@ -140,3 +140,8 @@ def test_rough_boxes_can_start_from_the_object_map_a3d_made_of_the_recording(
     _one_line_exit_2([str(sequence / "frames"), "--rough", str(fresh), "--rough-from",
                       str(tmp_path / "not_a_map.json")], capsys, "not an object map")  # fmt: skip
     assert not fresh.exists()
+
+
+def test_the_faces_kept_as_the_rough_boxs_are_named_for_the_person() -> None:
+    assert _faces_text(("top", "side", "side")) == "top and 2 sides"
+    assert _faces_text(("side", "bottom")) == "bottom and side" and _faces_text(("top",)) == "top"

@@ -32,7 +32,7 @@ from a3d.runtime.cli.labels import add_source_args, open_posed_source
 from a3d.runtime.errors import InputError
 from a3d.runtime.extras import Needs
 from a3d.runtime.io.atomic import atomic_write_bytes
-from a3d.runtime.mapping.box_fit import DepthView, fit_box, floor_level, world_cloud
+from a3d.runtime.mapping.box_fit import DepthView, fitted_box, floor_level, world_cloud
 from a3d.runtime.mapping.labels import LabelConfig, inside_box
 from a3d.runtime.mapping.object_map import read_confirmed
 from a3d.runtime.mapping.rough_boxes import RoughBoxes, read_rough_boxes, write_template
@@ -110,17 +110,27 @@ def main(argv: list[str] | None = None) -> int:
         _say(f"wrote {args.rough}: {todo}, then run this again")
         return 0
     out = args.out or args.rough.parent / WORLD_BOXES_FILE
-    fitted = fit_all(points, rough, args.margin, floor, args.rough, cloud.views)
+    fitted, unseen = fit_all(points, rough, args.margin, floor, args.rough, cloud.views)
     write_world_boxes(out, fitted)
     for k, line in enumerate(rough.lines):
         moved = fitted.boxes[k, :3] - rough.boxes[k, :3]
+        kept = f"; kept the rough box's {_faces_text(unseen[k])}: no frame saw past the points"
+        kept = kept if unseen[k] else ""
         _say(f"{args.rough}:{line} {rough.classes[k]}: fitted {np.round(fitted.boxes[k], 3).tolist()} "
-             f"(centre moved {np.linalg.norm(moved):.3f} m)")  # fmt: skip
+             f"(centre moved {np.linalg.norm(moved):.3f} m{kept})")  # fmt: skip
     check_dir = args.check_dir or out.with_name(out.stem + "_check")
     checks = check_images(loaders, fitted, check_dir, args.check_frames)
     _show(args, points, colours, rough, fitted, checks)
     _say(f"wrote {out} ({len(fitted)} objects) and {len(checks)} check images in {check_dir}")
     return 0
+
+
+def _faces_text(faces: tuple[str, ...]) -> str:
+    """("top", "side", "side") as "top and 2 sides"."""
+    sides = faces.count("side")
+    named = [face for face in faces if face != "side"]
+    named += ["side"] if sides == 1 else [f"{sides} sides"] if sides else []
+    return " and ".join(named)
 
 
 def proposals(path: Path) -> list[tuple[str, str, np.ndarray]]:
@@ -142,20 +152,24 @@ def fit_all(
     floor: float | None,
     path: Path,
     views: list[DepthView] | None = None,
-) -> WorldBoxes:
+) -> tuple[WorldBoxes, list[tuple[str, ...]]]:
     """Every rough box fitted to its points (InputError naming the file's line for one around too
-    few). A box's margin does not reach into its neighbours: points inside another rough box and
-    not inside its own are left out (the sofa under a pillow, the table beside a chair)."""
+    few), and per box the faces kept as the rough box's where no view saw past the points
+    (``box_fit.fitted_box``). A box's margin does not reach into its neighbours: points inside
+    another rough box and not inside its own are left out (the sofa under a pillow, the table
+    beside a chair)."""
     tight = LabelConfig(margin_m=0.0, floor_gap_m=0.0)
     owner = np.stack([inside_box(points, box, np.eye(3), tight) for box in rough.boxes])
-    boxes = []
+    fits = []
     for k, line in enumerate(rough.lines):
         others = np.delete(owner, k, axis=0).any(axis=0) & ~owner[k]
         try:
-            boxes.append(fit_box(points[~others], rough.boxes[k], margin, floor, views))
+            fits.append(fitted_box(points[~others], rough.boxes[k], margin, floor, views))
         except InputError as e:
             raise InputError(f"{path}:{line}: {rough.classes[k]}: {e}") from None
-    return WorldBoxes(list(rough.classes), np.array(boxes), np.arange(len(boxes), dtype=np.int64))
+    boxes = np.array([fit.box for fit in fits])
+    world = WorldBoxes(list(rough.classes), boxes, np.arange(len(boxes), dtype=np.int64))
+    return world, [fit.unseen for fit in fits]
 
 
 def check_images(loaders: list, fitted: WorldBoxes, folder: Path, count: int) -> list[tuple[str, np.ndarray]]:

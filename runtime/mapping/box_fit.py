@@ -74,6 +74,15 @@ class WorldCloud:
     views: list[DepthView]
 
 
+@dataclass(frozen=True)
+class Fitted:
+    """A fitted box (world 7-vector) and its faces that stayed the rough box's because no frame saw
+    past where the points end ("side", "top", "bottom"): what the person should look at."""
+
+    box: np.ndarray
+    unseen: tuple[str, ...] = ()
+
+
 def world_points(frames: Iterable[Frame], stride: int = 4) -> np.ndarray:
     """(N, 3) world points of posed frames' depth (every ``stride``-th pixel each way; frames without
     a pose are left out): the point cloud to fit boxes to."""
@@ -153,12 +162,19 @@ def _connected_to_core(points: np.ndarray, rough: np.ndarray) -> np.ndarray:
 
 
 def fit_box(
+    points: np.ndarray, rough: np.ndarray, margin_m: float = 0.1, floor_y: float | None = None
+) -> np.ndarray:
+    """``fitted_box``'s box without the recording's views: the faces where the points end."""
+    return fitted_box(points, rough, margin_m, floor_y).box
+
+
+def fitted_box(
     points: np.ndarray,
     rough: np.ndarray,
     margin_m: float = 0.1,
     floor_y: float | None = None,
     views: list[DepthView] | None = None,
-) -> np.ndarray:
+) -> Fitted:
     """The gravity-aligned box (world 7-vector) of the world ``points`` inside ``rough`` grown by
     ``margin_m`` (module docstring): footprint turned to their smallest rectangle, each side
     and the top where the points end (``TRIM_PERCENT``), or the rough box's own where they run on
@@ -192,11 +208,12 @@ def fit_box(
     bottom = heights.max()
     if floor_y is not None and floor_y - bottom < FLOOR_SNAP_M:
         bottom = max(bottom, floor_y)
+    unseen: tuple[str, ...] = ()
     if views:
         rough_top, rough_bottom = rough[1] - rough[5] / 2, rough[1] + rough[5] / 2
         rough_bottom = rough_bottom if floor_y is None else min(rough_bottom, floor_y)
         rough_faces = np.vstack([_rough_along(rough_footprint, axes), [rough_top, rough_bottom]])
-        faces = _unseen_kept(np.vstack([bounds, [top, bottom]]), rough_faces, axes, views)
+        faces, unseen = _unseen_kept(np.vstack([bounds, [top, bottom]]), rough_faces, axes, views)
         bounds, (top, bottom) = faces[:2], faces[2]
     (u0, u1), (v0, v1) = bounds
     footprint = np.array([u0 * axes[0] + v0 * axes[1], u1 * axes[0] + v0 * axes[1],
@@ -205,7 +222,7 @@ def fit_box(
     corners[0, :4, [0, 2]] = footprint.T
     corners[0, 4:, [0, 2]] = footprint.T
     corners[0, :4, 1], corners[0, 4:, 1] = bottom, top
-    return boxes_from_corners_tilt(corners, np.eye(3))[0]
+    return Fitted(boxes_from_corners_tilt(corners, np.eye(3))[0], unseen)
 
 
 def _rough_along(footprint: np.ndarray, axes: np.ndarray) -> np.ndarray:
@@ -224,12 +241,15 @@ def _rough_along(footprint: np.ndarray, axes: np.ndarray) -> np.ndarray:
 
 def _unseen_kept(
     faces: np.ndarray, rough_faces: np.ndarray, axes: np.ndarray, views: list[DepthView]
-) -> np.ndarray:
+) -> tuple[np.ndarray, tuple[str, ...]]:
     """``faces`` (3, 2: low and high along the two footprint ``axes``, then top and bottom, y down)
     with each that lies more than ``SHRINK_M`` inside the rough box's (``rough_faces``) put back at
     the rough box's, unless some frame saw through most of the space it gives up (``seen_free``):
-    where the points end only because no frame saw further, the rough box is the better guess."""
+    where the points end only because no frame saw further, the rough box is the better guess.
+    Also the names of the faces put back."""
     faces = np.array(faces, np.float64)
+    names = (("side", "side"), ("side", "side"), ("top", "bottom"))
+    unseen = []
     for k in range(3):
         for side, inward in ((0, 1.0), (1, -1.0)):
             fitted, rough = faces[k, side], rough_faces[k, side]
@@ -238,7 +258,8 @@ def _unseen_kept(
                 spans[k] = fitted, rough
                 if seen_free(_slab_samples(spans, k, axes), views).mean() < FREE_SHARE:
                     faces[k, side] = rough
-    return faces
+                    unseen.append(names[k][side])
+    return faces, tuple(unseen)
 
 
 def _slab_samples(spans: np.ndarray, k: int, axes: np.ndarray) -> np.ndarray:
