@@ -6,7 +6,15 @@ import numpy as np
 import pytest
 
 from a3d.runtime.errors import InputError
-from a3d.runtime.mapping.box_fit import DepthView, fit_box, fitted_box, floor_level, world_cloud, world_points
+from a3d.runtime.mapping.box_fit import (
+    DepthView,
+    fit_box,
+    fitted_box,
+    floor_level,
+    seen_free,
+    world_cloud,
+    world_points,
+)
 from a3d.runtime.mapping.world import box_differences
 from a3d.runtime.structures.frame import Frame
 from a3d.runtime.structures.geometry import Intrinsics, box_corners_camera
@@ -142,3 +150,9 @@ def test_a_face_the_points_end_at_only_because_no_frame_saw_further_stays_the_ro
 def _top(box: np.ndarray) -> float:
     """A world box's top (y is down)."""
     return box[1] - box[5] / 2
+
+
+def test_space_behind_a_view_or_nearer_than_its_depth_is_not_seen_free() -> None:
+    view = _view_from_the_front(10.0)  # at z = 0, looking along +z, its depth 10 m everywhere
+    points = np.array([[1.0, -1.0, 3.0], [1.0, -1.0, -3.0], [1.0, -1.0, 12.0]])
+    np.testing.assert_array_equal(seen_free(points, [view]), [True, False, False])  # ahead; behind; beyond it

@@ -27,6 +27,7 @@ from a3d.runtime.structures.geometry import (
     canonical_boxes,
     check_rotation,
     context_boxes,
+    depth_seen_at,
     evenly_spread,
     flip_boxes_2d,
     flip_boxes_3d,
@@ -471,3 +472,17 @@ def test_evenly_spread_keeps_at_most_the_limit_spread_over_all() -> None:
     np.testing.assert_array_equal(evenly_spread(np.arange(10), 5), [0, 2, 4, 6, 8])
     np.testing.assert_array_equal(evenly_spread(np.arange(3), 5), [0, 1, 2])
     assert evenly_spread(np.zeros((0, 3)), 5).shape == (0, 3)
+
+
+def test_depth_seen_at_reads_the_map_where_a_point_projects_and_0_where_it_cannot() -> None:
+    K = Intrinsics(100.0, 100.0, 39.5, 29.5)  # an 80 x 60 frame, its depth kept every 2nd pixel
+    depth = np.arange(40 * 30, dtype=np.float32).reshape(30, 40) / 100 + 1.0
+    points = np.array([
+        [0.0, 0.0, 2.0],  # the optical axis: pixel (39.5, 29.5), map cell (20, 15) after rounding
+        [0.0, 0.0, -2.0],  # behind the camera
+        [0.0, 0.0, 0.05],  # ahead, but nearer than near_m
+        [5.0, 0.0, 2.0],  # off the frame to the right
+    ])  # fmt: skip
+    seen = depth_seen_at(points, depth, K, stride=2, near_m=0.1)
+    np.testing.assert_allclose(seen, [depth[15, 20], 0.0, 0.0, 0.0])
+    assert depth_seen_at(points[None], depth, K, stride=2, near_m=0.1).shape == (1, 4)  # any leading shape

@@ -34,9 +34,9 @@ from a3d.runtime.structures.geometry import (
     backproject,
     box_corners_tilt,
     boxes_from_corners_tilt,
+    depth_seen_at,
     evenly_spread,
     points_in_box,
-    project_points,
 )
 from a3d.runtime.structures.pose import invert_pose, transform_points
 
@@ -114,16 +114,8 @@ def seen_free(points: np.ndarray, views: list[DepthView]) -> np.ndarray:
     free = np.zeros(len(points), bool)
     for view in views:
         camera = transform_points(view.world_to_camera, points)
-        ahead = camera[:, 2] > NEAR_M
-        if not ahead.any():
-            continue
-        uv = np.full((len(points), 2), -1.0)
-        uv[ahead] = project_points(camera[ahead], view.K) / view.stride
-        u, v = np.round(uv[:, 0]).astype(np.int64), np.round(uv[:, 1]).astype(np.int64)
-        h, w = view.depth.shape
-        on = ahead & (u >= 0) & (v >= 0) & (u < w) & (v < h)
-        observed = np.where(on, view.depth[np.clip(v, 0, h - 1), np.clip(u, 0, w - 1)], 0.0)
-        free |= on & (observed > camera[:, 2] + FREE_M)
+        observed = depth_seen_at(camera, view.depth, view.K, view.stride, NEAR_M)
+        free |= (observed > 0) & (observed > camera[:, 2] + FREE_M)  # 0: not seen (behind it, too)
     return free
 
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from a3d.runtime.errors import InputError
 from a3d.runtime.frontend.gravity import rtilt_from_gravity
-from a3d.runtime.structures.geometry import Intrinsics, project_points
+from a3d.runtime.structures.geometry import Intrinsics, depth_seen_at
 from a3d.runtime.structures.pose import transform_points
 
 
@@ -149,15 +149,11 @@ class DepthTracker:
         the frame's camera, land on a pixel whose depth is within ``agree_m`` of theirs, over
         those that land on a pixel with depth (0 when none does)."""
         moved = transform_points(Rt, points[np.isfinite(points[..., 2])].astype(np.float64))
-        moved = moved[moved[:, 2] > 0]
-        u, v = np.round(project_points(moved, self.intrinsics)).T
-        height, width = self.size
-        inside = (u >= 0) & (u < width) & (v >= 0) & (v < height)
-        seen = depth[v[inside].astype(np.int64), u[inside].astype(np.int64)]
+        seen = depth_seen_at(moved, depth, self.intrinsics)
         both = seen > 0
         if not both.any():
             return 0.0
-        return float(np.mean(np.abs(seen[both] - moved[inside, 2][both]) <= self.config.agree_m))
+        return float(np.mean(np.abs(seen[both] - moved[both, 2]) <= self.config.agree_m))
 
 
 def _align(odometry: cv2.Odometry, source: cv2.OdometryFrame, target: cv2.OdometryFrame) -> np.ndarray | None:

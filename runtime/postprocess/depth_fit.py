@@ -23,9 +23,9 @@ from a3d.runtime.structures.boxes import CENTER, THETA, H, L, W
 from a3d.runtime.structures.classes import class_mask
 from a3d.runtime.structures.geometry import (
     CameraLike,
+    depth_seen_at,
     evenly_spread,
     points_in_box,
-    project_points,
     turned_by_yaw,
 )
 
@@ -87,14 +87,7 @@ def fit_to_depth(
 def _seen_through(camera: np.ndarray, depth: np.ndarray, K: CameraLike) -> np.ndarray:
     """(G,) per candidate, the share of its volume samples (G, S, 3 camera frame) that project onto
     a depth pixel lying more than ``SEE_M`` beyond them (of those that project onto one)."""
-    z = camera[..., 2]
-    ahead = z > NEAR_M
-    uv = np.full((*z.shape, 2), -1.0)
-    uv[ahead] = project_points(camera[ahead], K)
-    u, v = np.round(uv[..., 0]).astype(np.int64), np.round(uv[..., 1]).astype(np.int64)
-    height, width = depth.shape
-    on = ahead & (u >= 0) & (v >= 0) & (u < width) & (v < height)
-    observed = np.where(on, depth[np.clip(v, 0, height - 1), np.clip(u, 0, width - 1)], 0.0)
-    on &= observed > 0
-    seen = on & (observed > z + SEE_M)
+    observed = depth_seen_at(camera, depth, K, near_m=NEAR_M)
+    on = observed > 0
+    seen = on & (observed > camera[..., 2] + SEE_M)  # a sample behind the camera is not seen through
     return seen.sum(axis=1) / np.maximum(on.sum(axis=1), 1)

@@ -161,6 +161,23 @@ def project_points(points: np.ndarray, K: CameraLike) -> np.ndarray:
     return _finite_result(out, "project_points")
 
 
+def depth_seen_at(
+    points: np.ndarray, depth: np.ndarray, K: CameraLike, stride: int = 1, near_m: float = 0.0
+) -> np.ndarray:
+    """(...,) the depth a depth map measured where each camera-frame point (..., 3) projects: ``K``
+    the full frame's, ``depth`` (h, w) its every ``stride``-th pixel each way. 0 where the point is
+    not more than ``near_m`` ahead of the camera, projects off the map, or the map has no depth
+    there: what says whether the camera saw a point, or through it."""
+    p = np.asarray(points, np.float64)
+    ahead = p[..., 2] > near_m
+    uv = np.full((*p.shape[:-1], 2), -1.0)
+    uv[ahead] = project_points(p[ahead], K) / stride
+    u, v = np.round(uv[..., 0]).astype(np.int64), np.round(uv[..., 1]).astype(np.int64)
+    height, width = depth.shape
+    on = ahead & (u >= 0) & (v >= 0) & (u < width) & (v < height)
+    return np.where(on, depth[np.clip(v, 0, height - 1), np.clip(u, 0, width - 1)], 0.0)
+
+
 # ----------------------------------------------------------------------------- gravity rotation
 
 
