@@ -43,7 +43,7 @@ from a3d.runtime.mapping.odometry import TrackerConfig
 from a3d.runtime.mapping.world_boxes import read_world_boxes, write_world_boxes
 from a3d.runtime.sources.folder import LABELS_FILE, TRACKING_FILE, list_frames, read_ground_truth, read_meta
 from a3d.runtime.structures.geometry import box_corners_camera, boxes_from_corners_tilt, iou_3d
-from a3d.runtime.structures.pose import invert_pose, make_pose, transform_points
+from a3d.runtime.structures.pose import invert_pose, rigid_fit, rotation_deg, transform_points
 from bench.own_room import BIN, load, scores, sh, world_boxes_step
 
 
@@ -65,20 +65,6 @@ def strip_poses(frames: Path, out: Path) -> None:
             (out / f"{ref.name}.meta.json").write_text(json.dumps(document))
 
 
-def rigid_fit(source: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """The rotation and translation (4, 4) that best map the points ``source`` onto ``target``
-    (least squares; Umeyama without scale)."""
-    ms, mt = source.mean(axis=0), target.mean(axis=0)
-    u, _, vt = np.linalg.svd((target - mt).T @ (source - ms))
-    d = np.sign(np.linalg.det(u @ vt))
-    R = u @ np.diag([1.0, 1.0, d]) @ vt
-    return make_pose(R, mt - R @ ms)
-
-
-def angle_deg(R: np.ndarray) -> float:
-    return math.degrees(math.acos(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0)))
-
-
 def path_errors(seq_frames: Path, posed: Path) -> tuple[np.ndarray, dict[str, float]]:
     """The fit taking the true world to the estimated one, and the path's errors (module docstring)."""
     true = {ref.name: read_meta(ref) for ref in list_frames(seq_frames)}
@@ -89,7 +75,7 @@ def path_errors(seq_frames: Path, posed: Path) -> tuple[np.ndarray, dict[str, fl
     fit = rigid_fit(T_true[:, :3, 3], T_est[:, :3, 3])
     moved = np.einsum("ij,njk->nik", fit, T_true)
     position = np.linalg.norm(moved[:, :3, 3] - T_est[:, :3, 3], axis=1)
-    rotation = [angle_deg(a[:3, :3].T @ b[:3, :3]) for a, b in zip(moved, T_est, strict=True)]
+    rotation = [rotation_deg(a[:3, :3].T @ b[:3, :3]) for a, b in zip(moved, T_est, strict=True)]
     gravity = [
         math.degrees(math.acos(np.clip(true[n].R_tilt[1] @ est[n].R_tilt[1], -1.0, 1.0))) for n in names
     ]

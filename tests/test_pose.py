@@ -10,7 +10,16 @@ import pytest
 
 from a3d.runtime.errors import InputError
 from a3d.runtime.sources.trajectory import read_trajectory
-from a3d.runtime.structures.pose import check_pose, invert_pose, make_pose, quaternion_to_rotation, slerp
+from a3d.runtime.structures.pose import (
+    check_pose,
+    invert_pose,
+    make_pose,
+    quaternion_to_rotation,
+    rigid_fit,
+    rotation_deg,
+    slerp,
+    transform_points,
+)
 
 
 def R_z(angle: float) -> np.ndarray:
@@ -90,3 +99,12 @@ def test_trajectory_interpolates_and_says_why_a_time_has_no_pose(tmp_path: Path)
         "the poses of groundtruth.txt around time 10.300000 are 0.480 s apart (more than 0.05 s)",
     )
     assert trajectory.pose_at(10.3, max_gap=0.5)[0] is not None
+
+
+def test_rigid_fit_finds_the_move_between_two_point_sets_and_rotation_deg_its_angle() -> None:
+    turn = quaternion_to_rotation(np.array([0.0, math.sin(0.25), 0.0, math.cos(0.25)]), "q")  # 0.5 rad, y
+    move = make_pose(turn, np.array([0.4, -0.1, 1.2]))
+    points = np.random.default_rng(3).uniform(-2, 2, (20, 3))
+    np.testing.assert_allclose(rigid_fit(points, transform_points(move, points)), move, atol=1e-9)
+    assert rotation_deg(turn) == pytest.approx(math.degrees(0.5))
+    assert rotation_deg(np.eye(3)) == 0.0

@@ -38,6 +38,7 @@ from a3d.runtime.sources.folder import LABELS_FILE, write_frame
 from a3d.runtime.sources.overrides import parse_depth_scale, parse_intrinsics
 from a3d.runtime.sources.registry import FrameSource, SourceOptions, kinds, open_source
 from a3d.runtime.structures.frame import Frame
+from a3d.runtime.structures.pose import rotation_deg
 
 PROG = "a3d-labels"
 GRAVITY_DISAGREES_DEG = 2.0  # a frame's own R_tilt this far from its pose's gravity: a warning
@@ -117,7 +118,7 @@ def write_labelled_frame(out: Path, frame: Frame, world: WorldBoxes, config: Lab
     assert frame.pose is not None
     R_tilt = rtilt_from_pose(frame.pose)
     if frame.R_tilt is not None:
-        angle = np.degrees(np.arccos(np.clip((np.trace(frame.R_tilt @ R_tilt.T) - 1) / 2, -1, 1)))
+        angle = rotation_deg(frame.R_tilt @ R_tilt.T)
         if angle > GRAVITY_DISAGREES_DEG:
             tqdm.write(
                 f"{PROG}: warning: {frame.origin}: its R_tilt is {angle:.1f} degrees from its pose's gravity "

@@ -4,15 +4,17 @@
               [--source-format KIND] [--intrinsics FX,FY,CX,CY] [--depth-scale S]
 
 Each frame's pose is tracked (a3d.runtime.mapping.odometry: RGB-D odometry against the model fused
-so far, as KinectFusion does; frames over 640 across at 640) in a gravity-aligned world (y down,
-the mean gravity the frames show; the first camera's heading), so that a3d-world-boxes, a3d-labels and
-a3d-run --map take the recording as they take one with poses (docs/mapping.md "Poses from the
-depth"). OUT (new, or empty) becomes an a3d frame folder: per tracked frame its colour (the file's
-bytes) and depth, NAME.meta.json with its intrinsics, pose and the R_tilt the pose gives; and
-OUT/tracking.jsonl: per frame read, whether it was tracked and the share of the model its depth
-confirms. A frame that is not tracked, or cannot be read, is named on stderr in one line and not
-written; exit 1 if any was, 2 for an unusable input before any frame. OUT appears whole, at the
-end. SOURCE is read twice (poses, then the frames written): a recording, not a live camera.
+so far, as KinectFusion does; frames over 640 across at 640; a frame it loses is placed by its image
+features matched to an earlier frame's, and its line on stderr says so) in a gravity-aligned world
+(y down, the mean gravity the frames show; the first camera's heading), so that a3d-world-boxes,
+a3d-labels and a3d-run --map take the recording as they take one with poses (docs/mapping.md "Poses
+from the depth"). OUT (new, or empty) becomes an a3d frame folder: per tracked frame its colour (the
+file's bytes) and depth, NAME.meta.json with its intrinsics, pose and the R_tilt the pose gives; and
+OUT/tracking.jsonl: per frame read, whether it was tracked, the share of the model its depth
+confirms and whether image features placed it ("relocalised"). A frame that is not tracked, or
+cannot be read, is named on stderr in one line and not written; exit 1 if any was, 2 for an unusable
+input before any frame. OUT appears whole, at the end. SOURCE is read twice (poses, then the frames
+written): a recording, not a live camera.
 """
 
 from __future__ import annotations
@@ -177,11 +179,14 @@ def track_all(loaders: list[FrameLoader], config: TrackerConfig, failures: list[
             "frame": frame.name,
             "tracked": tracked.pose is not None,
             "agreement": round(tracked.agreement, 4),
+            "relocalised": tracked.relocalised,
         }
         if tracked.pose is None:
             failures.append(f"{frame.origin}: not tracked ({tracked.note}); not written")
             tqdm.write(f"{PROG}: {failures[-1]}", file=sys.stderr)
             continue
+        if tracked.relocalised:  # a fallback: said
+            tqdm.write(f"{PROG}: {frame.origin}: {tracked.note}", file=sys.stderr)
         tracks.poses[i] = tracked.pose
         if len(tracks.poses) % GRAVITY_EVERY == 1:
             add_down(tracks, i, frame)

@@ -47,7 +47,7 @@ from a3d.runtime.mapping.world import boxes_to_camera, boxes_to_world
 from a3d.runtime.structures.boxes import CENTER, SIZE, THETA
 from a3d.runtime.structures.classes import CLASSES
 from a3d.runtime.structures.geometry import Intrinsics, box_area_2d, iou_3d, project_boxes_to_2d
-from a3d.runtime.structures.pose import make_pose
+from a3d.runtime.structures.pose import make_pose, rotation_deg
 
 MAP_VERSION = 1
 MAP_TURN_DEG = 3.0  # a map whose frame is turned further from its recording's world does not share it
@@ -389,7 +389,7 @@ def read_confirmed(path: str | os.PathLike, within_deg: float = MAP_TURN_DEG) ->
     turn = doc.get("map_from_world")
     try:
         rotation = np.eye(3) if turn is None else np.asarray(turn, np.float64)[:3, :3]
-        degrees = float(np.degrees(np.arccos(np.clip((np.trace(rotation) - 1) / 2, -1.0, 1.0))))
+        degrees = rotation_deg(rotation)
     except (TypeError, ValueError, IndexError):
         raise InputError(f"{path}: map_from_world must be a 4 x 4 matrix") from None
     if degrees > within_deg:

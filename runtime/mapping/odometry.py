@@ -11,19 +11,23 @@ are in the first frame's camera; ``gravity_alignment`` turns them into a3d's gra
 world (y down, a3d.runtime.mapping.world) from the gravity the frames show.
 
 Limits: the scene is static; between two tracked frames the camera moves a few centimetres and
-degrees (a hand-held camera at 5 to 10 frames a second; ``TrackerConfig`` bounds a step); nothing
-closes loops, so the drift grows with the path (measured: docs/mapping.md "Poses from the depth").
+degrees (a hand-held camera at 5 to 10 frames a second; ``TrackerConfig`` bounds a step); a frame
+further off (snapshots a metre apart, a dropped stretch) is placed by its image features where
+they match a keyframe's (a3d.runtime.mapping.relocalise: textured rooms, as real ones are; plain
+rendered walls give too few); nothing closes loops, so the drift grows with the path (measured:
+docs/mapping.md "Poses from the depth").
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
 
 from a3d.runtime.errors import InputError
 from a3d.runtime.frontend.gravity import rtilt_from_gravity
+from a3d.runtime.mapping.relocalise import FeatureConfig, FeatureMap
 from a3d.runtime.structures.geometry import Intrinsics, depth_seen_at
 from a3d.runtime.structures.pose import transform_points
 
@@ -36,7 +40,12 @@ class TrackerConfig:
     this is neither fused nor tracked; ``max_step_m`` / ``max_turn_deg``: the largest move between
     two tracked frames that ICP may return; a frame is tracked when at least ``min_agreement`` of
     the model's pixels that it also sees lie within ``agree_m`` of its own depth after alignment;
-    ``refine_step_m`` / ``refine_turn_deg``: the largest correction ``refine`` may make."""
+    under ``sure_agreement`` the image features' pose is tried as well, and the one the depth
+    agrees with more is kept (in a wide step the odometry can settle tens of centimetres off);
+    ``refine_step_m`` / ``refine_turn_deg``: the largest correction ``refine`` may make;
+    ``features``: the image features that place a frame the odometry lost, and
+    ``settle_step_m`` / ``settle_turn_deg`` the largest correction the depth may then make to that
+    place (PnP on a few dozen features can be tens of centimetres off)."""
 
     voxel_m: float = 3.0 / 512
     truncate_voxels: float = 7.0
@@ -45,18 +54,24 @@ class TrackerConfig:
     max_turn_deg: float = 15.0
     agree_m: float = 0.05
     min_agreement: float = 0.5
+    sure_agreement: float = 0.8
     refine_step_m: float = 0.05
     refine_turn_deg: float = 3.0
+    features: FeatureConfig = field(default_factory=FeatureConfig)
+    settle_step_m: float = 0.3
+    settle_turn_deg: float = 30.0
 
 
 @dataclass(frozen=True)
 class Tracked:
     """One frame's outcome: ``pose`` (4, 4) camera-to-first-camera, None when it was not tracked
-    (``note`` says why); ``agreement`` the share of the model's pixels that its depth confirms."""
+    (``note`` says why); ``agreement`` the share of the model's pixels that its depth confirms;
+    ``relocalised``: the odometry lost it and image features found it (a3d.runtime.mapping.relocalise)."""
 
     pose: np.ndarray | None
     agreement: float
     note: str = ""
+    relocalised: bool = False
 
 
 def check_opencv() -> None:
@@ -96,6 +111,9 @@ class DepthTracker:
         self._odometry = cv2.Odometry(cv2.OdometryType_RGB_DEPTH, tracking, cv2.OdometryAlgoType_COMMON)
         refining = _odometry_settings(K, config.max_depth_m, config.refine_step_m, config.refine_turn_deg)
         self._refining = cv2.Odometry(cv2.OdometryType_DEPTH, refining, cv2.OdometryAlgoType_COMMON)
+        settling = _odometry_settings(K, config.max_depth_m, config.settle_step_m, config.settle_turn_deg)
+        self._settling = cv2.Odometry(cv2.OdometryType_DEPTH, settling, cv2.OdometryAlgoType_COMMON)
+        self._features = FeatureMap(intrinsics, config.features)
         self._pose: np.ndarray | None = None  # the last tracked frame's
         self._gray: np.ndarray | None = None  # the last tracked frame's image, seen from that pose
 
@@ -111,21 +129,62 @@ class DepthTracker:
         if self._pose is None:
             if not (depth > 0).any():
                 return Tracked(None, 0.0, "no depth to start the model from")
-            self._pose, self._gray = np.eye(4), gray
-            self._volume.integrate(depth, self._pose.astype(np.float32))
-            return Tracked(self._pose.copy(), 1.0)
+            return self._fuse(np.eye(4), depth, gray, Tracked(np.eye(4), 1.0))
         points, model_depth = self._model(self._pose)
         Rt = _align(
             self._odometry, cv2.OdometryFrame(model_depth, self._gray), cv2.OdometryFrame(depth, gray)
         )
-        if Rt is None:
-            return Tracked(None, 0.0, "the odometry found no alignment to the model")
-        agreement = self.agreement(points, Rt, depth)
-        if agreement < self.config.min_agreement:
-            return Tracked(None, agreement, f"only {agreement:.0%} of the model agrees with its depth")
-        self._pose, self._gray = self._pose @ np.linalg.inv(Rt), gray
-        self._volume.integrate(depth, self._pose.astype(np.float32))
-        return Tracked(self._pose.copy(), agreement)
+        tracked = Tracked(None, 0.0, "the odometry found no alignment to the model")
+        if Rt is not None:
+            agreement = self.agreement(points, Rt, depth)
+            if agreement >= self.config.sure_agreement:
+                pose = self._pose @ np.linalg.inv(Rt)
+                return self._fuse(pose, depth, gray, Tracked(pose, agreement))
+            if agreement >= self.config.min_agreement:
+                tracked = Tracked(self._pose @ np.linalg.inv(Rt), agreement)
+            else:
+                tracked = Tracked(None, agreement, f"only {agreement:.0%} of the model agrees with its depth")
+        found = self.relocalise(depth, gray)
+        if found.pose is not None and found.agreement > tracked.agreement:
+            if tracked.pose is None:
+                lost = f"the odometry lost it ({tracked.note})"
+            else:
+                lost = f"the odometry's alignment left only {tracked.agreement:.0%} of the model agreeing"
+            return self._fuse(found.pose, depth, gray, replace(found, note=f"{lost}; {found.note}"))
+        if tracked.pose is not None:
+            return self._fuse(tracked.pose, depth, gray, tracked)
+        return replace(tracked, note=f"{tracked.note}; {found.note}")
+
+    def relocalise(self, depth: np.ndarray, gray: np.ndarray) -> Tracked:
+        """The frame's pose from image features matched to a keyframe's: of the poses
+        ``FeatureMap.locate`` gives, each as it is and aligned on the depth from there, the one
+        the depth agrees with most (depth alone can slide along a wall or the floor; features
+        on depth edges sit centimetres off), kept where it agrees as much as a tracked frame's
+        must; not fused."""
+        located = self._features.locate(gray, depth)
+        if located is None:
+            return Tracked(None, 0.0, "no keyframe's image features place it either")
+        best, share, settled = located.poses[0], -1.0, False
+        for pose in located.poses:
+            points, model_depth = self._model(pose)
+            Rt = _align(self._settling, cv2.OdometryFrame(model_depth), cv2.OdometryFrame(depth))
+            for move in [np.eye(4)] + ([] if Rt is None else [Rt]):
+                agreement = self.agreement(points, move, depth)
+                if agreement > share:
+                    best, share, settled = pose @ np.linalg.inv(move), agreement, move is Rt
+        if share < self.config.min_agreement:
+            note = f"placed by its image features, only {share:.0%} of the model agrees there"
+            return Tracked(None, share, note)
+        note = f"placed by {located.inliers} image features matched to a keyframe's"
+        return Tracked(best, share, note + settled * ", then on the depth", relocalised=True)
+
+    def _fuse(self, pose: np.ndarray, depth: np.ndarray, gray: np.ndarray, tracked: Tracked) -> Tracked:
+        """Take ``pose`` as the frame's: fuse its depth into the model, keep its features where it
+        is a keyframe; ``tracked``, with a copy of the pose."""
+        self._pose, self._gray = pose, gray
+        self._volume.integrate(depth, pose.astype(np.float32))
+        self._features.add(gray, depth, pose)
+        return replace(tracked, pose=pose.copy())
 
     def refine(self, depth: np.ndarray, pose: np.ndarray) -> np.ndarray | None:
         """``pose`` (a tracked frame's) aligned again, by depth ICP, to the model as it stands once

@@ -68,10 +68,23 @@ def make_pose(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     return T
 
 
+def rigid_fit(source: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """The rotation and translation (4, 4) that best map the points ``source`` onto ``target``
+    (least squares; Umeyama without scale)."""
+    ms, mt = source.mean(axis=0), target.mean(axis=0)
+    R = nearest_rotation((target - mt).T @ (source - ms))
+    return make_pose(R, mt - R @ ms)
+
+
 def invert_pose(T: np.ndarray) -> np.ndarray:
     """World-to-camera of a camera-to-world pose (exact for a rigid one)."""
     R, t = T[:3, :3], T[:3, 3]
     return make_pose(R.T, -R.T @ t)
+
+
+def rotation_deg(R: np.ndarray) -> float:
+    """The angle, in degrees, that rotation ``R`` (3, 3) turns by."""
+    return float(np.degrees(np.arccos(np.clip((np.trace(np.asarray(R, np.float64)) - 1) / 2, -1.0, 1.0))))
 
 
 def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
