@@ -208,6 +208,12 @@ def _views(
     ]
 
 
+def top_view(cloud: FrameCloud, points: np.ndarray, outlines: Outlines, size: int) -> np.ndarray:
+    """The top view of ``points`` (tilt frame, coloured by height above the floor) and ``outlines``,
+    ``size`` pixels square."""
+    return _views(cloud, points, _tints(cloud, points), outlines, FRAME_MARGIN_M, size)[0]
+
+
 def _view(
     points: np.ndarray,
     tints: np.ndarray,

@@ -32,6 +32,7 @@ from a3d.runtime.sources.folder import (
 from a3d.synth.cli import main as synth_main
 from a3d.train import finetune_data
 from a3d.train.checkpoint import load_checkpoint
+from a3d.train.finetune import Recipe
 from a3d.train.finetune_cli import main
 from a3d.train.finetune_data import calibration_frames, read_recording, split_recordings
 
@@ -211,3 +212,10 @@ def test_frames_larger_than_the_working_size_are_fine_tuned_on_at_it(
             assert rows.min() >= box[1] - 1 and rows.max() <= box[3] + 1
     held = FolderSource(split.holdout).refs
     assert all(read_frame(ref, None).image_size == (60, 80) for ref in held)
+
+
+def test_a_small_recording_is_mixed_with_no_fewer_than_the_recipes_synthetic_frames() -> None:
+    recipe = Recipe()
+    assert recipe.synth_frames(None, 3) == recipe.min_synth_frames == 40  # three views: forty frames
+    assert recipe.synth_frames(None, 120) == 120  # a recording: as many as its training frames
+    assert recipe.synth_frames(7, 3) == 7  # --synth-frames as asked

@@ -91,6 +91,14 @@ class Recipe:
     freeze_depth: int = 10  # the depth trunk's conv1-conv4 kept: a room's 100 frames move conv5 and the head
     dropout: float = 0.0  # the exported network's own activations trained on (module docstring, step 4)
     seed: int = 0
+    min_synth_frames: int = 40  # a3d-synth frames mixed in: as many as the room's, and no fewer than this
+
+    def synth_frames(self, asked: int | None, train_frames: int) -> int:
+        """The a3d-synth frames to mix in: ``asked`` (--synth-frames), else as many as the room's
+        training frames and at least ``min_synth_frames``: three views of a room beside three
+        synthetic frames forgot the classes the views lack (bench.real_room: a sofa 100 -> 6.8 AP;
+        with 40, kept at 100; docs/mapping.md "Real views of two rooms")."""
+        return asked or max(train_frames, self.min_synth_frames)
 
     def overrides(self, init: Path, minutes: float, cache: Path) -> list[str]:
         precision = "bf16" if bf16_instructions() else "fp32"
@@ -114,7 +122,8 @@ def finetune(args: argparse.Namespace, recipe: Recipe) -> Path:
     recordings = [read_recording(folder) for folder in args.folders]
     work = args.work or args.out.with_name(f"{args.out.stem}.finetune")
     split = split_recordings(recordings, args.holdout, work)
-    synth = args.synth or synthetic_frames(work, args.synth_frames or split.train_frames, args.threads)
+    mixed = recipe.synth_frames(args.synth_frames, split.train_frames)
+    synth = args.synth or synthetic_frames(work, mixed, args.threads)
     _say(f"{split.train_frames} training frames of {len(recordings)} recording(s) beside {synth}, "
          f"{split.holdout_frames} held back; scoring {args.base} on them")  # fmt: skip
     scored = time.monotonic()

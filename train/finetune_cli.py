@@ -46,8 +46,9 @@ def build_parser() -> argparse.ArgumentParser:
     synth = p.add_mutually_exclusive_group()
     synth.add_argument("--synth", type=Path, metavar="FOLDER", help="annotated synthetic frames to mix in")
     synth.add_argument(
-        "--synth-frames", type=int, metavar="N", help="a3d-synth frames to mix in (default: as many as yours)"
-    )
+        "--synth-frames", type=int, metavar="N",
+        help="a3d-synth frames to mix in (default: as many as yours, at least 40)",
+    )  # fmt: skip
     p.add_argument("--work", type=Path, help="working folder: split, caches, run (default: OUT.finetune)")
     p.add_argument("--iters", type=int, help="the most iterations to run (default: the recipe's, "
                    "docs/training.md \"Your own room\"; fewer where the budget holds fewer)")
