@@ -156,3 +156,15 @@ def test_space_behind_a_view_or_nearer_than_its_depth_is_not_seen_free() -> None
     view = _view_from_the_front(10.0)  # at z = 0, looking along +z, its depth 10 m everywhere
     points = np.array([[1.0, -1.0, 3.0], [1.0, -1.0, -3.0], [1.0, -1.0, 12.0]])
     np.testing.assert_array_equal(seen_free(points, [view]), [True, False, False])  # ahead; behind; beyond it
+
+
+def test_points_spanning_under_half_of_a_rough_box_keep_its_sides_across_them() -> None:
+    rng = np.random.default_rng(4)
+    chair = np.array([0.0, -0.45, 3.0, 0.5, 0.5, 0.9, 0.0])  # a chair: its back, seen from behind
+    back = np.array([0.0, -0.45, 3.2, 0.5, 0.06, 0.9, 0.0])
+    partial = fitted_box(surface_points(back, 400, rng), chair)
+    assert partial.part_seen == 1
+    assert sorted(np.round(partial.box[3:5], 2)) == [0.5, 0.5] and partial.box[2] == pytest.approx(3.0)
+    door = np.array([0.0, -1.0, 3.0, 0.9, 0.04, 2.0, 0.0])  # thin by nature: its points are all of it
+    thin = fitted_box(surface_points(door, 400, rng), door + np.array([0, 0, 0.02, 0, 0.06, 0, 0]))
+    assert thin.part_seen == 0 and thin.box[4] == pytest.approx(0.04, abs=0.01)

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from a3d.runtime.cli.common import EXIT_USAGE
-from a3d.runtime.cli.world_boxes import _faces_text, main
-from a3d.runtime.mapping.box_fit import world_points
+from a3d.runtime.cli.world_boxes import _faces_text, _kept_text, main
+from a3d.runtime.mapping.box_fit import Fitted, world_points
 from a3d.runtime.mapping.labels import LabelConfig, inside_box
 from a3d.runtime.mapping.rough_boxes import COLUMNS, read_rough_boxes
 from a3d.runtime.mapping.world_boxes import WorldBoxes, read_world_boxes
@@ -145,3 +145,9 @@ def test_rough_boxes_can_start_from_the_object_map_a3d_made_of_the_recording(
 def test_the_faces_kept_as_the_rough_boxs_are_named_for_the_person() -> None:
     assert _faces_text(("top", "side", "side")) == "top and 2 sides"
     assert _faces_text(("side", "bottom")) == "bottom and side" and _faces_text(("top",)) == "top"
+    box = np.zeros(7)
+    assert _kept_text(Fitted(box)) == ""
+    assert _kept_text(Fitted(box, ("top",), 1)) == (
+        "; kept the rough box's top: no frame saw past the points"
+        "; kept the rough box's 2 sides: the points span under half the way between them"
+    )

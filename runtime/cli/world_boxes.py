@@ -32,7 +32,7 @@ from a3d.runtime.cli.labels import add_source_args, open_posed_source
 from a3d.runtime.errors import InputError
 from a3d.runtime.extras import Needs
 from a3d.runtime.io.atomic import atomic_write_bytes
-from a3d.runtime.mapping.box_fit import DepthView, fitted_box, floor_level, world_cloud
+from a3d.runtime.mapping.box_fit import DepthView, Fitted, fitted_box, floor_level, world_cloud
 from a3d.runtime.mapping.labels import LabelConfig, inside_box
 from a3d.runtime.mapping.object_map import read_confirmed
 from a3d.runtime.mapping.rough_boxes import RoughBoxes, read_rough_boxes, write_template
@@ -110,19 +110,28 @@ def main(argv: list[str] | None = None) -> int:
         _say(f"wrote {args.rough}: {todo}, then run this again")
         return 0
     out = args.out or args.rough.parent / WORLD_BOXES_FILE
-    fitted, unseen = fit_all(points, rough, args.margin, floor, args.rough, cloud.views)
+    fitted, fits = fit_all(points, rough, args.margin, floor, args.rough, cloud.views)
     write_world_boxes(out, fitted)
     for k, line in enumerate(rough.lines):
         moved = fitted.boxes[k, :3] - rough.boxes[k, :3]
-        kept = f"; kept the rough box's {_faces_text(unseen[k])}: no frame saw past the points"
-        kept = kept if unseen[k] else ""
         _say(f"{args.rough}:{line} {rough.classes[k]}: fitted {np.round(fitted.boxes[k], 3).tolist()} "
-             f"(centre moved {np.linalg.norm(moved):.3f} m{kept})")  # fmt: skip
+             f"(centre moved {np.linalg.norm(moved):.3f} m{_kept_text(fits[k])})")  # fmt: skip
     check_dir = args.check_dir or out.with_name(out.stem + "_check")
     checks = check_images(loaders, fitted, check_dir, args.check_frames)
     _show(args, points, colours, rough, fitted, checks)
     _say(f"wrote {out} ({len(fitted)} objects) and {len(checks)} check images in {check_dir}")
     return 0
+
+
+def _kept_text(fit: Fitted) -> str:
+    """What the fit kept of the rough box and why, for the box's line ("" for nothing)."""
+    kept = []
+    if fit.unseen:
+        kept.append(f"kept the rough box's {_faces_text(fit.unseen)}: no frame saw past the points")
+    if fit.part_seen:
+        sides = 2 * fit.part_seen
+        kept.append(f"kept the rough box's {sides} sides: the points span under half the way between them")
+    return "".join(f"; {text}" for text in kept)
 
 
 def _faces_text(faces: tuple[str, ...]) -> str:
@@ -152,12 +161,11 @@ def fit_all(
     floor: float | None,
     path: Path,
     views: list[DepthView] | None = None,
-) -> tuple[WorldBoxes, list[tuple[str, ...]]]:
-    """Every rough box fitted to its points (InputError naming the file's line for one around too
-    few), and per box the faces kept as the rough box's where no view saw past the points
-    (``box_fit.fitted_box``). A box's margin does not reach into its neighbours: points inside
-    another rough box and not inside its own are left out (the sofa under a pillow, the table
-    beside a chair)."""
+) -> tuple[WorldBoxes, list[Fitted]]:
+    """Every rough box fitted to its points (InputError naming the file's line for one around too few), and
+    per box its fit with what it kept of the rough box (``box_fit.fitted_box``). A box's margin does
+    not reach into its neighbours: points inside another rough box and not inside its own are left
+    out (the sofa under a pillow, the table beside a chair)."""
     tight = LabelConfig(margin_m=0.0, floor_gap_m=0.0)
     owner = np.stack([inside_box(points, box, np.eye(3), tight) for box in rough.boxes])
     fits = []
@@ -169,7 +177,7 @@ def fit_all(
             raise InputError(f"{path}:{line}: {rough.classes[k]}: {e}") from None
     boxes = np.array([fit.box for fit in fits])
     world = WorldBoxes(list(rough.classes), boxes, np.arange(len(boxes), dtype=np.int64))
-    return world, [fit.unseen for fit in fits]
+    return world, fits
 
 
 def check_images(loaders: list, fitted: WorldBoxes, folder: Path, count: int) -> list[tuple[str, np.ndarray]]:

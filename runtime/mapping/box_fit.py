@@ -13,7 +13,8 @@ by it, not by the object, and the rough box's own face is the better guess. And 
 a part of the object (a door's top above every view, a basin's bottom, a counter's back behind
 its top), the points end short of it: a face far inside the rough box's is kept only where some
 frame saw through the space it would give up (the recording's depth says so), else the rough
-box's face stands.
+box's face stands. Points that span under half the rough box's width are a part of the object (a
+chair's back seen from behind): the rough box's sides across them stand.
 docs/mapping.md "Drawing the world boxes" gives the procedure.
 """
 
@@ -53,6 +54,7 @@ FREE_M = 0.05  # a point the camera saw this far beyond, in some frame, is free 
 NEAR_M = 0.1  # points nearer a camera than this are not looked at in its view
 FREE_SHARE = 0.5  # a face moves in only where this share of the space it gives up was seen free
 SLAB_SAMPLES = 5  # per side of the space a face gives up, and 3 deep
+MIN_SPAN_SHARE = 0.5  # points spanning less of the rough box's width (and 10 cm less) are a part
 
 
 @dataclass(frozen=True)
@@ -76,11 +78,14 @@ class WorldCloud:
 
 @dataclass(frozen=True)
 class Fitted:
-    """A fitted box (world 7-vector) and its faces that stayed the rough box's because no frame saw
-    past where the points end ("side", "top", "bottom"): what the person should look at."""
+    """A fitted box (world 7-vector), its faces that stayed the rough box's because no frame saw
+    past where the points end ("side", "top", "bottom"), and the pairs of sides that stayed the
+    rough box's because the points span less than half the way between them (``part_seen``): what
+    the person should look at."""
 
     box: np.ndarray
     unseen: tuple[str, ...] = ()
+    part_seen: int = 0
 
 
 def world_points(frames: Iterable[Frame], stride: int = 4) -> np.ndarray:
@@ -177,7 +182,10 @@ def fitted_box(
     ``FLOOR_SNAP_M`` of the floor is extended down to it (the object stands there). With the
     recording's depth ``views`` (``world_cloud``), a face more than ``SHRINK_M`` inside the rough
     box's stays where the points end only if some frame saw through the space it gives up, else it
-    is the rough box's (``_unseen_kept``)."""
+    is the rough box's (``_unseen_kept``). Where the points span less than ``MIN_SPAN_SHARE`` of
+    the rough box's width or length (and ``SHRINK_M`` less), they are a part of the object (a
+    chair's back seen from behind, the views seeing through between its legs: free space that
+    is the object's all the same) and the rough box's two sides stand."""
     config = LabelConfig(margin_m=margin_m, floor_gap_m=0.0)
     points, rough = np.asarray(points, np.float64), np.asarray(rough, np.float64)
     inside = points[inside_box(points, rough, np.eye(3), config)]
@@ -201,12 +209,15 @@ def fitted_box(
     if floor_y is not None and floor_y - bottom < FLOOR_SNAP_M:
         bottom = max(bottom, floor_y)
     unseen: tuple[str, ...] = ()
+    rough_top, rough_bottom = rough[1] - rough[5] / 2, rough[1] + rough[5] / 2
+    rough_bottom = rough_bottom if floor_y is None else min(rough_bottom, floor_y)
+    rough_faces = np.vstack([_rough_along(rough_footprint, axes), [rough_top, rough_bottom]])
     if views:
-        rough_top, rough_bottom = rough[1] - rough[5] / 2, rough[1] + rough[5] / 2
-        rough_bottom = rough_bottom if floor_y is None else min(rough_bottom, floor_y)
-        rough_faces = np.vstack([_rough_along(rough_footprint, axes), [rough_top, rough_bottom]])
         faces, unseen = _unseen_kept(np.vstack([bounds, [top, bottom]]), rough_faces, axes, views)
         bounds, (top, bottom) = faces[:2], faces[2]
+    spans, rough_spans = np.diff(bounds, axis=1)[:, 0], np.diff(rough_faces[:2], axis=1)[:, 0]
+    part_seen = (spans < MIN_SPAN_SHARE * rough_spans) & (rough_spans - spans > SHRINK_M)
+    bounds[part_seen] = rough_faces[:2][part_seen]
     (u0, u1), (v0, v1) = bounds
     footprint = np.array([u0 * axes[0] + v0 * axes[1], u1 * axes[0] + v0 * axes[1],
                           u1 * axes[0] + v1 * axes[1], u0 * axes[0] + v1 * axes[1]])  # fmt: skip
@@ -214,7 +225,7 @@ def fitted_box(
     corners[0, :4, [0, 2]] = footprint.T
     corners[0, 4:, [0, 2]] = footprint.T
     corners[0, :4, 1], corners[0, 4:, 1] = bottom, top
-    return Fitted(boxes_from_corners_tilt(corners, np.eye(3))[0], unseen)
+    return Fitted(boxes_from_corners_tilt(corners, np.eye(3))[0], unseen, int(part_seen.sum()))
 
 
 def _rough_along(footprint: np.ndarray, axes: np.ndarray) -> np.ndarray:
