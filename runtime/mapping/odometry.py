@@ -91,9 +91,7 @@ class DepthTracker:
     ):
         check_opencv()
         self.intrinsics, self.size, self.config = intrinsics, size, config
-        K = np.array(
-            [[intrinsics.fx, 0, intrinsics.cx], [0, intrinsics.fy, intrinsics.cy], [0, 0, 1]], np.float32
-        )
+        K = intrinsics.matrix().astype(np.float32)
         height, width = size
         volume = cv2.VolumeSettings(cv2.VolumeType_HashTSDF)
         volume.setCameraIntegrateIntrinsics(K)

@@ -66,9 +66,7 @@ class FeatureMap:
         self.keyframes: list[Keyframe] = []
         self._orb = cv2.ORB_create(config.features)
         self._matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
-        self._K = np.array(
-            [[intrinsics.fx, 0, intrinsics.cx], [0, intrinsics.fy, intrinsics.cy], [0, 0, 1]], np.float64
-        )
+        self._K = intrinsics.matrix()
 
     def add(self, gray: np.ndarray, depth: np.ndarray, pose: np.ndarray) -> bool:
         """Keep the frame as a keyframe if it is the first or far enough from the last one
