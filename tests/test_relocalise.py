@@ -10,7 +10,7 @@ import numpy as np
 
 from a3d.runtime.cli.poses import main
 from a3d.runtime.mapping.odometry import DepthTracker
-from a3d.runtime.mapping.relocalise import FeatureMap
+from a3d.runtime.mapping.relocalise import FeatureMap, _distinct
 from a3d.runtime.sources.folder import TRACKING_FILE, list_frames, read_meta, write_frame
 from a3d.runtime.structures.pose import invert_pose, make_pose, rotation_deg
 from tests.helpers.textured_room import INTRINSICS, SIZE, render
@@ -85,3 +85,9 @@ def test_a3d_poses_says_which_frames_its_features_placed(tmp_path: Path, capsys)
     for i in (1, 2):  # each relative to the first, as tracked (the world's heading is the first camera's)
         centimetres, degrees = errors(invert_pose(poses[0]) @ poses[i], invert_pose(POSES[0]) @ POSES[i])
         assert centimetres < 2.0 and degrees < 0.5
+
+
+def test_poses_within_a_centimetre_and_half_a_degree_of_one_before_are_tried_once() -> None:
+    near, far = (make_pose(np.eye(3), np.array([x, 0.0, 0.0])) for x in (0.005, 0.05))
+    turned = camera(1.0, (0, 0, 0)) @ invert_pose(camera(0.0, (0, 0, 0)))  # a degree about gravity
+    assert [p[0, 3] for p in _distinct([np.eye(4), near, far, turned])] == [0.0, 0.05, 0.0]

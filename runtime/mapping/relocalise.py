@@ -113,7 +113,7 @@ class FeatureMap:
             most = max(most, len(inliers))
             fitted = self._fitted(image[inliers.ravel()], world[inliers.ravel()], depth)
             poses += [] if fitted is None else [fitted]
-        return Located(tuple(poses), most, index) if poses else None
+        return Located(_distinct(poses), most, index) if poses else None
 
     def _fitted(self, pixels: np.ndarray, world: np.ndarray, depth: np.ndarray) -> np.ndarray | None:
         """The rigid fit of the frame's own depth at the matched ``pixels`` to their keyframe
@@ -145,6 +145,17 @@ class FeatureMap:
         held = z > 0
         points[held] = backproject(pixels[held, 0], pixels[held, 1], z[held], self.intrinsics)
         return points
+
+
+def _distinct(poses: list[np.ndarray]) -> tuple[np.ndarray, ...]:
+    """``poses`` without those within a centimetre and half a degree of one before them: RANSAC at
+    neighbouring thresholds often keeps the same matches, and each pose costs the tracker a raycast."""
+    kept: list[np.ndarray] = []
+    for pose in poses:
+        steps = [invert_pose(k) @ pose for k in kept]
+        if all(np.linalg.norm(s[:3, 3]) > 0.01 or rotation_deg(s[:3, :3]) > 0.5 for s in steps):
+            kept.append(pose)
+    return tuple(kept)
 
 
 def _moved(last: np.ndarray, pose: np.ndarray, config: FeatureConfig) -> bool:
