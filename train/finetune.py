@@ -96,7 +96,7 @@ class Recipe:
     def synth_frames(self, asked: int | None, train_frames: int) -> int:
         """The a3d-synth frames to mix in: ``asked`` (--synth-frames), else as many as the room's
         training frames and at least ``min_synth_frames``: three views of a room beside three
-        synthetic frames forgot the classes the views lack (bench.real_room: a sofa 100 -> 6.8 AP;
+        synthetic frames forgot the classes the views lack (bench.real_room: a sofa 100 -> 7.8 AP;
         with 40, kept at 100; docs/mapping.md "Real views of two rooms")."""
         return asked or max(train_frames, self.min_synth_frames)
 
