@@ -117,7 +117,9 @@ class DepthTracker:
 
     def track(self, depth: np.ndarray, color: np.ndarray) -> Tracked:
         """Align ``depth`` ((H, W) metres, 0 = missing) to the model and fuse it there; the first
-        frame defines the model's frame."""
+        frame defines the model's frame. Where the odometry loses the frame, or leaves fewer than
+        ``sure_agreement`` of the model agreeing, image features are asked too (``relocalise``)
+        and the pose the depth agrees with more is taken; the note says so."""
         depth = np.ascontiguousarray(depth, np.float32)
         gray = cv2.cvtColor(color, cv2.COLOR_BGR2GRAY)
         if depth.shape != self.size:
