@@ -40,16 +40,14 @@ import numpy as np
 
 from a3d.runtime.mapping.box_fit import floor_level, world_cloud
 from a3d.runtime.mapping.rough_boxes import read_rough_boxes
+from a3d.runtime.mapping.world import boxes_to_camera, boxes_to_world
 from a3d.runtime.mapping.world_boxes import WorldBoxes, read_world_boxes, write_world_boxes
 from a3d.runtime.sources.folder import TRACKING_FILE, FolderSource, list_frames, read_meta
 from a3d.runtime.structures.classes import CLASS_COLORS_RGB, CLASSES, class_index
 from a3d.runtime.structures.geometry import (
-    box_corners_camera,
     box_corners_tilt,
-    boxes_from_corners_tilt,
     iou_3d,
 )
-from a3d.runtime.structures.pose import invert_pose, transform_points
 from bench.own_room import load, rough_csv, scores, sh
 from bench.real_frames import DEFAULT_BOXES, DEFAULT_BOXES3D, read_boxes, read_boxes3d
 from bench.real_frames_views import FrameCloud, Outlines, top_view
@@ -99,10 +97,9 @@ def views_in_world(posed: Path) -> list[View]:
     out = []
     for frame in sorted(poses):
         truth = boxes3d[frame].truth
-        for class_id, box in zip(truth.class_ids, truth.boxes3d, strict=True):
-            out.append(
-                View(frame, CLASSES[class_id], box, truth.R_tilt, in_world(box, truth.R_tilt, poses[frame]))
-            )
+        world = boxes_to_world(truth.boxes3d, truth.R_tilt, poses[frame])
+        for class_id, box, in_world in zip(truth.class_ids, truth.boxes3d, world, strict=True):
+            out.append(View(frame, CLASSES[class_id], box, truth.R_tilt, in_world))
     return out
 
 
@@ -121,19 +118,6 @@ def group(views: list[View]) -> list[list[View]]:
         else:
             objects.append([view])
     return objects
-
-
-def in_world(box: np.ndarray, R_tilt: np.ndarray, pose: np.ndarray) -> np.ndarray:
-    """A camera-frame box (yaw in the tilt frame of ``R_tilt``) in the world of the camera's
-    ``pose`` (gravity-aligned: its tilt frame is the world's)."""
-    corners = transform_points(pose, box_corners_camera(box[None], R_tilt)[0])
-    return boxes_from_corners_tilt(corners[None], np.eye(3))[0]
-
-
-def in_view(world_box: np.ndarray, view: View, pose: np.ndarray) -> np.ndarray:
-    """A world box in ``view``'s camera, in its tilt frame."""
-    corners = transform_points(invert_pose(pose), box_corners_camera(world_box[None], np.eye(3))[0])
-    return boxes_from_corners_tilt((corners @ view.R_tilt.T)[None], view.R_tilt)[0]  # tilt-frame corners
 
 
 def consistency(objects: list[list[View]]) -> None:
@@ -172,7 +156,9 @@ def world_boxes(objects: list[list[View]], posed: Path, boxes: Path) -> None:
         ious, offs = [], []
         for view in views:
             truth = view.camera_box[None]
-            pair = [in_view(b, view, poses[view.frame])[None] for b in (rough[k], fitted.boxes[k])]
+            pair = [
+                boxes_to_camera(b[None], poses[view.frame], view.R_tilt) for b in (rough[k], fitted.boxes[k])
+            ]
             ious.append([iou_3d(truth, b, view.R_tilt)[0, 0] for b in pair])
             offs.append(np.linalg.norm(pair[1][0, :3] - truth[0, :3]))
         before, after = np.median(ious, axis=0)
