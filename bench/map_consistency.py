@@ -4,10 +4,11 @@
         [--world-boxes world_boxes.json] [--map map.json] [--json report.json]
 
 Builds the object map (a3d.runtime.mapping.object_map) from a3d-run's detections of a posed source
-FRAMES (the lines carry each frame's pose; the frames give the intrinsics and depth that tell what
-each frame should have seen) and reports, for the objects supported by at least ``--min-support``
-frames, the re-detection rate, the jitter of their observations (centre, size, yaw) and, over all
-mapped detections, the spurious rate (a3d.runtime.mapping.consistency). None of it needs labels.
+FRAMES (the lines carry each frame's pose, or the pose a3d-run --map tracked where the source has
+none; the frames give the intrinsics and depth that tell what each frame should have seen) and
+reports, for the objects supported by at least ``--min-support`` frames, the re-detection rate,
+the jitter of their observations (centre, size, yaw) and, over all mapped detections, the
+spurious rate (a3d.runtime.mapping.consistency). None of it needs labels.
 
 Where labels exist it puts them beside: the detections' mAP@0.25 on FRAMES' ground truth (the
 classes present, as a3d-eval scores it), the same for the map's confirmed boxes projected back into
@@ -44,14 +45,18 @@ Cameras = dict[str, tuple[Intrinsics, tuple[int, int]]]  # frame -> its intrinsi
 
 
 def build_map(frames: Path, detections: Path) -> tuple[ObjectMap, Cameras]:
-    """The object map of a detections file over its posed frame source, frame by frame in order,
-    and each mapped frame's camera (to project the map back into it)."""
+    """The object map of a detections file over its frame source, frame by frame in order, at the
+    poses the lines carry (the source's, or those a3d-run --map tracked, where a lost frame has
+    none; the frames' own for a file without any), and each mapped frame's camera (to project the
+    map back into it)."""
     lines = {d.frame: d for d in read_detections(detections)}
+    carried = any(line.pose is not None for line in lines.values())
     world_map, cameras = ObjectMap(), {}
     for loader in open_source(frames, SourceOptions(with_proposals=False)):
         if loader.name in lines:
-            frame = loader.load()
-            world_map.update(lines[loader.name], frame.pose, intrinsics=frame.intrinsics, depth=frame.depth)
+            frame, line = loader.load(), lines[loader.name]
+            pose = line.pose if carried else frame.pose
+            world_map.update(line, pose, intrinsics=frame.intrinsics, depth=frame.depth)
             cameras[loader.name] = (frame.intrinsics, frame.depth.shape[:2])
     return world_map, cameras
 

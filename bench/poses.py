@@ -1,7 +1,7 @@
 """Poses from the depth (a3d-poses) on a synthetic recording, against the poses it was rendered at.
 
     .venv/bin/python -m bench.poses SEQ --work WORK [--every 4] [--voxel M]
-        [--finetune [--seeds 0,1] [--minutes 15]]
+        [--finetune [--seeds 0,1] [--minutes 15]] [--map]
 
 SEQ is an ``a3d-synth --sequence`` folder (frames with their true poses, world_boxes.json). The
 bench runs what a user with a RealSense alone runs, as subprocesses, and measures each step
@@ -22,7 +22,12 @@ against the truth:
 5. with ``--finetune``: ``a3d-finetune`` (``--holdout 0.4``) on those labels and, beside it, on
    the same frames labelled from the sequence's own poses, once per ``--seeds`` seed; ``real`` and
    every fine-tuned model run on the frames both held back, with their *true* labels (``a3d-run``
-   + ``a3d-eval``): AP@0.25 per class.
+   + ``a3d-eval``): AP@0.25 per class;
+6. with ``--map``: ``a3d-run --map`` on the recording's every N-th frame without poses (each
+   tracked as the run reads it, a3d.runtime.mapping.tracked_poses) and on the same frames with
+   their own poses and gravity: each run's wall time, the poses it tracked against the true path
+   (as in step 2), and each map projected back into the frames against their true labels
+   (bench.map_consistency).
 """
 
 from __future__ import annotations
@@ -39,11 +44,13 @@ from pathlib import Path
 import numpy as np
 
 from a3d.runtime.evaluation.metric import retilt_boxes
+from a3d.runtime.io.detections_io import read_detections
 from a3d.runtime.mapping.odometry import TrackerConfig
 from a3d.runtime.mapping.world_boxes import read_world_boxes, write_world_boxes
 from a3d.runtime.sources.folder import LABELS_FILE, TRACKING_FILE, list_frames, read_ground_truth, read_meta
 from a3d.runtime.structures.geometry import box_corners_camera, boxes_from_corners_tilt, iou_3d
 from a3d.runtime.structures.pose import invert_pose, rigid_fit, rotation_deg, transform_points
+from bench import map_consistency
 from bench.own_room import BIN, load, scores, sh, world_boxes_step
 
 
@@ -67,18 +74,23 @@ def strip_poses(frames: Path, out: Path) -> None:
 
 def path_errors(seq_frames: Path, posed: Path) -> tuple[np.ndarray, dict[str, float]]:
     """The fit taking the true world to the estimated one, and the path's errors (module docstring)."""
+    metas = {ref.name: read_meta(ref) for ref in list_frames(posed)}
+    return path_errors_of(seq_frames, {name: (meta.pose, meta.R_tilt) for name, meta in metas.items()})
+
+
+def path_errors_of(
+    seq_frames: Path, est: dict[str, tuple[np.ndarray, np.ndarray]]
+) -> tuple[np.ndarray, dict[str, float]]:
+    """``path_errors`` of the estimated (pose, R_tilt) of each named frame."""
     true = {ref.name: read_meta(ref) for ref in list_frames(seq_frames)}
-    est = {ref.name: read_meta(ref) for ref in list_frames(posed)}
     names = sorted(est)
     T_true = np.array([true[n].pose for n in names])
-    T_est = np.array([est[n].pose for n in names])
+    T_est = np.array([est[n][0] for n in names])
     fit = rigid_fit(T_true[:, :3, 3], T_est[:, :3, 3])
     moved = np.einsum("ij,njk->nik", fit, T_true)
     position = np.linalg.norm(moved[:, :3, 3] - T_est[:, :3, 3], axis=1)
     rotation = [rotation_deg(a[:3, :3].T @ b[:3, :3]) for a, b in zip(moved, T_est, strict=True)]
-    gravity = [
-        math.degrees(math.acos(np.clip(true[n].R_tilt[1] @ est[n].R_tilt[1], -1.0, 1.0))) for n in names
-    ]
+    gravity = [math.degrees(math.acos(np.clip(true[n].R_tilt[1] @ est[n][1][1], -1.0, 1.0))) for n in names]
     steps = np.linalg.norm(np.diff(T_true[:, :3, 3], axis=0), axis=1)
     return fit, {
         "frames": len(names),
@@ -161,6 +173,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--finetune", action="store_true", help="also fine-tune on the labels (step 5)")
     p.add_argument("--seeds", default="0", help="step 5's fine-tunes' seeds (solver.seed), comma-separated")
     p.add_argument("--minutes", type=float, default=15.0)
+    p.add_argument(
+        "--map", action="store_true", help="also a3d-run --map without poses and with them (step 6)"
+    )
     args = p.parse_args(argv)
     posed = track(args)
     fit, path = path_errors(args.seq / "frames", posed)
@@ -192,7 +207,28 @@ def main(argv: list[str] | None = None) -> int:
     print("\n" + json.dumps({"labels": label_agreement(args.seq / "frames", labelled)}, indent=1))
     if args.finetune:
         finetunes(args, labelled, true_seq)
+    if args.map:
+        maps(args, true_seq / "frames")
     return 0
+
+
+def maps(args: argparse.Namespace, true_frames: Path) -> None:
+    """Step 6 (module docstring): ``true_frames`` are the every N-th frames with their own poses."""
+    unposed = args.work / "map_recording"
+    link_frames(args.work / "recording", {ref.name for ref in list_frames(true_frames)}, unposed)
+    for tag, frames in (("tracked", unposed), ("true", true_frames)):
+        detections = args.work / f"map_{tag}.jsonl"
+        before = load()
+        seconds = sh(
+            "a3d-run", frames, "--headless", "--output", detections, "--map", args.work / f"map_{tag}.json"
+        )
+        lines = read_detections(detections)
+        print(f"\n## a3d-run --map, {tag} poses: {len(lines)} frames in {seconds:.0f} s "
+              f"({len(lines) / seconds:.2f} frames/s); before: {before}; after: {load()}")  # fmt: skip
+        if tag == "tracked":
+            est = {line.frame: (line.pose, line.R_tilt) for line in lines if line.pose is not None}
+            print(json.dumps({"tracked path": path_errors_of(args.seq / "frames", est)[1]}, indent=1))
+        map_consistency.main([str(true_frames), "--detections", str(detections)])
 
 
 def track(args: argparse.Namespace) -> Path:

@@ -223,7 +223,7 @@ def fake_model(monkeypatch: pytest.MonkeyPatch) -> FakeModel:
     return model
 
 
-def test_a3d_run_map_writes_the_map_and_refuses_unposed_sources(
+def test_a3d_run_map_writes_the_map_and_tracks_unposed_sources(
     tmp_path: Path, fake_model: FakeModel, capsys
 ) -> None:
     assert synth_main([str(tmp_path / "seq"), "--sequence", "6", "--seed", "3", "--size", "96x128"]) == 0
@@ -237,11 +237,11 @@ def test_a3d_run_map_writes_the_map_and_refuses_unposed_sources(
     lines = [json.loads(line) for line in out.read_text().splitlines()]
     assert all("pose" in line for line in lines)
 
-    plain = write_scene_folder(tmp_path / "plain", ["a"])
-    assert (
-        run_cli.main([str(plain), "--model", "fake.onnx", "--output", str(out), "--headless", "--map"]) == 2
-    )
-    assert "--map needs camera poses, and this source has none" in capsys.readouterr().err
+    plain = write_scene_folder(tmp_path / "plain", ["a"])  # no poses: tracked (tests/test_tracked_poses.py)
+    unposed = [str(plain), "--model", "fake.onnx", "--output", str(out), "--headless", "--map", str(map_path)]
+    assert run_cli.main(unposed) == 0
+    assert run_cli.TRACKING_NOTE in capsys.readouterr().err
+    assert json.loads(map_path.read_text())["frames_mapped"] == 1
     with pytest.raises(SystemExit, match="2"):
         run_cli.main([*argv, "--map", "--resume"])
 

@@ -32,9 +32,10 @@ few seconds (a3d.runtime.cli.progress). Live sources and ``--realtime`` work on 
 only (a3d.runtime.sources.newest); docs/live.md. Frames are logged as they are processed (colour, depth,
 point cloud, detections and, where the frame has it, ground truth).
 
-``--map [MAP.json]`` (a posed source only) fuses the detections of every frame into one box per
-object in the world (a3d.runtime.mapping.object_map, docs/mapping.md), written atomically at the
-end of the run (also an interrupted one).
+``--map [MAP.json]`` fuses the detections of every frame into one box per object in the world
+(a3d.runtime.mapping.object_map, docs/mapping.md), written atomically at the end of the run (also
+an interrupted one); on a source without camera poses (a RealSense alone) each frame's pose is
+tracked from its depth as it is read (a3d.runtime.mapping.tracked_poses), and the run says so.
 
 ``--ray [ADDRESS]`` (the ``ray`` extra) spreads the frames over the actors of a Ray cluster (a new
 local one without ADDRESS), each running one model on ``--threads`` threads; the output is the same
@@ -74,6 +75,7 @@ from a3d.runtime.errors import InputError, ModelError
 from a3d.runtime.frontend.working_size import WORKING_SIDE
 from a3d.runtime.io.detections_io import format_line
 from a3d.runtime.mapping.object_map import ObjectMap
+from a3d.runtime.mapping.tracked_poses import FramePoses, with_tracked_poses
 from a3d.runtime.mapping.world import WORLD_AXES, down_of_up_axis
 from a3d.runtime.models import DEFAULT_MODEL as DEFAULT_NAME
 from a3d.runtime.models import MODELS, NO_DETECTOR, model_path, pipeline_detector
@@ -115,6 +117,10 @@ LIVE_NOTE = (
 DEFAULT_MODEL = MODEL_FILE
 DEFAULT_OUTPUT = "detections.jsonl"
 DEFAULT_MAP = "map.json"
+TRACKING_NOTE = (
+    "no camera poses: --map tracks them from the depth as the frames come (a3d-poses' tracker, without "
+    'its refinement over the whole recording: docs/mapping.md "A source without poses")'
+)
 VIEW_MIN_SCORE = SHOW_THRESHOLD  # calibrated scores: a detection there is as likely right as wrong
 
 load_model = DetectorModel.load  # the model loader (tests substitute a fake model here)
@@ -245,7 +251,8 @@ def build_parser() -> argparse.ArgumentParser:
         const=Path(DEFAULT_MAP),
         type=Path,
         metavar="MAP.json",
-        help=f"posed sources: fuse the detections into a world-frame object map (bare --map: {DEFAULT_MAP})",
+        help="fuse the detections into a world-frame object map (bare --map: "
+        f"{DEFAULT_MAP}); a source without poses gets them tracked from its depth",
     )
     viewer.add_viewer_args(p)
     return p
@@ -337,6 +344,7 @@ class _Job:
     done: set[str]  # the frames --resume found in the output
     model: DetectorModel
     config: PipelineConfig
+    poses: FramePoses | None = None  # --map on a source without poses: tracked from the depth
 
 
 def _job(args: argparse.Namespace) -> _Job:
@@ -355,11 +363,10 @@ def _job(args: argparse.Namespace) -> _Job:
         if not getattr(source, "has_poses", False):
             raise InputError(f"{args.source}: --world-up needs camera poses, and this source has none")
         source = with_overrides(source, None, None, world_down=down_of_up_axis(args.world_up))
+    poses = None
     if args.map is not None and not getattr(source, "has_poses", False):
-        raise InputError(
-            f"{args.source}: --map needs camera poses, and this source has none "
-            '(docs/sources.md "Camera poses": meta.json "pose", TUM groundtruth.txt, 7-Scenes pose.txt)'
-        )
+        poses = FramePoses()  # InputError without OpenCV's 3D module
+        print(f"{PROG}: {args.source}: {TRACKING_NOTE}", file=sys.stderr)
     # With --overlap on one thread prepares frames, so the network gets one fewer (no oversubscription).
     model = load_model(args.model, threads=max(1, args.threads - 1) if args.overlap == "on" else args.threads)
     front_end = args.front_end or ("live" if _is_live(args, source) else "model")
@@ -383,7 +390,7 @@ def _job(args: argparse.Namespace) -> _Job:
     if args.classifier is not None:
         config = replace(config, classifier=Classifier2D.load(args.classifier, threads=args.threads))
     done = completed_frames(Path(args.output)) if args.resume else set()
-    return _Job(source, done, model, config)
+    return _Job(source, done, model, config, poses)
 
 
 @dataclass(frozen=True)
@@ -423,6 +430,8 @@ def main(argv: list[str] | None = None, on_frame: Callable[[FrameReport], None] 
     index: dict[str, int] = {}  # frame name -> its position in the source (the rerun timeline)
     live = NewestFrames(job.source, realtime=args.realtime) if _is_live(args, job.source) else None
     todo = frames_to_do(job.source if live is None else live, job.done, index, args.shard, args.max_frames)
+    if job.poses is not None:
+        todo = with_tracked_poses(todo, job.poses)
     total = None
     if live is None and hasattr(job.source, "__len__"):
         k, n = args.shard
