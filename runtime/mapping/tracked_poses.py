@@ -4,11 +4,11 @@ Why: the object map (a3d.runtime.mapping.object_map) needs each frame's pose, an
 alone gives none. a3d-poses tracks a whole recording first, refines every pose against the model
 of all its frames and levels the world by their mean gravity; a live run cannot wait for the end.
 Here each frame is tracked as it is read, by the same tracker (a3d.runtime.mapping.odometry: depth
-odometry to the model fused so far, image features where the odometry loses the frame), at
-``TRACKING_SIDE`` pixels across, and carries its pose in the first tracked camera's frame; the
-map levels that world by the first mapped frame's gravity. A frame the tracker loses carries no
-pose and a note that says why (the map counts it skipped); one that image features placed says
-so in its note, as a3d-poses does.
+odometry to the model fused so far, image features where the odometry loses the frame), at the
+working size (a3d.runtime.frontend.working_size), and carries its pose in the first tracked
+camera's frame; the map levels that world by the first mapped frame's gravity. A frame the
+tracker loses carries no pose and a note that says why (the map counts it skipped); one that image
+features placed says so in its note, as a3d-poses does.
 """
 
 from __future__ import annotations
@@ -22,26 +22,20 @@ from a3d.runtime.mapping.odometry import DepthTracker, TrackerConfig, check_open
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.structures.frame import Frame
 
-TRACKING_SIDE = 320
-"""Pixels along the longer side a frame is tracked at: a pose does not depend on the image's size,
-and at half the working size the model's raycast and fusion cost half as much for the same path
-(docs/mapping.md "A source without poses": 0.16 s a frame against 0.36 s at 640 across, the path's
-median error 1.3 cm against 1.1 cm, the map as good)."""
-
 
 class FramePoses:
     """Tracks the frames of one camera, in the order they are read (module docstring)."""
 
-    def __init__(self, config: TrackerConfig | None = None, side: int = TRACKING_SIDE) -> None:
+    def __init__(self, config: TrackerConfig | None = None) -> None:
         check_opencv()
-        self.config, self.side = config or TrackerConfig(), side
+        self.config = config or TrackerConfig()
         self.tracker: DepthTracker | None = None
         self._lock = threading.Lock()  # a run may read the next frame on a thread of its own
 
     def track(self, frame: Frame) -> Frame:
         """``frame`` with its tracked ``pose`` (camera to the first tracked camera), or with none
         and a ``pose_note`` saying why."""
-        work = working_frame(frame, self.side).frame
+        work = working_frame(frame).frame
         with self._lock:
             if self.tracker is None:
                 self.tracker = DepthTracker(work.intrinsics, work.depth.shape, self.config)
