@@ -8,11 +8,12 @@ from pathlib import Path
 import numpy as np
 
 from a3d.runtime.cli.run import TRACKING_NOTE, main
+from a3d.runtime.mapping.odometry import DepthTracker, TrackerConfig
 from a3d.runtime.mapping.tracked_poses import FramePoses, with_tracked_poses
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.sources.folder import write_frame
 from a3d.runtime.structures.pose import invert_pose, make_pose
-from tests.helpers.textured_room import INTRINSICS, render
+from tests.helpers.textured_room import INTRINSICS, SIZE, render
 from tests.test_relocalise import POSES, camera, errors
 
 # a hand-held start, a few centimetres and degrees a frame, then the two snapshots that only
@@ -75,3 +76,13 @@ def test_closing_the_tracked_loaders_closes_the_source() -> None:
     next(loaders)
     loaders.close()
     assert closed == [True]
+
+
+def test_a_model_at_half_the_frames_size_tracks_the_same_path() -> None:
+    # frames at 320 x 240, the model, the odometry and the agreement at 160 x 120, features at 320
+    tracker = DepthTracker(INTRINSICS, SIZE, TrackerConfig(model_side=SIZE[1] // 2))
+    for pose in WALK:
+        color, depth = render(pose)
+        tracked = tracker.track(depth, color)
+        centimetres, degrees = errors(tracked.pose, invert_pose(WALK[0]) @ pose)
+        assert centimetres < 3.0 and degrees < 0.5

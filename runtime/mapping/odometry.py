@@ -45,7 +45,11 @@ class TrackerConfig:
     ``refine_step_m`` / ``refine_turn_deg``: the largest correction ``refine`` may make;
     ``features``: the image features that place a frame the odometry lost, and
     ``settle_step_m`` / ``settle_turn_deg`` the largest correction the depth may then make to that
-    place (PnP on a few dozen features can be tens of centimetres off)."""
+    place (PnP on a few dozen features can be tens of centimetres off); ``model_side``: the model,
+    the odometry and the agreement work at this many pixels along the frame's longer side (None:
+    the frame's size, as a smaller frame keeps its own), the image features at the frame's own (a
+    pose does not depend on the image's size; half the size costs the model's raycast a quarter,
+    and image features need the detail: docs/mapping.md "A source without poses")."""
 
     voxel_m: float = 3.0 / 512
     truncate_voxels: float = 7.0
@@ -60,6 +64,7 @@ class TrackerConfig:
     features: FeatureConfig = field(default_factory=FeatureConfig)
     settle_step_m: float = 0.3
     settle_turn_deg: float = 30.0
+    model_side: int | None = None
 
 
 @dataclass(frozen=True)
@@ -91,8 +96,12 @@ class DepthTracker:
     ):
         check_opencv()
         self.intrinsics, self.size, self.config = intrinsics, size, config
-        K = intrinsics.matrix().astype(np.float32)
-        height, width = size
+        longer = max(size)
+        scale = config.model_side / longer if config.model_side and longer > config.model_side else 1.0
+        height, width = (max(1, round(side * scale)) for side in size)
+        self._model_size = (height, width)
+        self._model_K = intrinsics.resized(width / size[1], height / size[0])  # the model's camera
+        K = self._model_K.matrix().astype(np.float32)
         volume = cv2.VolumeSettings(cv2.VolumeType_HashTSDF)
         volume.setCameraIntegrateIntrinsics(K)
         volume.setCameraRaycastIntrinsics(K)
@@ -113,7 +122,7 @@ class DepthTracker:
         self._settling = cv2.Odometry(cv2.OdometryType_DEPTH, settling, cv2.OdometryAlgoType_COMMON)
         self._features = FeatureMap(intrinsics, config.features)
         self._pose: np.ndarray | None = None  # the last tracked frame's
-        self._gray: np.ndarray | None = None  # the last tracked frame's image, seen from that pose
+        self._gray: np.ndarray | None = None  # the last tracked frame's image at the model's size
 
     def track(self, depth: np.ndarray, color: np.ndarray) -> Tracked:
         """Align ``depth`` ((H, W) metres, 0 = missing) to the model and fuse it there; the first
@@ -130,13 +139,14 @@ class DepthTracker:
             if not (depth > 0).any():
                 return Tracked(None, 0.0, "no depth to start the model from")
             return self._fuse(np.eye(4), depth, gray, Tracked(np.eye(4), 1.0))
+        small, small_gray = self._shrunk(depth), self._shrunk(gray)
         points, model_depth = self._model(self._pose)
         Rt = _align(
-            self._odometry, cv2.OdometryFrame(model_depth, self._gray), cv2.OdometryFrame(depth, gray)
+            self._odometry, cv2.OdometryFrame(model_depth, self._gray), cv2.OdometryFrame(small, small_gray)
         )
         tracked = Tracked(None, 0.0, "the odometry found no alignment to the model")
         if Rt is not None:
-            agreement = self.agreement(points, Rt, depth)
+            agreement = self.agreement(points, Rt, small)
             if agreement >= self.config.sure_agreement:
                 pose = self._pose @ np.linalg.inv(Rt)
                 return self._fuse(pose, depth, gray, Tracked(pose, agreement))
@@ -164,12 +174,13 @@ class DepthTracker:
         located = self._features.locate(gray, depth)
         if located is None:
             return Tracked(None, 0.0, "no keyframe's image features place it either")
+        small = self._shrunk(depth)
         best, share, settled = located.poses[0], -1.0, False
         for pose in located.poses:
             points, model_depth = self._model(pose)
-            Rt = _align(self._settling, cv2.OdometryFrame(model_depth), cv2.OdometryFrame(depth))
+            Rt = _align(self._settling, cv2.OdometryFrame(model_depth), cv2.OdometryFrame(small))
             for move in [np.eye(4)] + ([] if Rt is None else [Rt]):
-                agreement = self.agreement(points, move, depth)
+                agreement = self.agreement(points, move, small)
                 if agreement > share:
                     best, share, settled = pose @ np.linalg.inv(move), agreement, move is Rt
         if share < self.config.min_agreement:
@@ -181,8 +192,8 @@ class DepthTracker:
     def _fuse(self, pose: np.ndarray, depth: np.ndarray, gray: np.ndarray, tracked: Tracked) -> Tracked:
         """Take ``pose`` as the frame's: fuse its depth into the model, keep its features where it
         is a keyframe; ``tracked``, with a copy of the pose."""
-        self._pose, self._gray = pose, gray
-        self._volume.integrate(depth, pose.astype(np.float32))
+        self._pose, self._gray = pose, self._shrunk(gray)
+        self._volume.integrate(self._shrunk(np.ascontiguousarray(depth, np.float32)), pose.astype(np.float32))
         self._features.add(gray, depth, pose)
         return replace(tracked, pose=pose.copy())
 
@@ -193,9 +204,16 @@ class DepthTracker:
         frame-to-frame disagreement (docs/mapping.md "Poses from the depth"). None when ICP
         finds no correction within ``refine_step_m`` and ``refine_turn_deg``."""
         _, model_depth = self._model(pose)
-        frame = cv2.OdometryFrame(np.ascontiguousarray(depth, np.float32))
+        frame = cv2.OdometryFrame(self._shrunk(np.ascontiguousarray(depth, np.float32)))
         Rt = _align(self._refining, cv2.OdometryFrame(model_depth), frame)
         return None if Rt is None else np.asarray(pose, np.float64) @ np.linalg.inv(Rt)
+
+    def _shrunk(self, image: np.ndarray) -> np.ndarray:
+        """``image`` (the frame's size) at the model's (nearest neighbour: no depth invented at edges)."""
+        if image.shape[:2] == self._model_size:
+            return image
+        height, width = self._model_size
+        return cv2.resize(image, (width, height), interpolation=cv2.INTER_NEAREST)
 
     def _model(self, pose: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The model raycast from ``pose``: its points (H, W, 3) in that camera, NaN where it holds
@@ -205,10 +223,10 @@ class DepthTracker:
 
     def agreement(self, points: np.ndarray, Rt: np.ndarray, depth: np.ndarray) -> float:
         """The share of the model's points (the last pose's camera) that, moved by ``Rt`` into
-        the frame's camera, land on a pixel whose depth is within ``agree_m`` of theirs, over
-        those that land on a pixel with depth (0 when none does)."""
+        the frame's camera, land on a pixel of ``depth`` (the model's size) whose depth is within
+        ``agree_m`` of theirs, over those that land on a pixel with depth (0 when none does)."""
         moved = transform_points(Rt, points[np.isfinite(points[..., 2])].astype(np.float64))
-        seen = depth_seen_at(moved, depth, self.intrinsics)
+        seen = depth_seen_at(moved, depth, self._model_K)
         both = seen > 0
         if not both.any():
             return 0.0

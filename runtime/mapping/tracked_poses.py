@@ -5,10 +5,10 @@ alone gives none. a3d-poses tracks a whole recording first, refines every pose a
 of all its frames and levels the world by their mean gravity; a live run cannot wait for the end.
 Here each frame is tracked as it is read, by the same tracker (a3d.runtime.mapping.odometry: depth
 odometry to the model fused so far, image features where the odometry loses the frame), at the
-working size (a3d.runtime.frontend.working_size), and carries its pose in the first tracked
-camera's frame; the map levels that world by the first mapped frame's gravity. A frame the
-tracker loses carries no pose and a note that says why (the map counts it skipped); one that image
-features placed says so in its note, as a3d-poses does.
+working size (a3d.runtime.frontend.working_size; its model at ``MODEL_SIDE`` across), and
+carries its pose in the first tracked camera's frame; the map levels that world by the first
+mapped frame's gravity. A frame the tracker loses carries no pose and a note that says why (the
+map counts it skipped); one that image features placed says so in its note, as a3d-poses does.
 """
 
 from __future__ import annotations
@@ -22,13 +22,19 @@ from a3d.runtime.mapping.odometry import DepthTracker, TrackerConfig, check_open
 from a3d.runtime.sources.base import FrameLoader
 from a3d.runtime.structures.frame import Frame
 
+MODEL_SIDE = 320
+"""The tracker's model and odometry at 320 pixels across (``TrackerConfig.model_side``: half a
+640-wide frame), its image features at the frame's own size: a run that tracks as it goes pays
+for every frame, and this halves that for the same path and map (docs/mapping.md "A source
+without poses"; with the features at 320 across too, a real snapshot was lost)."""
+
 
 class FramePoses:
     """Tracks the frames of one camera, in the order they are read (module docstring)."""
 
     def __init__(self, config: TrackerConfig | None = None) -> None:
         check_opencv()
-        self.config = config or TrackerConfig()
+        self.config = config or TrackerConfig(model_side=MODEL_SIDE)
         self.tracker: DepthTracker | None = None
         self._lock = threading.Lock()  # a run may read the next frame on a thread of its own
 
