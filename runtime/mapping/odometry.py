@@ -193,7 +193,7 @@ class DepthTracker:
         """Take ``pose`` as the frame's: fuse its depth into the model, keep its features where it
         is a keyframe; ``tracked``, with a copy of the pose."""
         self._pose, self._gray = pose, self._shrunk(gray)
-        self._volume.integrate(self._shrunk(np.ascontiguousarray(depth, np.float32)), pose.astype(np.float32))
+        self._volume.integrate(self._shrunk(depth), pose.astype(np.float32))  # track() made it float32
         self._features.add(gray, depth, pose)
         return replace(tracked, pose=pose.copy())
 
