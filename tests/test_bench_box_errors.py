@@ -1,0 +1,46 @@
+"""bench.box_errors: which part of a detection's 3D box loses its object."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from a3d.runtime.evaluation.truth import load_truth
+from a3d.runtime.io.detections_io import FrameDetections, write_detections
+from a3d.synth.cli import main as synth_main
+from bench.box_errors import box_errors, main
+
+
+def test_a_box_moved_along_its_ray_is_lost_by_its_place_alone(tmp_path: Path, capsys) -> None:
+    assert synth_main([str(tmp_path / "seq"), "--sequence", "3", "--seed", "3", "--size", "240x320"]) == 0
+    frames = tmp_path / "seq" / "frames"
+    truth, _ = load_truth(frames)
+    lines, shifts_made = [], []
+    for name, frame in truth.items():  # each object detected 3/4 of its width further along the camera's ray
+        R = np.asarray(frame.R_tilt, np.float64)
+        boxes = np.array(frame.boxes3d, np.float64)
+        centres = boxes[:, :3] @ R.T  # tilt frame
+        ray = centres[:, [0, 2]] / np.linalg.norm(centres[:, [0, 2]], axis=1, keepdims=True)
+        shifts = 0.75 * boxes[:, 3:5].min(axis=1)
+        centres[:, [0, 2]] += shifts[:, None] * ray
+        shifts_made.extend(shifts)
+        boxes[:, :3] = centres @ R
+        n = len(boxes)
+        lines.append(FrameDetections(name, R, np.asarray(frame.class_ids), np.full(n, 0.9),
+                                     np.tile([0.0, 0.0, 10.0, 10.0], (n, 1)), boxes))  # fmt: skip
+    write_detections(tmp_path / "moved.jsonl", lines)
+    counts = box_errors(frames, tmp_path / "moved.jsonl")
+    objects = sum(c["objects"] for c in counts.values())
+    assert objects == sum(len(frame.class_ids) for frame in truth.values()) > 0
+    assert sum(c["fixed"]["across the floor"] for c in counts.values()) == objects
+    assert sum(c["found"] for c in counts.values()) < objects  # 3/4 of its width off loses most
+    for c in counts.values():  # the other parts are the truth's already: fixing them finds no more
+        assert c["fixed"]["height"] == c["fixed"]["size"] == c["fixed"]["yaw"] == c["found"]
+        assert len(c["missed"]) == c["objects"] - c["found"]
+    missed = [row for c in counts.values() for row in c["missed"]]
+    assert missed and all(abs(across) < 1e-6 for _, across, _ in missed)
+    assert all(np.abs(np.array(shifts_made) - along).min() < 1e-6 for along, _, _ in missed)  # further: > 0
+    capsys.readouterr()
+    assert main([str(frames), "--detections", str(tmp_path / "moved.jsonl")]) == 0
+    assert "| with the truth's across the floor |" in capsys.readouterr().out
