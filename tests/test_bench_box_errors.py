@@ -6,10 +6,11 @@ from pathlib import Path
 
 import numpy as np
 
+from a3d.runtime.evaluation.metric import FrameTruth
 from a3d.runtime.evaluation.truth import load_truth
 from a3d.runtime.io.detections_io import FrameDetections, write_detections
 from a3d.synth.cli import main as synth_main
-from bench.box_errors import box_errors, main
+from bench.box_errors import box_errors, main, map_as_placed, placed
 
 
 def test_a_box_moved_along_its_ray_is_lost_by_its_place_alone(tmp_path: Path, capsys) -> None:
@@ -41,6 +42,35 @@ def test_a_box_moved_along_its_ray_is_lost_by_its_place_alone(tmp_path: Path, ca
     missed = [row for c in counts.values() for row in c["missed"]]
     assert missed and all(abs(across) < 1e-6 for _, across, _ in missed)
     assert all(np.abs(np.array(shifts_made) - along).min() < 1e-6 for along, _, _ in missed)  # further: > 0
+    written, moved_back = map_as_placed(frames, tmp_path / "moved.jsonl")
+    assert written < 0.5 < 0.9 < moved_back  # (a moved box may stand nearer a neighbour of its class)
     capsys.readouterr()
     assert main([str(frames), "--detections", str(tmp_path / "moved.jsonl")]) == 0
-    assert "| with the truth's across the floor |" in capsys.readouterr().out
+    out = capsys.readouterr().out
+    assert (
+        "| with the truth's across the floor |" in out
+        and f"{100 * moved_back:.1f} with every detection" in out
+    )
+
+
+def test_placed_moves_a_box_across_the_floor_to_its_class_s_nearest_object_within_reach() -> None:
+    pitch = np.radians(20)
+    R = np.array([[1, 0, 0], [0, np.cos(pitch), -np.sin(pitch)], [0, np.sin(pitch), np.cos(pitch)]])
+    chair, table = (
+        np.array([0.5, 0.4, 2.0, 0.6, 0.5, 0.9, 0.3]),
+        np.array([-1.0, 0.5, 3.0, 1.2, 0.8, 0.7, 0.0]),
+    )
+    truth = FrameTruth(np.array([4, 16]), np.stack([chair, table]), R)  # a chair and a table
+    off = chair.copy()  # 0.5 m off across the floor, 5 cm in height
+    off[:3] = R.T @ (R @ chair[:3] + np.array([0.3, 0.05, -0.4]))
+    far = table.copy()
+    far[:3] = R.T @ (R @ table[:3] + np.array([1.5, 0.0, 0.0]))  # beyond the reach
+    sofa = chair.copy()  # of a class no object has
+    line = FrameDetections(
+        "f", R, np.array([4, 16, 15]), np.ones(3), np.zeros((3, 4)), np.stack([off, far, sofa])
+    )
+    moved = placed(truth, line).boxes3d
+    expected = chair.copy()
+    expected[:3] = R.T @ (R @ chair[:3] + np.array([0.0, 0.05, 0.0]))  # its own height kept
+    np.testing.assert_allclose(moved[0], expected, atol=1e-9)
+    np.testing.assert_allclose(moved[1:], np.stack([far, sofa]), atol=1e-9)
