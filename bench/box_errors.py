@@ -70,27 +70,33 @@ def ray_errors(box: np.ndarray, truth: np.ndarray, R_tilt: np.ndarray) -> tuple[
     return float(error[[0, 2]] @ ray), float(error[2] * ray[0] - error[0] * ray[1]), distance
 
 
-def box_errors(frames: Path, detections: Path, min_score: float = 0.05) -> dict[str, dict]:
+def read(frames: Path, detections: Path) -> tuple[dict[str, FrameTruth], dict[str, FrameDetections]]:
+    """FRAMES' ground truth and the detections file's lines of its annotated frames, by frame."""
+    truth, _ = load_truth(frames)
+    return truth, {d.frame: d for d in read_detections(detections) if d.frame in truth}
+
+
+def box_errors(
+    truth: dict[str, FrameTruth], lines: dict[str, FrameDetections], min_score: float = 0.05
+) -> dict[str, dict]:
     """Per class: ``objects``, ``found``, ``fixed`` (part -> count) and ``missed`` (rows of
     ``ray_errors`` for the objects not found that a detection of their class overlaps at all)."""
-    truth, _ = load_truth(frames)
-    lines = {d.frame: d for d in read_detections(detections)}
     out: dict[str, dict] = defaultdict(lambda: {"objects": 0, "found": 0, "fixed": dict.fromkeys(PARTS, 0),
                                                 "missed": []})  # fmt: skip
     for name, frame in truth.items():
         line = lines.get(name)
         R = np.asarray(frame.R_tilt, np.float64)
+        if line is not None:
+            kept = line.scores >= min_score
+            classes, boxes = line.class_ids[kept], retilt_boxes(line.boxes3d[kept], line.R_tilt, R)
         for class_id, gt in zip(frame.class_ids, np.asarray(frame.boxes3d, np.float64), strict=True):
             tally = out[CLASSES[class_id]]
             tally["objects"] += 1
-            if line is None:
+            if line is None or not (classes == class_id).any():
                 continue
-            mine = (line.class_ids == class_id) & (line.scores >= min_score)
-            if not mine.any():
-                continue
-            boxes = retilt_boxes(line.boxes3d[mine], line.R_tilt, R)
-            overlaps = iou_3d(boxes, gt[None], R)[:, 0]
-            box = boxes[int(np.argmax(overlaps))]
+            mine = boxes[classes == class_id]
+            overlaps = iou_3d(mine, gt[None], R)[:, 0]
+            box = mine[int(np.argmax(overlaps))]
             found = overlaps.max() >= IOU
             tally["found"] += bool(found)
             for part in PARTS:
@@ -116,10 +122,8 @@ def placed(truth: FrameTruth, line: FrameDetections) -> FrameDetections:
     return dataclasses.replace(line, R_tilt=R, boxes3d=boxes, corners=None)
 
 
-def map_as_placed(frames: Path, detections: Path) -> tuple[float, float]:
+def map_as_placed(truth: dict[str, FrameTruth], lines: dict[str, FrameDetections]) -> tuple[float, float]:
     """mAP@0.25 over the classes present: the detections as written, and ``placed``."""
-    truth, _ = load_truth(frames)
-    lines = {d.frame: d for d in read_detections(detections) if d.frame in truth}
     config = EvalConfig(iou_thresholds=(IOU,))
     moved = {name: placed(truth[name], line) for name, line in lines.items()}
     written, placed_all = (evaluate(truth, d, config).map_present(IOU) for d in (lines, moved))
@@ -137,7 +141,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--detections", type=Path, required=True, help="a3d-run's detections of those frames")
     p.add_argument("--min-score", type=float, default=0.05)
     args = p.parse_args(argv)
-    counts = box_errors(args.frames, args.detections, args.min_score)
+    truth, lines = read(args.frames, args.detections)
+    counts = box_errors(truth, lines, args.min_score)
     print(f"{args.detections} on {args.frames}, detections scoring >= {args.min_score}: "
           "shares of each class's objects (module docstring)\n")  # fmt: skip
     print("| class | objects | found | " + " | ".join(f"with the truth's {part}" for part in PARTS) + " |")
@@ -153,7 +158,7 @@ def main(argv: list[str] | None = None) -> int:
         if missed:
             along, across, distance = zip(*missed, strict=True)
             print(f"| {name} | {len(missed)} | {_spread(along)} | {_spread(across)} | {_spread(distance)} |")
-    written, moved = map_as_placed(args.frames, args.detections)
+    written, moved = map_as_placed(truth, lines)
     print(
         f"\nmAP@0.25 over the classes present: {100 * written:.1f} as written, {100 * moved:.1f} with "
         f"every detection at the nearest object of its class across the floor (within {PLACE_REACH_M:g} m)"

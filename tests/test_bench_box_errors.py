@@ -10,7 +10,7 @@ from a3d.runtime.evaluation.metric import FrameTruth
 from a3d.runtime.evaluation.truth import load_truth
 from a3d.runtime.io.detections_io import FrameDetections, write_detections
 from a3d.synth.cli import main as synth_main
-from bench.box_errors import box_errors, main, map_as_placed, placed
+from bench.box_errors import box_errors, main, map_as_placed, placed, read
 
 
 def test_a_box_moved_along_its_ray_is_lost_by_its_place_alone(tmp_path: Path, capsys) -> None:
@@ -31,7 +31,8 @@ def test_a_box_moved_along_its_ray_is_lost_by_its_place_alone(tmp_path: Path, ca
         lines.append(FrameDetections(name, R, np.asarray(frame.class_ids), np.full(n, 0.9),
                                      np.tile([0.0, 0.0, 10.0, 10.0], (n, 1)), boxes))  # fmt: skip
     write_detections(tmp_path / "moved.jsonl", lines)
-    counts = box_errors(frames, tmp_path / "moved.jsonl")
+    read_back = read(frames, tmp_path / "moved.jsonl")
+    counts = box_errors(*read_back)
     objects = sum(c["objects"] for c in counts.values())
     assert objects == sum(len(frame.class_ids) for frame in truth.values()) > 0
     assert sum(c["fixed"]["across the floor"] for c in counts.values()) == objects
@@ -42,7 +43,7 @@ def test_a_box_moved_along_its_ray_is_lost_by_its_place_alone(tmp_path: Path, ca
     missed = [row for c in counts.values() for row in c["missed"]]
     assert missed and all(abs(across) < 1e-6 for _, across, _ in missed)
     assert all(np.abs(np.array(shifts_made) - along).min() < 1e-6 for along, _, _ in missed)  # further: > 0
-    written, moved_back = map_as_placed(frames, tmp_path / "moved.jsonl")
+    written, moved_back = map_as_placed(*read_back)
     assert written < 0.5 < 0.9 < moved_back  # (a moved box may stand nearer a neighbour of its class)
     capsys.readouterr()
     assert main([str(frames), "--detections", str(tmp_path / "moved.jsonl")]) == 0
